@@ -1,0 +1,1 @@
+"""Geometric error model, identification and compensation (issue [6/7])."""

@@ -1,0 +1,1 @@
+"""Plant models and the simulated hardware node (issue [2/7])."""

@@ -1,0 +1,6 @@
+"""Errors that cross module boundaries."""
+
+
+class ConfigError(ValueError):
+    """A machine description (or other configuration) that cannot be used; the message is one
+    line naming the file, the key and the problem."""

@@ -1,0 +1,1 @@
+"""Toolpath input, redundancy resolution, feed optimization, interpolation (issue [3/7])."""
