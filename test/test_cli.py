@@ -1,0 +1,72 @@
+"""The machine-ctrl console script, run as a user runs it."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from test_kinematics_micromill import thesis_chain
+from test_kinematics_trt import eq4, eq7
+
+EXE = str(Path(sys.executable).parent / 'machine-ctrl')
+
+
+def run(*args, stdin=''):
+    return subprocess.run([EXE, *args], input=stdin, capture_output=True, text=True, timeout=60)
+
+
+def test_info_json_is_one_object_with_the_machine():
+    result = run('info', '--json')
+    assert result.returncode == 0, result.stderr
+    info = json.loads(result.stdout)
+    assert info['name'] == 'micromill_9axis'
+    assert [a['name'] for a in info['axes']] == ['x_c', 'y_c', 'z_c', 'x_f', 'y_f', 'z_f', 'a_f', 'b_f', 'c_f']
+    axes = {a['name']: a for a in info['axes']}
+    assert axes['x_c']['stroke'] == [-0.05, 0.05] and axes['x_c']['drive'] == 'linear_motor'
+    assert axes['c_f']['stroke'] is None and axes['c_f']['unit'] == 'rad'
+    assert set(axes['y_f']) >= {'velocity', 'acceleration', 'jerk', 'sensor_resolution'}
+    _, tip, axis = thesis_chain(np.zeros(9))
+    np.testing.assert_allclose(info['home']['tool_tip'], tip, atol=1e-15)
+    np.testing.assert_allclose(info['home']['tool_axis'], axis, atol=1e-15)
+
+
+def test_info_text_lists_every_axis_in_order():
+    result = run('info', 'trt_5axis')
+    assert result.returncode == 0, result.stderr
+    rows = [line.split()[0] for line in result.stdout.splitlines()]
+    start = rows.index('axis') + 1
+    assert rows[start:start + 5] == ['x', 'y', 'z', 'a', 'c']
+    assert 'unlimited' in result.stdout and 'home tool tip' in result.stdout
+
+
+def test_fk_prints_one_line_per_configuration_and_reports_bad_lines():
+    good = np.array([[0.0] * 9,
+                     [0.01, -0.02, 0.03, 5e-5, -5e-5, 2e-5, 0.004, -0.003, 0.7],
+                     [-0.04, 0.04, -0.01, -9e-5, 9e-5, -9e-5, -0.008, 0.008, -12.0]])
+    lines = [' '.join(map(repr, good[0].tolist())),
+             '# a comment', '',
+             '1 2 3',                                   # wrong count
+             ' '.join(map(repr, good[1].tolist())),
+             '0 0 0 0 0 0 0 0 x',                       # not a number
+             '0 0 0 0 0 0 0 nan 0',                     # NaN
+             '0 0 0 0 0 0 inf 0 0',                     # inf
+             '\t'.join(map(repr, good[2].tolist()))]
+    result = run('fk', stdin='\n'.join(lines) + '\n')
+    assert result.returncode == 1
+    out = np.array([[float(v) for v in line.split()] for line in result.stdout.splitlines()])
+    assert out.shape == (3, 6)
+    for q, row in zip(good, out):
+        _, tip, axis = thesis_chain(q)
+        np.testing.assert_allclose(row, np.concatenate((tip, axis)), rtol=0, atol=1e-12)
+    errors = result.stderr.splitlines()
+    assert [e.split(':')[0] for e in errors] == ['line 4', 'line 6', 'line 7', 'line 8']
+    assert 'expected 9 values, got 3' in errors[0]
+    assert 'not finite' in errors[2]
+
+
+def test_fk_on_the_trt_machine_exit_0_when_all_lines_are_good():
+    q = [0.01, -0.02, 0.05, 0.3, -2.0]
+    result = run('fk', 'trt_5axis', stdin=' '.join(map(str, q)) + '\n')
+    assert result.returncode == 0, result.stderr
+    row = np.array(result.stdout.split(), float)
+    np.testing.assert_allclose(row, np.concatenate((eq7(q), eq4(q))), rtol=0, atol=1e-12)

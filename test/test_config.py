@@ -1,0 +1,108 @@
+"""Machine descriptions load into typed dataclasses; every bad value stops loading with one
+line naming the file, the key and the problem."""
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from machine_ctrl.config import available_machines, load_machine
+from machine_ctrl.errors import ConfigError
+from machine_ctrl.kinematics import Kinematics
+
+MACHINES = Path(__file__).resolve().parents[1] / 'config' / 'machines'
+
+
+def test_shipped_machines_load(micromill, trt):
+    assert {'micromill_9axis', 'trt_5axis'} <= set(available_machines())
+    assert micromill.axis_names == ('x_c', 'y_c', 'z_c', 'x_f', 'y_f', 'z_f', 'a_f', 'b_f', 'c_f')
+    assert trt.axis_names == ('x', 'y', 'z', 'a', 'c')
+    assert micromill.control_period == 1e-4 and trt.control_period == 1e-3
+    x_c = micromill.axis('x_c')
+    assert x_c.stroke == (-0.05, 0.05) and x_c.kind == 'linear'
+    assert x_c.drive.gain == pytest.approx(45.4)          # K_a K_t, thesis Table 4.3
+    assert micromill.axis('c_f').stroke is None            # unlimited
+    assert micromill.axis('a_f').stroke == pytest.approx((-0.5 * 3.141592653589793 / 180,
+                                                           0.5 * 3.141592653589793 / 180))
+    assert micromill.axis('x_f').stroke == (-100e-6, 100e-6)
+
+
+def edited_machine(tmp_path, yaml_edit=None, urdf_edit=None):
+    for suffix, edit in (('yaml', yaml_edit), ('urdf', urdf_edit)):
+        text = (MACHINES / f'micromill_9axis.{suffix}').read_text()
+        if edit:
+            old, new = edit
+            assert old in text, f'test edit does not apply: {old!r}'
+            text = text.replace(old, new, 1)
+        (tmp_path / f'micromill_9axis.{suffix}').write_text(text)
+    return tmp_path / 'micromill_9axis.yaml'
+
+
+X_C_LIMIT = '<limit lower="-0.050" upper="0.050" velocity="0.15" effort="364"/>'
+
+BAD_CONFIGS = {
+    'missing stroke': (None, (X_C_LIMIT, '<limit velocity="0.15" effort="364"/>'),
+                       r'micromill_9axis\.urdf: joint x_c: <limit lower=\.\.\.> stroke missing'),
+    'inverted stroke': (None, (X_C_LIMIT, X_C_LIMIT.replace('-0.050', '0.07')),
+                        r'joint x_c: stroke lower 0\.07 is not below upper 0\.05'),
+    'negative mass': (('mass: 21.19', 'mass: -21.19'), None,
+                      r'micromill_9axis\.yaml: axes\.x_c\.drive\.mass: must be > 0, got -21\.19'),
+    'unknown axis': (('  x_c:\n', '  x_cc:\n'), None,
+                     r'micromill_9axis\.yaml: axes\.x_cc: unknown axis'),
+    'malformed urdf': (None, ('</robot>', ''), r'micromill_9axis\.urdf: malformed URDF'),
+    'dangling link': (None, ('<child link="rotor"/>', '<child link="rotr"/>'),
+                      r"malformed URDF: joint rotor_mount: child link 'rotr' is not a <link>"),
+    'missing key': (('      jerk: 100.0              # m/s^3, assumed: typical', '      # '), None,
+                    r'axes\.x_c\.limits\.jerk: missing'),
+    'unknown key': (('    sensor_resolution: 40.0e-9 # m, encoder', '    resolution: 1\n    sensor_resolution: 40.0e-9 #'),
+                    None, r'axes\.x_c: unknown key\(s\): resolution'),
+    'not a number': (('control_period: 1.0e-4', 'control_period: fast'), None,
+                     r"control_period: must be a number, got 'fast'"),
+    'velocity mismatch': (('velocity: 0.15           # m/s, assumed: fastest', 'velocity: 0.2 #'), None,
+                          r'axes\.x_c\.limits\.velocity: 0\.2 differs from the URDF joint velocity limit 0\.15'),
+    'unknown drive': (('type: linear_motor', 'type: hydraulic'), None,
+                      r'axes\.x_c\.drive\.type: must be one of .*got .hydraulic.'),
+    'axis missing': (('  c_f:\n', '  c_f_removed:\n'), None, r'axes\.c_f_removed: unknown axis'),
+    'bad yaml': (('name: micromill_9axis', 'name: [unclosed'), None, r'cannot read'),
+}
+
+
+@pytest.mark.parametrize('case', sorted(BAD_CONFIGS))
+def test_bad_config_is_rejected_with_one_line(tmp_path, case):
+    yaml_edit, urdf_edit, message = BAD_CONFIGS[case]
+    path = edited_machine(tmp_path, yaml_edit, urdf_edit)
+    with pytest.raises(ConfigError, match=message) as info:
+        load_machine(path)
+    assert '\n' not in str(info.value)
+
+
+def test_urdf_joint_without_axis_entry_is_rejected(tmp_path):
+    text = (MACHINES / 'micromill_9axis.yaml').read_text()
+    start = text.index('  c_f:\n')
+    path = edited_machine(tmp_path, (text[start:], ''))
+    with pytest.raises(ConfigError, match=r'axes: URDF joint\(s\) without an axis entry: c_f'):
+        load_machine(path)
+
+
+def test_unknown_machine_lists_the_available_ones():
+    with pytest.raises(ConfigError, match=r'nosuch: unknown machine \(available: .*micromill_9axis'):
+        load_machine('nosuch')
+
+
+def test_pinocchio_failure_is_one_line(tmp_path, micromill):
+    bad = tmp_path / 'bad.urdf'
+    bad.write_text('<robot name="r"><link name="a"/><joint name="j" type="prismatic"></joint></robot>')
+    with pytest.raises(ConfigError) as info:
+        Kinematics(bad, micromill.axis_names, 'a', 'a')
+    assert str(bad) in str(info.value) and '\n' not in str(info.value)
+
+
+def test_cli_reports_config_error_in_one_line_and_exit_2(tmp_path):
+    path = edited_machine(tmp_path, ('mass: 21.19', 'mass: -21.19'))
+    result = subprocess.run([sys.executable, '-m', 'machine_ctrl.cli', 'info', str(path)],
+                            capture_output=True, text=True)
+    assert result.returncode == 2
+    assert result.stdout == ''
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and 'axes.x_c.drive.mass: must be > 0' in lines[0]
