@@ -7,11 +7,10 @@ In the workpiece frame (thesis Eqs. 3.4-3.5):
     ^wT_t(q) = (^BT_w)^-1 ^BT_t,   P(q) = tool-tip position,   O(q) = ^wR_t e_z (tool axis)
 
 The analytic Jacobian J = d[P; O]/dq (thesis Eq. 3.13, 6 x n) is composed from Pinocchio's
-frame Jacobians (LOCAL_WORLD_ALIGNED: world-frame linear velocity of the frame origin and
-world angular velocity). With r = p_t - p_w and o = R_t e_z, both in the base frame:
-
-    dP/dq = R_w^T (Jv_t - Jv_w + [r]x Jw_w)        (P = R_w^T r)
-    dO/dq = -R_w^T [o]x (Jw_t - Jw_w)              (O = R_w^T o)
+spatial (WORLD) Jacobians of the two frames: their difference is the twist of the tool
+relative to the workpiece. Seen at the tool tip with workpiece axes (adjoint of the frame
+(R_w, p_t)) its linear part is the velocity of the tip relative to the workpiece, i.e.
+dP/dq, and its angular part omega_rel gives dO/dq = omega_rel x O.
 
 Axis coordinates are plain positions in m and rad for every joint type. A URDF continuous
 joint has two configuration coordinates in Pinocchio (cos, sin); :meth:`pin_configuration`
@@ -27,6 +26,7 @@ of any orientation rate that keeps |O| = 1.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -35,11 +35,7 @@ import pinocchio as pin
 from machine_ctrl.config import MachineConfig
 from machine_ctrl.errors import ConfigError
 
-_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+_WORLD = pin.ReferenceFrame.WORLD
 
 
 class Kinematics:
@@ -57,23 +53,26 @@ class Kinematics:
         self._frame_w = self._frame_id(urdf_path, workpiece_frame)
         self._frame_t = self._frame_id(urdf_path, tool_frame)
 
-        simple_axes, simple_q, circle_axes, circle_q, v_index = [], [], [], [], []
+        # Pinocchio q[k] = extended[gather[k]], extended = [q..., cos c1, sin c1, cos c2, ...]
+        gather, circle_axes, v_index = np.full(self.model.nq, -1), [], []
         for i, name in enumerate(self.axis_names):
             if not self.model.existJointName(name):
                 raise ConfigError(f'{urdf_path}: no joint {name!r}')
             joint = self.model.joints[self.model.getJointId(name)]
             if joint.nv != 1 or joint.nq not in (1, 2):
                 raise ConfigError(f'{urdf_path}: joint {name!r} is not a one-axis joint')
-            (simple_axes, circle_axes)[joint.nq == 2].append(i)
-            (simple_q, circle_q)[joint.nq == 2].append(joint.idx_q)
+            if joint.nq == 1:
+                gather[joint.idx_q] = i
+            else:
+                slot = self.n + 2 * len(circle_axes)
+                gather[joint.idx_q:joint.idx_q + 2] = slot, slot + 1
+                circle_axes.append(i)
             v_index.append(joint.idx_v)
-        if self.model.nv != self.n:
+        if self.model.nv != self.n or (gather < 0).any():
             raise ConfigError(f'{urdf_path}: the model has {self.model.nv} movable joints, '
                               f'the machine {self.n} axes')
-        self._simple_axes, self._simple_q = np.array(simple_axes, int), np.array(simple_q, int)
-        self._circle_axes, self._circle_q = np.array(circle_axes, int), np.array(circle_q, int)
+        self._gather, self._circle_axes = gather, tuple(circle_axes)
         self._v_index = np.array(v_index, int)
-        self._neutral = pin.neutral(self.model)
 
     @classmethod
     def from_config(cls, machine: MachineConfig) -> Kinematics:
@@ -86,16 +85,14 @@ class Kinematics:
 
     def pin_configuration(self, q) -> np.ndarray:
         """Pinocchio configuration vector (length model.nq) for axis positions q (length n)."""
-        q = np.asarray(q, dtype=float)
-        if q.shape != (self.n,):
+        values = np.asarray(q, dtype=float)
+        if values.shape != (self.n,):
             raise ValueError(f'expected {self.n} axis positions ({" ".join(self.axis_names)}), '
-                             f'got shape {q.shape}')
-        out = self._neutral.copy()
-        out[self._simple_q] = q[self._simple_axes]
-        angles = q[self._circle_axes]
-        out[self._circle_q] = np.cos(angles)
-        out[self._circle_q + 1] = np.sin(angles)
-        return out
+                             f'got shape {values.shape}')
+        extended = values.tolist()
+        for i in self._circle_axes:
+            extended += (math.cos(extended[i]), math.sin(extended[i]))
+        return np.array(extended).take(self._gather)
 
     def _placements(self) -> tuple[pin.SE3, pin.SE3]:
         return (pin.updateFramePlacement(self.model, self.data, self._frame_w),
@@ -110,26 +107,22 @@ class Kinematics:
     def forward(self, q) -> tuple[np.ndarray, np.ndarray]:
         """Tool-tip position P (m) and unit tool axis O, in the workpiece frame."""
         pin.forwardKinematics(self.model, self.data, self.pin_configuration(q))
-        return self._position_orientation(*self._placements())
-
-    @staticmethod
-    def _position_orientation(w: pin.SE3, t: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
-        rw_t = w.rotation.T
-        return rw_t @ (t.translation - w.translation), rw_t @ t.rotation[:, 2]
+        w, t = self._placements()
+        pose = w.actInv(t)
+        return pose.translation, pose.rotation[:, 2]
 
     def forward_and_jacobian(self, q) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """P, O and the analytic 6 x n Jacobian d[P; O]/dq (thesis Eq. 3.13)."""
         pin.computeJointJacobians(self.model, self.data, self.pin_configuration(q))
         w, t = self._placements()
-        jw = pin.getFrameJacobian(self.model, self.data, self._frame_w, _LWA)[:, self._v_index]
-        jt = pin.getFrameJacobian(self.model, self.data, self._frame_t, _LWA)[:, self._v_index]
-        rw_t = w.rotation.T
-        r = t.translation - w.translation
-        o = t.rotation[:, 2]
-        jacobian = np.empty((6, self.n))
-        jacobian[:3] = rw_t @ (jt[:3] - jw[:3] + _skew(r) @ jw[3:])
-        jacobian[3:] = -rw_t @ (_skew(o) @ (jt[3:] - jw[3:]))
-        return rw_t @ r, rw_t @ o, jacobian
+        relative = (pin.getFrameJacobian(self.model, self.data, self._frame_t, _WORLD)
+                    - pin.getFrameJacobian(self.model, self.data, self._frame_w, _WORLD))
+        # relative twist seen at the tool tip, in workpiece axes: [dP/dq; omega_rel]
+        jacobian = pin.SE3(w.rotation, t.translation).actionInverse @ relative
+        pose = w.actInv(t)
+        o = pose.rotation[:, 2]
+        jacobian[3:] = pin.skew(-o) @ jacobian[3:]          # dO = omega_rel x O
+        return pose.translation, o, jacobian[:, self._v_index]
 
     def jacobian(self, q) -> np.ndarray:
         return self.forward_and_jacobian(q)[2]
