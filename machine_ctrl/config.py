@@ -11,8 +11,11 @@ recorded next to each value in ``config/machines/*.yaml`` / ``*.urdf``.
 from __future__ import annotations
 
 import math
+import re
 import sys
-from dataclasses import dataclass
+import types
+import typing
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +57,117 @@ class Limits:
     jerk: float
 
 
+def _positive(**kw):
+    return field(metadata={'check': 'positive'}, **kw)
+
+
+def _nonnegative(**kw):
+    return field(metadata={'check': 'nonnegative'}, **kw)
+
+
+@dataclass(frozen=True)
+class FrictionConfig:
+    """Plant friction of a linear-motor axis: LuGre bristle dynamics (thesis Eqs. 4.58,
+    4.62) whose steady state is the asymmetric Stribeck curve of Eq. (4.41), with the
+    magnitude varying sinusoidally along the stroke. Pairs are (positive, negative direction)
+    magnitudes."""
+    static: tuple[float, float]               # N, F_stat
+    coulomb: tuple[float, float]              # N, F_coul
+    omega1: tuple[float, float]               # m/s, Stribeck decay of static friction
+    omega2: tuple[float, float]               # m/s, rise of Coulomb friction
+    sigma0: float = _positive()               # N/m, bristle stiffness
+    sigma1: float = _nonnegative()            # N*s/m, bristle damping
+    variation: float = _nonnegative(default=0.0)            # relative amplitude along the stroke
+    variation_wavelength: float = _positive(default=1.0)    # m
+
+
+@dataclass(frozen=True)
+class ModeConfig:
+    omega: float = _positive()                # rad/s
+    zeta: float = _positive()
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """What hw_sim simulates beyond the drive (rigid body, gain, saturation, quantization)."""
+    friction: FrictionConfig | None = None    # linear motors
+    resonance: ModeConfig | None = None       # flexible table modes (lightly damped poles ...
+    antiresonance: ModeConfig | None = None   # ... and zeros), DC gain 1
+    sensor_noise: float = _nonnegative(default=0.0)   # m or rad, std of additive noise
+    force_noise: float = _nonnegative(default=0.0)    # N or N*m, std of a white actuator
+                                                      # force disturbance held over each period
+
+
+@dataclass(frozen=True)
+class SlidingModeGains:
+    """Thesis Eqs. (4.47)-(4.57)."""
+    bandwidth: float = _positive()            # lambda, 1/s
+    gain: float = _positive()                 # K_s, V*s/m (V*s/rad)
+    adaptation: float = _nonnegative()        # rho, V/m (V/rad)
+    disturbance_bounds: tuple[float, float] = (0.0, 0.0)   # d-, d+ in V
+
+
+@dataclass(frozen=True)
+class LuGreFeedforwardGains:
+    """Thesis Eqs. (4.58)-(4.67) with g(v) = F_c + (F_s - F_c) exp(-|v|/Omega_s)."""
+    sigma0: float = _positive()               # N/m
+    sigma1: float = _nonnegative()            # N*s/m
+    coulomb: float = _nonnegative()           # F_c, N
+    static: float = _nonnegative()            # F_s, N
+    stribeck_velocity: float = _positive()    # Omega_s, m/s
+
+
+@dataclass(frozen=True)
+class PPIGains:
+    """CIRP paper Eq. (13): P position loop cascaded with a PI velocity loop."""
+    position_gain: float = _positive()        # K_p, 1/s
+    velocity_gain: float = _positive()        # K_v, V*s/m
+    velocity_integral_gain: float = _nonnegative()   # K_vi, V/m
+
+
+@dataclass(frozen=True)
+class NotchConfig:
+    """(s^2 + 2 zeta_num omega s + omega^2) / (s^2 + 2 zeta_den omega s + omega^2), Eq. (4.76)."""
+    omega: float = _positive()
+    zeta_num: float = _positive()
+    zeta_den: float = _positive()
+
+
+@dataclass(frozen=True)
+class LeadLagGains:
+    """Thesis Eqs. (4.73)-(4.76): K (1 + alpha T s)/(1 + T s) (1 + K_i/s) N(s)."""
+    gain: float = _positive()                 # K_f, command unit per m (rad)
+    alpha: float = _positive()
+    time_constant: float = _positive()        # T, s
+    integral: float = _nonnegative()          # K_i, rad/s
+    notches: tuple[NotchConfig, ...] = ()
+
+
+CONTROL_LAWS = ('sliding_mode', 'ppi', 'lead_lag')
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    law: str
+    sliding_mode: SlidingModeGains | None = None
+    lugre_feedforward: LuGreFeedforwardGains | None = None   # used with sliding_mode and ppi
+    ppi: PPIGains | None = None
+    lead_lag: LeadLagGains | None = None
+
+
+@dataclass(frozen=True)
+class DualStagePair:
+    coarse: str
+    fine: str
+    sign: float      # fine reference += sign * coarse tracking error (seed-notes.md: z needs -1)
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    seed: int = 0             # seeds every random source of hw_sim
+    substeps: int = 1         # plant integration steps per control period (nonlinear plants)
+
+
 @dataclass(frozen=True)
 class AxisConfig:
     name: str
@@ -63,6 +177,8 @@ class AxisConfig:
     drive: DriveConfig
     sensor_resolution: float
     effort: float                            # actuator peak force/torque from the URDF
+    plant: PlantConfig | None = None         # None: this axis cannot be simulated
+    control: ControlConfig | None = None     # None: no servo law configured
 
     @property
     def unit(self) -> str:
@@ -83,6 +199,8 @@ class MachineConfig:
     tool_frame: str
     axes: tuple[AxisConfig, ...]
     home: tuple[float, ...]
+    dual_stage: tuple[DualStagePair, ...] = ()
+    simulation: SimulationConfig = SimulationConfig()
 
     @property
     def axis_names(self) -> tuple[str, ...]:
@@ -96,6 +214,16 @@ class MachineConfig:
 
 
 _REQUIRED = object()
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML 1.2 floats: PyYAML (YAML 1.1) would read ``9.0e5`` (no exponent sign) as a string."""
+
+
+_Loader.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r'^[-+]?(?:\d[\d_]*\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$|^[-+]?\.(?:inf|Inf|INF)$|^\.(?:nan|NaN|NAN)$'),
+    list('-+0123456789.'))
 
 
 class _Section:
@@ -174,6 +302,57 @@ def _limits(s: _Section) -> Limits:
     return limits
 
 
+def _read(s: _Section, cls):
+    """Read dataclass ``cls`` from section ``s`` by its field names and type hints: floats
+    (checked by the field's metadata), number pairs, nested dataclasses (optional when the
+    default is None) and tuples of dataclasses. Unknown keys are errors."""
+    hints = typing.get_type_hints(cls)
+    values = {f.name: _value(s, f, hints[f.name]) for f in fields(cls)
+              if f.name in s.data or f.default is MISSING}
+    s.finish()
+    return cls(**values)
+
+
+def _value(s: _Section, f, hint):
+    """One field; only called when the key is present or required (then `missing`)."""
+    name = f.name
+    if isinstance(hint, types.UnionType):            # X | None
+        hint = next(h for h in typing.get_args(hint) if h is not type(None))
+    if hint is float:
+        check = f.metadata.get('check')
+        return s.number(name, positive=check == 'positive', nonnegative=check == 'nonnegative')
+    if hint is int:
+        value = s.number(name, nonnegative=True)
+        if value != int(value):
+            s.fail(f'must be a whole number, got {value:g}', name)
+        return int(value)
+    if hint is str:
+        return s.string(name)
+    if is_dataclass(hint):
+        return _read(s.section(name), hint)
+    args = typing.get_args(hint)
+    raw = s._get(name, _REQUIRED)
+    if not isinstance(raw, (list, tuple)):
+        s.fail(f'must be a list, got {raw!r}', name)
+    if args and is_dataclass(args[0]):              # tuple[Dataclass, ...]
+        return tuple(_read(_Section(item, s.file, f'{s.key}.{name}[{i}]'), args[0])
+                     for i, item in enumerate(raw))
+    if len(raw) != 2:                                # tuple[float, float]
+        s.fail(f'must be a pair of numbers, got {raw!r}', name)
+    pair = _Section({'0': raw[0], '1': raw[1]}, s.file, f'{s.key}.{name}')
+    return (pair.number('0', nonnegative=f.name != 'disturbance_bounds'),
+            pair.number('1', nonnegative=f.name != 'disturbance_bounds'))
+
+
+def _control(s: _Section) -> ControlConfig:
+    control = _read(s, ControlConfig)
+    if control.law not in CONTROL_LAWS:
+        s.fail(f'must be one of {", ".join(CONTROL_LAWS)}, got {control.law!r}', 'law')
+    if getattr(control, control.law) is None:
+        s.fail(f'law {control.law} needs its gains section {control.law!r}')
+    return control
+
+
 def _axis(s: _Section, name: str, joint: urdf.Joint) -> AxisConfig:
     limits = _limits(s.section('limits'))
     if not math.isclose(joint.velocity, limits.velocity, rel_tol=1e-9):
@@ -187,7 +366,10 @@ def _axis(s: _Section, name: str, joint: urdf.Joint) -> AxisConfig:
         drive=_drive(s.section('drive')),
         sensor_resolution=s.number('sensor_resolution', positive=True),
         effort=joint.effort,
+        plant=_read(s.section('plant'), PlantConfig) if 'plant' in s.data else None,
+        control=_control(s.section('control')) if 'control' in s.data else None,
     )
+    s._used.update(('plant', 'control'))
     s.finish()
     return axis
 
@@ -196,7 +378,7 @@ def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
     """Load a machine by name (``config/machines/<name>.yaml``) or by YAML path."""
     path = resolve_machine(name_or_path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = yaml.load(path.read_text(), Loader=_Loader)
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f'{path}: cannot read: {_one_line(exc)}') from None
     top = _Section(raw, path, '')
@@ -232,12 +414,41 @@ def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
         home_section = top.section('home')
         home = tuple(home_section.number(a.name, 0.0) for a in axes)
         home_section.finish()
+    dual_stage = _dual_stage(top, axes) if 'dual_stage' in top.data else ()
+    simulation = _read(top.section('simulation'), SimulationConfig) if 'simulation' in top.data \
+        else SimulationConfig()
+    top._used.update(('dual_stage', 'simulation'))
     top.finish()
     for axis, value in zip(axes, home):
         if not axis.in_stroke(value):
             raise ConfigError(f'{path}: home.{axis.name}: {value:g} is outside the stroke {axis.stroke}')
     return MachineConfig(name, description, path, urdf_path, control_period, workpiece_frame,
-                         tool_frame, tuple(axes), home)
+                         tool_frame, tuple(axes), home, dual_stage, simulation)
+
+
+def _dual_stage(top: _Section, axes: list[AxisConfig]) -> tuple[DualStagePair, ...]:
+    raw = top._get('dual_stage', _REQUIRED)
+    if not isinstance(raw, list):
+        top.fail('must be a list of {coarse, fine, sign}', 'dual_stage')
+    by_name = {a.name: a for a in axes}
+    pairs = []
+    for i, item in enumerate(raw):
+        s = _Section(item, top.file, f'dual_stage[{i}]')
+        pair = DualStagePair(s.string('coarse'), s.string('fine'), s.number('sign'))
+        s.finish()
+        for role in ('coarse', 'fine'):
+            axis = by_name.get(getattr(pair, role))
+            if axis is None:
+                s.fail(f'unknown axis {getattr(pair, role)!r}', role)
+        if pair.sign not in (1.0, -1.0):
+            s.fail(f'must be 1 or -1, got {pair.sign:g}', 'sign')
+        if by_name[pair.coarse].kind != by_name[pair.fine].kind:
+            s.fail('coarse and fine axes must be of the same kind')
+        pairs.append(pair)
+    fines = [p.fine for p in pairs]
+    if len(set(fines)) != len(fines):
+        top.fail('a fine axis appears in two pairs', 'dual_stage')
+    return tuple(pairs)
 
 
 def config_dirs() -> list[Path]:

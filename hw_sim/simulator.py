@@ -1,0 +1,96 @@
+"""The simulated machine without ROS: every axis's plant and sensor, stepped one control
+period at a time with one command per axis, plus the fault logic of the hardware.
+
+Faults (the machine stops and stays stopped until :meth:`reset`): a non-finite command, a
+true position outside its stroke after a step, or (raised by the lock-step layer) a
+missing command. "Stopped" means drives disabled and axes held where they are: the state is
+frozen, velocities read zero. Sensor noise is seeded from the machine config
+(simulation.seed), one stream per axis, so a run is reproducible bit for bit.
+"""
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+from hw_sim.plant import Sensor, make_plant
+from machine_ctrl.config import MachineConfig
+
+
+@dataclass(frozen=True)
+class Measurement:
+    step: int
+    position: tuple[float, ...]      # encoder / probe readings, axis order
+    velocity: tuple[float, ...]      # differentiated readings
+    effort: tuple[float, ...]        # commands applied during the previous period
+
+
+class MachineSimulator:
+    def __init__(self, machine: MachineConfig, initial_position=None):
+        self.machine = machine
+        self.initial = tuple(machine.home if initial_position is None else initial_position)
+        if len(self.initial) != len(machine.axes):
+            raise ValueError(f'initial position needs {len(machine.axes)} values')
+        self.reset()
+
+    def reset(self, initial_position=None) -> None:
+        """Fresh plants and sensors at the initial (or given) position, fault cleared."""
+        machine, period = self.machine, self.machine.control_period
+        start = self.initial if initial_position is None else tuple(initial_position)
+        seed = machine.simulation.seed
+        self.plants = [make_plant(a, period, machine.simulation.substeps,
+                                  random.Random(f'{seed}:{a.name}:actuator'), q0)
+                       for a, q0 in zip(machine.axes, start)]
+        self.sensors = [Sensor(a.sensor_resolution, a.plant.sensor_noise, period,
+                               random.Random(f'{seed}:{a.name}'), q0)
+                        for a, q0 in zip(machine.axes, start)]
+        self.step_index = 0
+        self.fault: str | None = None
+        self.applied = (0.0,) * len(self.plants)
+        self._measure()
+
+    def _measure(self) -> None:
+        readings = [s.measure(p.position) for s, p in zip(self.sensors, self.plants)]
+        self.measurement = Measurement(self.step_index, tuple(r[0] for r in readings),
+                                       tuple(r[1] for r in readings), self.applied)
+
+    @property
+    def true_position(self) -> tuple[float, ...]:
+        return tuple(p.position for p in self.plants)
+
+    @property
+    def true_velocity(self) -> tuple[float, ...]:
+        return tuple(p.velocity for p in self.plants)
+
+    def stop(self, reason: str) -> None:
+        if self.fault is None:
+            self.fault = reason
+
+    def step(self, commands) -> Measurement:
+        """Apply one command per axis for one period; return the new measurement."""
+        if self.fault is None:
+            bad = [a.name for a, u in zip(self.machine.axes, commands) if not math.isfinite(u)]
+            if len(commands) != len(self.plants):
+                self.stop(f'{len(commands)} commands for {len(self.plants)} axes')
+            elif bad:
+                self.stop(f'non-finite command for {", ".join(bad)}')
+        if self.fault is None:
+            self.applied = tuple(p.step(u) for p, u in zip(self.plants, commands))
+            self._check_strokes()
+        else:
+            self.applied = (0.0,) * len(self.plants)
+        self.step_index += 1
+        if self.fault is None:
+            self._measure()
+        else:
+            held = self.measurement
+            self.measurement = Measurement(self.step_index, held.position, (0.0,) * len(held.position),
+                                           self.applied)
+        return self.measurement
+
+    def _check_strokes(self) -> None:
+        for axis, plant in zip(self.machine.axes, self.plants):
+            if not axis.in_stroke(plant.position):
+                lo, hi = axis.stroke
+                self.stop(f'stroke violation on {axis.name}: {plant.position:.9g} {axis.unit} '
+                          f'outside [{lo:g}, {hi:g}]')
