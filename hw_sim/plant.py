@@ -32,7 +32,7 @@ from machine_ctrl.lugre import StribeckCurve, bristle_rate
 
 
 def quantize(value: float, step: float) -> float:
-    return step * round(value / step) if step > 0.0 else value
+    return step * math.floor(value / step + 0.5) if step > 0.0 else value
 
 
 class _Actuator:
@@ -114,9 +114,10 @@ class LinearAxis(_Actuator):
         augmented = np.zeros((n + 1, n + 1))
         augmented[:n, :n], augmented[:n, n] = a, bvec
         discrete = expm(augmented * period)               # exact zero-order hold
-        self._a = discrete[:n, :n].tolist()
+        self._a = discrete[:n, :n].ravel().tolist()
         self._b = discrete[:n, n].tolist()
-        self._state = [position] + [0.0] * (n - 1)
+        self._state = (position,) + (0.0,) * (n - 1)
+        self._propagate = self._propagate2 if n == 2 else self._propagate4
 
     @property
     def position(self) -> float:
@@ -126,12 +127,22 @@ class LinearAxis(_Actuator):
     def velocity(self) -> float:
         return self._state[1]
 
+    def _propagate2(self, u: float):
+        x, v = self._state
+        a, b = self._a, self._b
+        return a[0] * x + a[1] * v + b[0] * u, a[2] * x + a[3] * v + b[1] * u
+
+    def _propagate4(self, u: float):
+        x, v, w, dw = self._state
+        a, b = self._a, self._b
+        return (a[0] * x + a[1] * v + a[2] * w + a[3] * dw + b[0] * u,
+                a[4] * x + a[5] * v + a[6] * w + a[7] * dw + b[1] * u,
+                a[8] * x + a[9] * v + a[10] * w + a[11] * dw + b[2] * u,
+                a[12] * x + a[13] * v + a[14] * w + a[15] * dw + b[3] * u)
+
     def step(self, u: float) -> float:
         applied = self.apply(u)
-        effective = applied + self.disturbance()
-        s = self._state
-        self._state = [sum(aij * sj for aij, sj in zip(row, s)) + bi * effective
-                       for row, bi in zip(self._a, self._b)]
+        self._state = self._propagate(applied + self.disturbance())
         return applied
 
 

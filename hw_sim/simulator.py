@@ -28,6 +28,7 @@ class Measurement:
 class MachineSimulator:
     def __init__(self, machine: MachineConfig, initial_position=None):
         self.machine = machine
+        self._strokes = [a.stroke or (-math.inf, math.inf) for a in machine.axes]
         self.initial = tuple(machine.home if initial_position is None else initial_position)
         if len(self.initial) != len(machine.axes):
             raise ValueError(f'initial position needs {len(machine.axes)} values')
@@ -89,8 +90,8 @@ class MachineSimulator:
         return self.measurement
 
     def _check_strokes(self) -> None:
-        for axis, plant in zip(self.machine.axes, self.plants):
-            if not axis.in_stroke(plant.position):
-                lo, hi = axis.stroke
+        for plant, (lo, hi) in zip(self.plants, self._strokes):
+            if not lo <= plant.position <= hi:
+                axis = self.machine.axes[self.plants.index(plant)]
                 self.stop(f'stroke violation on {axis.name}: {plant.position:.9g} {axis.unit} '
                           f'outside [{lo:g}, {hi:g}]')

@@ -14,6 +14,13 @@ Stable outputs (scripts rely on them):
   line is read; the exit status is then 1. Positions outside the strokes are evaluated all
   the same: forward kinematics is geometry, limits are enforced where motion is planned.
 
+* ``machine-ctrl experiment circle|square|frf [MACHINE] [--json]``: the experiments of thesis
+  section 6.3 / Fig. 4.10 on the simulated machine (offline runner); progress on stderr.
+  ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}}`` with mean_x_tracking,
+  mean_y_tracking, mean_contour, max_x_tracking, max_y_tracking, max_contour in um; frf
+  prints ``{"bandwidth_hz": {"x_c": ..., "x_f": ..., "x_dual": ..., ...}, "frequencies_hz":
+  [...], "gain": {...}}``.
+
 MACHINE is a machine name (``config/machines/<name>.yaml``) or a path to such a YAML file;
 the default is micromill_9axis. Configuration errors print one line and exit with 2.
 """
@@ -119,6 +126,64 @@ def cmd_fk(args) -> int:
     return status
 
 
+EXPERIMENT_TITLES = {
+    'circle': 'Circle R = 30 mm at 600 mm/min on x-y (thesis Table 6.1)',
+    'square': 'Square, side 20 mm (assumed), 600 mm/min on x-y (thesis Table 6.2)',
+}
+STAT_LABELS = ('Mean x-axis tracking', 'Mean y-axis tracking', 'Mean contour',
+               'Max x-axis tracking', 'Max y-axis tracking', 'Max contour')
+
+
+def _progress(label: str, done: int, total: int) -> None:
+    print(f'\r{label}: {100 * done // max(total, 1):3d} %', end='' if done < total else '\n',
+          file=sys.stderr, flush=True)
+
+
+def _print_contouring(kind: str, machine: str, result: dict) -> None:
+    from machine_ctrl.experiments import STAT_KEYS, THESIS
+    print(f'{EXPERIMENT_TITLES[kind]}; {machine} simulation; errors in um')
+    print(f'{"":22s} {"SMC sim":>9s} {"thesis":>9s} {"DSFD sim":>9s} {"thesis":>9s}')
+    for key, label in zip(STAT_KEYS, STAT_LABELS):
+        i = STAT_KEYS.index(key)
+        print(f'{label:22s} {result["smc"][key]:9.3f} {THESIS[kind]["smc"][i]:9.3f} '
+              f'{result["dsfd"][key]:9.3f} {THESIS[kind]["dsfd"][i]:9.3f}')
+    for key, label in (('max_contour', 'max contour'), ('max_y_tracking', 'max y tracking')):
+        i = STAT_KEYS.index(key)
+        ours = result['smc'][key] / result['dsfd'][key]
+        theirs = THESIS[kind]['smc'][i] / THESIS[kind]['dsfd'][i]
+        print(f'SMC/DSFD {label}: {ours:.2f}x (thesis {theirs:.2f}x)')
+
+
+def _print_frf(machine: str, result: dict) -> None:
+    names = list(result['gain'])
+    print(f'Closed-loop frequency responses, servo loop alone (thesis Fig. 4.10); {machine} simulation')
+    print('   f/Hz ' + ' '.join(f'{n:>8s}' for n in names) + '   (gain, dB)')
+    for i, f in enumerate(result['frequencies_hz']):
+        print(f'{f:7.1f} ' + ' '.join(f'{20 * math.log10(max(result["gain"][n][i], 1e-12)):8.2f}' for n in names))
+    print('-3 dB bandwidth/Hz ' + ' '.join(
+        f'{n}={"n/a" if b is None else f"{b:.1f}"}' for n, b in result['bandwidth_hz'].items()))
+
+
+def cmd_experiment(args) -> int:
+    from machine_ctrl import experiments
+    machine = load_machine(args.machine)
+    progress = None if args.quiet else _progress
+    if args.name == 'frf':
+        result = experiments.frf(machine, progress=progress)
+        if args.json:
+            print(json.dumps({'bandwidth_hz': result['bandwidth_hz'],
+                              'frequencies_hz': result['frequencies_hz'], 'gain': result['gain']}))
+        else:
+            _print_frf(machine.name, result)
+        return 0
+    result = experiments.contouring(machine, args.name, progress=progress)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        _print_contouring(args.name, machine.name, result)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='machine-ctrl', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -129,6 +194,12 @@ def build_parser() -> argparse.ArgumentParser:
     fk = sub.add_parser('fk', help='forward kinematics of configurations read from stdin')
     fk.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
     fk.set_defaults(run=cmd_fk)
+    experiment = sub.add_parser('experiment', help='thesis experiments on the simulated machine')
+    experiment.add_argument('name', choices=('circle', 'square', 'frf'))
+    experiment.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
+    experiment.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    experiment.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    experiment.set_defaults(run=cmd_experiment)
     return parser
 
 

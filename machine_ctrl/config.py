@@ -29,7 +29,7 @@ DEFAULT_MACHINE = 'micromill_9axis'
 DRIVE_TYPES = {
     # type: what the command u is
     'linear_motor': 'V (amplifier input: force = amplifier_gain * force_constant * u)',
-    'maglev': 'N or N*m (force/torque on the levitated table)',
+    'maglev': 'amplifier command (force/torque = amplifier_gain * u on the levitated table)',
     'servo_voltage': 'V (drive identified normalized to its input: u = mass*acc + damping*vel)',
 }
 

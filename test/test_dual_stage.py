@@ -1,0 +1,28 @@
+import pytest
+
+from machine_ctrl.dual_stage import DualStageCoupling
+
+
+def full(machine, **values):
+    return [values.get(n, 0.0) for n in machine.axis_names]
+
+
+def test_offsets_are_the_coarse_tracking_errors_with_sign(micromill):
+    coupling = DualStageCoupling(micromill)
+    assert coupling.fine_axes == ('x_f', 'y_f', 'z_f')
+    result = coupling.update(full(micromill, x_c=0.010, y_c=-0.02, z_c=0.03),
+                             full(micromill, x_c=0.010 - 3e-6, y_c=-0.02 + 2e-6, z_c=0.03 - 1e-6))
+    assert result.offsets == pytest.approx((3e-6, -2e-6, -1e-6))    # z: -e_c (seed-notes)
+    assert result.saturated == (False, False, False)
+
+
+def test_fine_stroke_is_kept_and_saturation_reported(micromill):
+    coupling = DualStageCoupling(micromill)                          # x_f stroke +-100 um, 5 % margin
+    result = coupling.update(full(micromill, x_c=0.0, x_f=50e-6), full(micromill, x_c=-80e-6))
+    assert result.offsets[0] == pytest.approx(90e-6 - 50e-6)
+    assert result.saturated[0] and coupling.saturation_count == 1
+
+
+def test_disabled_coupling_adds_nothing(micromill):
+    coupling = DualStageCoupling(micromill, enabled=False)
+    assert coupling.update(full(micromill, x_c=1.0), full(micromill)).offsets == (0.0, 0.0, 0.0)
