@@ -13,19 +13,22 @@ import numpy as np
 
 from hw_sim.simulator import MachineSimulator
 from machine_ctrl.config import MachineConfig
-from machine_ctrl.dual_stage import DualStageCoupling
+from machine_ctrl.dual_stage import DualStageCoupling, apply_offsets
 from machine_ctrl.reference import Reference
 from machine_ctrl.servo import ServoGroup
 
 
 @dataclass
 class RunRecord:
-    """Per step k (rows): reference, measured and true positions at step k, the commands
-    computed from them, and the fine-stage offsets."""
+    """Per step k (rows): reference, measured (position, velocity) and true positions at
+    step k, the efforts applied over the period before it (what /joint_states carries), the
+    commands computed at k, and the fine-stage offsets."""
     axis_names: tuple[str, ...]
     period: float
     reference: np.ndarray
     measured: np.ndarray
+    measured_velocity: np.ndarray
+    effort: np.ndarray
     true: np.ndarray
     commands: np.ndarray
     offsets: np.ndarray
@@ -37,14 +40,6 @@ class RunRecord:
         return array[:, self.axis_names.index(axis)]
 
 
-def fine_reference(ref_pos: list[float], fine_index: list[int], offsets) -> list[float]:
-    """The reference the servos see: fine axes get the dual-stage offsets added."""
-    ref = list(ref_pos)
-    for i, offset in zip(fine_index, offsets):
-        ref[i] += offset
-    return ref
-
-
 def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         laws: dict[str, str] | None = None, feedforward: bool = True, steps: int | None = None,
         progress=None) -> RunRecord:
@@ -54,15 +49,17 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     coupling = DualStageCoupling(machine, enabled=dual_stage)
     fine_index = [machine.axis_names.index(a) for a in coupling.fine_axes]
     n = len(machine.axes)
-    rec = {name: np.empty((steps, n)) for name in ('reference', 'measured', 'true', 'commands')}
+    rec = {name: np.empty((steps, n))
+           for name in ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')}
     offsets_log = np.zeros((steps, len(fine_index)))
     for k in range(steps):
         measured = simulator.measurement
         ref_pos, ref_vel, ref_acc = reference.row(k)
         offsets = coupling.update(ref_pos, measured.position).offsets
-        commands = servo.update(fine_reference(ref_pos, fine_index, offsets), ref_vel, ref_acc,
+        commands = servo.update(apply_offsets(ref_pos, fine_index, offsets), ref_vel, ref_acc,
                                 measured.position, measured.velocity)
         rec['reference'][k], rec['measured'][k] = ref_pos, measured.position
+        rec['measured_velocity'][k], rec['effort'][k] = measured.velocity, measured.effort
         rec['true'][k], rec['commands'][k] = simulator.true_position, commands
         offsets_log[k] = offsets
         simulator.step(commands)

@@ -52,7 +52,10 @@ class ChildExited(RuntimeError):
         self.returncode = returncode
         self.tail = list(tail)
         shown = '\n'.join('    ' + line for line in self.tail) or '    (no output)'
-        super().__init__(f'child {name!r} exited with code {returncode}; last output:\n{shown}')
+        how = f'exited with code {returncode}'
+        if returncode < 0:
+            how += f' (killed by {signal.Signals(-returncode).name})'
+        super().__init__(f'child {name!r} {how}; last output:\n{shown}')
 
 
 @dataclass(eq=False)
@@ -242,9 +245,10 @@ class Supervisor:
         return self._stop([self.children[name]], timeout)[name]
 
     def stop_all(self, timeout: float | None = None) -> dict[str, int | None]:
-        """Stop every child, signalling them in reverse start order (consumers before the
-        producers they depend on, as started) but escalating all together, so the whole
-        stop takes at most about 2 * timeout + KILL_TIMEOUT. Returns the exit codes."""
+        """Stop every child: each signal goes to the groups in reverse start order (the
+        last started, usually the one depending on the others, first), and the escalation
+        runs for all of them together, so the whole stop takes at most about
+        2 * timeout + KILL_TIMEOUT. Returns the exit codes by name."""
         atexit.unregister(self.stop_all)
         self._atexit = False
         return self._stop(list(reversed(self.children.values())), timeout)
@@ -255,6 +259,10 @@ class Supervisor:
             child.stopping = True
         _escalate(children, [(signal.SIGINT, wait), (signal.SIGTERM, wait), (signal.SIGKILL, KILL_TIMEOUT)])
         for child in children:
+            try:        # its group is gone, so this reaps at once
+                child.process.wait(KILL_TIMEOUT)
+            except subprocess.TimeoutExpired:
+                pass
             _join_reader(child)
         return {child.name: child.returncode for child in children}
 
@@ -316,10 +324,36 @@ def _live_group_members(pgid: int):
                 stat = f.read()
         except OSError:
             continue
-        # "pid (comm) state ppid pgrp ...": comm may contain spaces and parentheses.
-        fields = stat[stat.rfind(b')') + 2:].split()
-        if len(fields) >= 3 and int(fields[2]) == pgid and fields[0] not in (b'Z', b'X'):
+        state, pgrp = _state_and_pgrp(stat)
+        if pgrp == pgid and (state not in _DEAD or _any_thread_running(entry.name)):
             yield int(entry.name)
+
+
+_DEAD = (b'Z', b'X')
+
+
+def _state_and_pgrp(stat: bytes) -> tuple[bytes, int]:
+    """From /proc/<pid>/stat, "pid (comm) state ppid pgrp ...": comm may hold spaces and
+    parentheses, hence the split after the last ')'."""
+    fields = stat[stat.rfind(b')') + 2:].split()
+    return fields[0], int(fields[2])
+
+
+def _any_thread_running(pid: str) -> bool:
+    """A process whose main thread has exited shows 'Z' while its other threads (DDS
+    threads tearing down, say) still run: it is only gone when every thread is."""
+    try:
+        tids = os.listdir(f'/proc/{pid}/task')
+    except OSError:
+        return False
+    for tid in tids:
+        try:
+            with open(f'/proc/{pid}/task/{tid}/stat', 'rb') as f:
+                if _state_and_pgrp(f.read())[0] not in _DEAD:
+                    return True
+        except OSError:
+            continue
+    return False
 
 
 # ---------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 control step, the unit the servo consumes (streamed to nodes in chunks, stepped offline)."""
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,3 +39,55 @@ class Reference:
     def hold(cls, axis_names, period: float, position, steps: int) -> Reference:
         pos = np.tile(np.asarray(position, float), (steps, 1))
         return cls(tuple(axis_names), period, pos, np.zeros_like(pos), np.zeros_like(pos))
+
+
+class ReferenceBuffer:
+    """Streamed reference rows for some axes, keyed by control step (design.md "Time": the
+    servo buffer a CNC interpolator fills ahead). A chunk replaces whatever the buffer held
+    from its first step on (a re-plan); a chunk that starts after the buffered end leaves
+    the steps between empty. An empty buffer holds the last reference position at rest —
+    or, before any reference arrived, the given fallback (the measured position) — and
+    counts an underrun; it never jumps."""
+
+    def __init__(self, axis_names):
+        self.axis_names = tuple(axis_names)
+        self._rows: deque[tuple[list[float], list[float], list[float]]] = deque()
+        self._first = 0                      # step of _rows[0]
+        self._held: list[float] | None = None
+        self.underruns = 0
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    @property
+    def end_step(self) -> int:
+        """First step not buffered."""
+        return self._first + len(self._rows)
+
+    def has(self, step: int) -> bool:
+        return self._first <= step < self.end_step
+
+    def add(self, first_step: int, positions, velocities, accelerations) -> None:
+        if not self._rows or first_step > self.end_step or first_step < self._first:
+            self._rows.clear()
+            self._first = first_step
+        else:
+            for _ in range(self.end_step - first_step):
+                self._rows.pop()
+        self._rows.extend(zip(positions, velocities, accelerations))
+
+    def take(self, step: int, fallback_position) -> tuple[list[float], list[float], list[float], bool]:
+        """Row of `step` (older rows are dropped) and whether it was an underrun."""
+        while self._rows and self._first < step:
+            self._rows.popleft()
+            self._first += 1
+        if self._rows and self._first == step:
+            position, velocity, acceleration = self._rows.popleft()
+            self._first += 1
+            self._held = position
+            return position, velocity, acceleration, False
+        self.underruns += 1
+        if self._held is None:
+            self._held = list(fallback_position)
+        zeros = [0.0] * len(self.axis_names)
+        return list(self._held), zeros, zeros, True

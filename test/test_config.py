@@ -1,6 +1,5 @@
 """Machine descriptions load into typed dataclasses; every bad value stops loading with one
 line naming the file, the key and the problem."""
-import shutil
 import subprocess
 import sys
 from pathlib import Path

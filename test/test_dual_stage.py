@@ -17,10 +17,18 @@ def test_offsets_are_the_coarse_tracking_errors_with_sign(micromill):
 
 
 def test_fine_stroke_is_kept_and_saturation_reported(micromill):
-    coupling = DualStageCoupling(micromill)                          # x_f stroke +-100 um, 5 % margin
+    coupling = DualStageCoupling(micromill)                          # x_f stroke +-100 um, 10 % margin
     result = coupling.update(full(micromill, x_c=0.0, x_f=50e-6), full(micromill, x_c=-80e-6))
-    assert result.offsets[0] == pytest.approx(90e-6 - 50e-6)
+    assert result.offsets[0] == pytest.approx(80e-6 - 50e-6)
     assert result.saturated[0] and coupling.saturation_count == 1
+
+
+def test_fine_reference_slews_at_the_fine_velocity_limit(micromill):
+    coupling = DualStageCoupling(micromill)
+    coupling.update(full(micromill), full(micromill))
+    result = coupling.update(full(micromill, x_c=50e-6), full(micromill))  # 50 um coarse error at once
+    slew = micromill.axis('x_f').limits.velocity * micromill.control_period   # 2 um per step
+    assert result.offsets[0] == pytest.approx(slew) and result.saturated[0]
 
 
 def test_disabled_coupling_adds_nothing(micromill):

@@ -2,7 +2,6 @@
 import math
 
 import numpy as np
-import pytest
 
 from hw_sim.simulator import MachineSimulator
 from machine_ctrl.offline import run

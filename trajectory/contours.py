@@ -110,3 +110,12 @@ def square(machine: MachineConfig, side=0.020, feed=0.010, ramp_time=0.2, dwell=
     xy, vxy, axy = (np.concatenate(p) for p in parts)
     return (_two_axis_reference(machine, axes, xy, vxy, axy, dwell),
             Contour('polygon', vertices=tuple(corners)))
+
+
+def contour_reference(machine: MachineConfig, contour: str) -> Reference:
+    """The reference of a test contour by name: circle, square, or hold (stay at home)."""
+    if contour == 'hold':
+        return Reference.hold(machine.axis_names, machine.control_period, machine.home, 1)
+    if contour not in ('circle', 'square'):
+        raise ValueError(f'contour must be circle, square or hold, got {contour!r}')
+    return globals()[contour](machine)[0]

@@ -1,0 +1,71 @@
+"""Lock-step bookkeeping of the simulated hardware (design.md "Time"), without ROS.
+
+hw_sim publishes the state of step k and advances to k+1 only when it holds a step-k
+command for every axis. Commands carry the stamp of the state they answer, so a late or
+stale command can never be applied to the wrong step: commands for an earlier step are
+dropped (counted), commands for a later step are refused. A command for an unknown axis,
+or with a length mismatch, is refused with a reason and changes nothing.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class LockStepStats:
+    stale: int = 0          # commands for a step already taken
+    refused: int = 0        # malformed or from the future
+    last_refusal: str = ''
+
+
+@dataclass
+class LockStep:
+    axis_names: tuple[str, ...]
+    step: int = 0
+    stats: LockStepStats = field(default_factory=LockStepStats)
+
+    def __post_init__(self):
+        self._index = {name: i for i, name in enumerate(self.axis_names)}
+        self._commands: dict[int, float] = {}
+
+    def offer(self, step: int, names, values) -> str | None:
+        """Take the commands of one message; returns the refusal reason, or None."""
+        if step < self.step:
+            self.stats.stale += 1
+            return None
+        reason = None
+        if step > self.step:
+            reason = f'command for step {step} while at step {self.step}'
+        elif len(names) != len(values):
+            reason = f'{len(names)} names but {len(values)} commands'
+        elif len(set(names)) != len(names):
+            reason = 'duplicate axis names'
+        else:
+            unknown = [n for n in names if n not in self._index]
+            if unknown:
+                reason = f'unknown axes {", ".join(unknown)}'
+        if reason is not None:
+            self.stats.refused += 1
+            self.stats.last_refusal = reason
+            return reason
+        for name, value in zip(names, values):
+            self._commands[self._index[name]] = float(value)
+        return None
+
+    @property
+    def missing(self) -> list[str]:
+        return [n for i, n in enumerate(self.axis_names) if i not in self._commands]
+
+    def complete(self) -> bool:
+        return len(self._commands) == len(self.axis_names)
+
+    def take(self) -> list[float]:
+        """The step's commands in axis order; moves on to the next step."""
+        commands = [self._commands[i] for i in range(len(self.axis_names))]
+        self._commands.clear()
+        self.step += 1
+        return commands
+
+    def restart(self, step: int = 0) -> None:
+        self._commands.clear()
+        self.step = step

@@ -1,0 +1,202 @@
+"""hw_sim_node: the simulated machine on the ROS graph (design.md "The node graph", "Time").
+
+Publishes /clock (every `clock_decimation` steps), /joint_states (measured positions,
+differentiated velocities, efforts = commands applied over the previous period; stamp =
+sim time of the step), ground truth on /hw_sim/ground_truth/joint_states and
+/hw_sim/ground_truth/tool_pose (true tool tip in the workpiece frame; no controller
+subscribes to them) and /diagnostics (1 Hz wall, and at once on a fault). Subscribes
+/servo_commands (sensor_msgs/JointState: name = axes, effort = commands, stamp = the stamp
+of the state answered). Service /hw_sim/reset (std_srvs/Trigger) clears a fault.
+
+Modes (parameter `mode`):
+* lockstep (default): step k -> k+1 once every axis has its step-k command. While waiting,
+  the current state is re-sent every `republish_period` s (wall) so nodes that joined late
+  still answer; nodes answer a repeated stamp with the command they already computed.
+* paced: steps on the wall clock at `real_time_factor`, applying the latest command of
+  each axis (zero-order hold) and counting missed deadlines (axes without a command for
+  the step being taken) — the contract a driver for real hardware implements.
+
+Faults (machine stopped: drives off, axes held; the node keeps running and reporting): a
+non-finite command, a stroke violation, a command missing for `command_timeout` s (wall,
+lock-step, from step 1 on: at step 0 hw_sim waits for the graph to come up). Malformed
+commands (unknown or duplicate axes, length mismatch, off-grid or future stamps) are refused
+with the reason on /diagnostics and change nothing.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import pinocchio as pin
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from hw_sim.lockstep import LockStep
+from hw_sim.simulator import MachineSimulator
+from machine_ctrl import ros_io
+from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.node_common import declare, machine_parameter, main_for, wall_timer
+
+
+class HwSimNode(Node):
+    def __init__(self, name: str = 'hw_sim', **kwargs):
+        super().__init__(name, **kwargs)
+        self.machine = machine_parameter(self)
+        axes = self.machine.axis_names
+        self.mode = declare(self, 'mode', 'lockstep', 'lockstep | paced')
+        if self.mode not in ('lockstep', 'paced'):
+            self.get_logger().fatal(f"parameter mode: must be lockstep or paced, got {self.mode!r}")
+            raise SystemExit(2)
+        self.real_time_factor = declare(self, 'real_time_factor', 0.1, 'paced mode: sim time / wall time (<= 1)')
+        self.command_timeout = declare(self, 'command_timeout', 2.0, 's (wall) a lock-step command may be late')
+        self.clock_decimation = max(1, declare(self, 'clock_decimation', 10, 'publish /clock every N steps'))
+        self.republish_period = declare(self, 'republish_period', 0.2, 's (wall) between re-sends while waiting')
+        initial = declare(self, 'initial_position', [float(v) for v in self.machine.home],
+                          'axis positions at start, axis order (m, rad)')
+        self.publish_truth = declare(self, 'ground_truth', True, 'publish ground-truth topics')
+
+        self.clock = ros_io.StepClock(self.machine.control_period)
+        self.sim = MachineSimulator(self.machine, initial_position=initial)
+        self.lockstep = LockStep(axes)
+        self.kinematics = Kinematics.from_config(self.machine)
+        self.missed_deadlines = 0
+        self._latest = {}                        # paced mode: last command per axis
+        self._state_sent_at = time.monotonic()
+
+        self.pub_clock = self.create_publisher(Clock, '/clock', 10)
+        self.pub_state = self.create_publisher(JointState, ros_io.TOPIC_JOINT_STATES, ros_io.STEP_QOS)
+        self.pub_true = self.create_publisher(JointState, ros_io.TOPIC_TRUE_JOINT_STATES, ros_io.STEP_QOS)
+        self.pub_pose = self.create_publisher(PoseStamped, ros_io.TOPIC_TRUE_TOOL_POSE, ros_io.STEP_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
+        self.create_subscription(JointState, ros_io.TOPIC_COMMANDS, self.on_command, ros_io.STEP_QOS)
+        self.create_service(Trigger, '/hw_sim/reset', self.on_reset)
+        wall_timer(self, 1.0, self.publish_diagnostics)
+        if self.mode == 'lockstep':
+            wall_timer(self, min(self.republish_period, self.command_timeout / 4), self.on_watchdog)
+        else:
+            wall_timer(self, self.machine.control_period / self.real_time_factor, self.on_paced_tick)
+        self.publish_state()
+        self.get_logger().info(f'ready: {self.machine.name}, {self.mode}, {len(axes)} axes')
+
+    # -- stepping ----------------------------------------------------------------------
+    def on_command(self, msg: JointState) -> None:
+        try:
+            step = self.clock.step(msg.header.stamp)
+        except ros_io.InvalidMessage as exc:
+            self.refuse(str(exc))
+            return
+        values = msg.effort.tolist()
+        if len(values) == len(msg.name) and not ros_io.all_finite(values):
+            bad = [n for n, v in zip(msg.name, values) if not math.isfinite(v)]
+            self.fault(f'non-finite command for {", ".join(bad)}')
+            return
+        if self.mode == 'paced':
+            if step == self.lockstep.step and len(values) == len(msg.name):
+                self._latest.update((n, v) for n, v in zip(msg.name, values) if n in self.lockstep.axis_names)
+            return
+        reason = self.lockstep.offer(step, list(msg.name), values)
+        if reason is not None:
+            self.refuse(reason)
+            return
+        if self.lockstep.complete() and self.sim.fault is None:
+            self.advance(self.lockstep.take())
+
+    def advance(self, commands) -> None:
+        was_ok = self.sim.fault is None
+        self.sim.step(commands)
+        if was_ok and self.sim.fault is not None:
+            self.report_fault()
+        self.publish_state()
+
+    def on_watchdog(self) -> None:
+        waited = time.monotonic() - self._state_sent_at
+        if self.sim.fault is None and self.lockstep.step > 0 and waited > self.command_timeout:
+            self.fault(f'missing command for {", ".join(self.lockstep.missing)} '
+                       f'(no answer to step {self.lockstep.step} within {self.command_timeout:g} s)')
+        elif waited > self.republish_period:
+            self.publish_state()                 # late joiners; idempotent for the nodes
+
+    def on_paced_tick(self) -> None:
+        axes = self.lockstep.axis_names
+        missed = [a for a in axes if a not in self._latest]
+        self.missed_deadlines += len(missed)
+        held = dict(zip(axes, self.sim.applied))
+        commands = [self._latest.get(a, held[a]) for a in axes]
+        self._latest.clear()
+        self.lockstep.restart(self.lockstep.step + 1)
+        self.advance(commands)
+
+    # -- faults and reset ------------------------------------------------------------------
+    def refuse(self, reason: str) -> None:
+        self.get_logger().warning(f'refused command: {reason}', throttle_duration_sec=1.0)
+
+    def fault(self, reason: str) -> None:
+        if self.sim.fault is None:
+            self.sim.stop(reason)
+            self.report_fault()
+            self.publish_state()
+
+    def report_fault(self) -> None:
+        self.get_logger().error(f'FAULT, machine stopped: {self.sim.fault}')
+        self.publish_diagnostics()
+
+    def on_reset(self, request, response):
+        held = self.sim.true_position
+        clipped = [min(max(q, a.stroke[0]), a.stroke[1]) if a.stroke else q
+                   for q, a in zip(held, self.machine.axes)]
+        previous = self.sim.fault
+        self.sim.reset(initial_position=clipped)
+        self.lockstep.restart(self.lockstep.step)
+        response.success = True
+        response.message = f'reset at step {self.lockstep.step}' + (f' (cleared: {previous})' if previous else '')
+        self.publish_state()
+        self.publish_diagnostics()
+        return response
+
+    # -- publishing ---------------------------------------------------------------------
+    def publish_state(self) -> None:
+        step = self.lockstep.step
+        stamp = self.clock.stamp(step)
+        m = self.sim.measurement
+        axes = self.machine.axis_names
+        self.pub_state.publish(ros_io.joint_state(stamp, axes, m.position, m.velocity, m.effort))
+        if step % self.clock_decimation == 0:
+            self.pub_clock.publish(Clock(clock=stamp))
+        if self.publish_truth:
+            self.pub_true.publish(ros_io.joint_state(stamp, axes, self.sim.true_position, self.sim.true_velocity))
+            self.pub_pose.publish(self.tool_pose(stamp))
+        self._state_sent_at = time.monotonic()
+
+    def tool_pose(self, stamp) -> PoseStamped:
+        pose = self.kinematics.tool_pose(self.sim.true_position)
+        msg = PoseStamped()
+        msg.header.stamp = stamp
+        msg.header.frame_id = self.machine.workpiece_frame
+        p = msg.pose.position
+        p.x, p.y, p.z = (float(v) for v in pose[:3, 3])
+        q = pin.Quaternion(pose[:3, :3])
+        o = msg.pose.orientation
+        o.x, o.y, o.z, o.w = float(q.x), float(q.y), float(q.z), float(q.w)
+        return msg
+
+    def publish_diagnostics(self) -> None:
+        fault = self.sim.fault
+        level = DiagnosticStatus.ERROR if fault else DiagnosticStatus.OK
+        stats = self.lockstep.stats
+        values = {'step': self.lockstep.step, 'mode': self.mode, 'fault': fault or '',
+                  'waiting_for': ' '.join(self.lockstep.missing) if self.mode == 'lockstep' else '',
+                  'stale_commands': stats.stale, 'refused_commands': stats.refused,
+                  'last_refusal': stats.last_refusal, 'missed_deadlines': self.missed_deadlines}
+        message = f'FAULT: {fault}' if fault else f'running, step {self.lockstep.step}'
+        self.pub_diag.publish(ros_io.diagnostics(self.clock.stamp(self.lockstep.step), 'hw_sim', level,
+                                                 message, values))
+
+
+main = main_for(HwSimNode)
+
+if __name__ == '__main__':
+    raise SystemExit(main())

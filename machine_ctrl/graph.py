@@ -1,0 +1,99 @@
+"""The node graph of a machine (design.md "The node graph") as data, startable with every
+node in its own process or all in one process (one executor). Used by the graph tests and
+benchmarks; `machine-ctrl bringup` ([7/7]) builds on it.
+
+Default layout for a machine with dual-stage pairs: hw_sim, one servo node per stage
+(fine stage: every axis with the drive type of the pairs' fine axes — the whole maglev
+table; coarse stage: the other controlled axes), dual_stage, and the reference source.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+
+import rclpy
+from rclpy.parameter import Parameter
+
+from machine_ctrl.config import MachineConfig
+from trajectory.contours import contour_reference
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    name: str
+    module: str                       # python -m <module>
+    cls: str                          # class in that module
+    parameters: dict = field(default_factory=dict)
+
+    def argv(self) -> list[str]:
+        """Command line of this node as its own process."""
+        args = [sys.executable, '-m', self.module, '--ros-args', '-r', f'__node:={self.name}']
+        for key, value in self.parameters.items():
+            args += ['-p', f'{key}:={_param_text(value)}']
+        return args
+
+    def create(self):
+        """The node, in this process (rclpy must be initialized)."""
+        module = __import__(self.module, fromlist=[self.cls])
+        overrides = [Parameter(k, value=v) for k, v in self.parameters.items()]
+        return getattr(module, self.cls)(name=self.name, parameter_overrides=overrides)
+
+
+def _param_text(value) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ','.join(_param_text(v) for v in value) + ']'
+    return str(value)
+
+
+def default_graph(machine: MachineConfig, contour: str = 'circle', dual_stage: bool = True,
+                  hw_sim: dict | None = None) -> list[NodeSpec]:
+    fine_types = {machine.axis(p.fine).drive.type for p in machine.dual_stage}
+    controlled = [a for a in machine.axes if a.control is not None]
+    fine = [a.name for a in controlled if a.drive.type in fine_types]
+    coarse = [a.name for a in controlled if a.drive.type not in fine_types]
+    common = {'machine': str(machine.yaml_path)}
+    # until [3/7] plans an approach move, the machine starts where the contour starts
+    start = [float(v) for v in contour_reference(machine, contour).position[0]]
+    hw = {**common, 'initial_position': start, **(hw_sim or {})}
+    specs = [NodeSpec('hw_sim', 'hw_sim.node', 'HwSimNode', hw),
+             NodeSpec('servo_coarse', 'machine_ctrl.servo_node', 'ServoNode', {**common, 'axes': coarse})]
+    if fine:
+        specs.append(NodeSpec('servo_fine', 'machine_ctrl.servo_node', 'ServoNode', {**common, 'axes': fine}))
+        specs.append(NodeSpec('dual_stage', 'machine_ctrl.dual_stage_node', 'DualStageNode',
+                              {**common, 'enabled': dual_stage}))
+    specs.append(NodeSpec('reference', 'machine_ctrl.reference_node', 'ReferenceNode', {**common, 'contour': contour}))
+    return specs
+
+
+def create_nodes(specs: list[NodeSpec]) -> list:
+    if not rclpy.ok():
+        raise RuntimeError('rclpy is not initialized')
+    return [spec.create() for spec in specs]
+
+
+def main(argv=None) -> int:
+    """All nodes of the default graph in this one process: python -m machine_ctrl.graph."""
+    import argparse
+
+    from machine_ctrl.config import DEFAULT_MACHINE, load_machine
+    from machine_ctrl.node_common import spin
+
+    parser = argparse.ArgumentParser(prog='python -m machine_ctrl.graph', description=main.__doc__)
+    parser.add_argument('--machine', default=DEFAULT_MACHINE)
+    parser.add_argument('--contour', default='circle')
+    parser.add_argument('--no-dual-stage', action='store_true')
+    parser.add_argument('--hw-sim', action='append', default=[], metavar='KEY=VALUE',
+                        help='hw_sim parameter (value as YAML)')
+    args = parser.parse_args(argv)
+    import yaml
+    hw = {k: yaml.safe_load(v) for k, v in (item.split('=', 1) for item in args.hw_sim)}
+    specs = default_graph(load_machine(args.machine), args.contour, not args.no_dual_stage, hw)
+    rclpy.init()
+    spin(create_nodes(specs))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,160 @@
+"""Message conversion and validation shared by the nodes (the ROS edge of the functional
+core). Every parser raises :class:`InvalidMessage` with a one-line reason; nodes catch it,
+report it on /diagnostics and keep running.
+
+Time: control step k of a machine with period T happens at sim time t_k = k*T, carried in
+stamps as integer nanoseconds (T is a whole number of nanoseconds), so step <-> stamp is
+exact in both directions.
+"""
+from __future__ import annotations
+
+import math
+
+from builtin_interfaces.msg import Duration, Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+# Per-step traffic must never be dropped silently: reliable, and deep enough for bursts.
+STEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+# References are streamed ahead in chunks; a node that joins late still gets the last
+# chunks (transient local), so no step's reference depends on discovery timing.
+REFERENCE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+TOPIC_JOINT_STATES = '/joint_states'
+TOPIC_COMMANDS = '/servo_commands'
+TOPIC_REFERENCE = '/reference'
+TOPIC_OFFSETS = '/dual_stage/offsets'
+TOPIC_TRUE_JOINT_STATES = '/hw_sim/ground_truth/joint_states'
+TOPIC_TRUE_TOOL_POSE = '/hw_sim/ground_truth/tool_pose'
+TOPIC_DIAGNOSTICS = '/diagnostics'
+
+
+class InvalidMessage(ValueError):
+    """A message another node sent that we refuse; the text is the reason."""
+
+
+class StepClock:
+    def __init__(self, period: float):
+        self.period_ns = int(round(period * 1e9))
+        if self.period_ns <= 0 or abs(self.period_ns - period * 1e9) > 1e-6:
+            raise ValueError(f'control period {period!r} s is not a whole number of nanoseconds')
+
+    def stamp(self, step: int) -> Time:
+        ns = step * self.period_ns
+        return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+    def step(self, stamp: Time) -> int:
+        ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        step, rest = divmod(ns, self.period_ns)
+        if rest:
+            raise InvalidMessage(f'stamp {ns} ns is not on the {self.period_ns} ns control grid')
+        return step
+
+    def duration(self, steps: int) -> Duration:
+        ns = steps * self.period_ns
+        return Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def all_finite(values) -> bool:
+    """True if no value is NaN or inf: one C-level sum, through which NaN and inf propagate
+    (inf - inf raises; a sum beyond the float range, impossible for real values, counts as
+    not finite)."""
+    try:
+        return math.isfinite(math.fsum(values))
+    except (ValueError, OverflowError):
+        return False
+
+
+def _finite(values, what: str) -> list[float]:
+    values = [float(v) for v in values]
+    if not all_finite(values):
+        raise InvalidMessage(f'{what} holds NaN or inf')
+    return values
+
+
+def joint_state(stamp: Time, names, position=(), velocity=(), effort=()) -> JointState:
+    msg = JointState()
+    msg.header.stamp = stamp
+    msg.name = list(names)
+    msg.position, msg.velocity, msg.effort = list(position), list(velocity), list(effort)
+    return msg
+
+
+def select(msg: JointState, field: str, wanted, allow_nonfinite: bool = False) -> list[float]:
+    """Values of `field` for the `wanted` axes, in wanted order; every wanted axis must be
+    present exactly once and the field as long as the names."""
+    values = getattr(msg, field)
+    names = list(msg.name)
+    if len(values) != len(names):
+        raise InvalidMessage(f'{len(names)} names but {len(values)} {field} values')
+    if names == list(wanted):                        # the usual case: same order
+        picked = values.tolist()
+        if allow_nonfinite or all_finite(picked):
+            return picked
+        raise InvalidMessage(f'{field} holds NaN or inf')
+    if len(set(names)) != len(names):
+        raise InvalidMessage('duplicate joint names')
+    index = {n: i for i, n in enumerate(names)}
+    missing = [w for w in wanted if w not in index]
+    if missing:
+        raise InvalidMessage(f'missing joints {", ".join(missing)}')
+    picked = [float(values[index[w]]) for w in wanted]
+    return picked if allow_nonfinite else _finite(picked, field)
+
+
+def trajectory_chunk(clock: StepClock, first_step: int, names, positions, velocities, accelerations) -> JointTrajectory:
+    """Reference rows first_step, first_step+1, ... as a JointTrajectory on the control grid."""
+    msg = JointTrajectory()
+    msg.header.stamp = clock.stamp(first_step)
+    msg.joint_names = list(names)
+    for i, (p, v, a) in enumerate(zip(positions, velocities, accelerations)):
+        point = JointTrajectoryPoint()
+        point.positions, point.velocities, point.accelerations = list(p), list(v), list(a)
+        point.time_from_start = clock.duration(i)
+        msg.points.append(point)
+    return msg
+
+
+def parse_chunk(clock: StepClock, msg: JointTrajectory, wanted):
+    """(first_step, positions, velocities, accelerations) for the `wanted` axes. Points must
+    be consecutive control steps; velocities/accelerations may be empty (taken as zero)."""
+    names = list(msg.joint_names)
+    if len(set(names)) != len(names):
+        raise InvalidMessage('duplicate joint names')
+    index = {n: i for i, n in enumerate(names)}
+    missing = [w for w in wanted if w not in index]
+    if missing:
+        raise InvalidMessage(f'reference lacks joints {", ".join(missing)}')
+    if not msg.points:
+        raise InvalidMessage('reference chunk has no points')
+    first = clock.step(msg.header.stamp)
+    columns = [index[w] for w in wanted]
+    zeros = [0.0] * len(names)
+    positions, velocities, accelerations = [], [], []
+    for i, point in enumerate(msg.points):
+        offset = point.time_from_start.sec * 1_000_000_000 + point.time_from_start.nanosec
+        if offset != i * clock.period_ns:
+            raise InvalidMessage(f'point {i} is not at consecutive control step {i}')
+        rows = []
+        for field in ('positions', 'velocities', 'accelerations'):
+            values = list(getattr(point, field)) or (zeros if field != 'positions' else [])
+            if len(values) != len(names):
+                raise InvalidMessage(f'point {i}: {len(values)} {field} for {len(names)} joints')
+            rows.append(_finite([values[c] for c in columns], f'point {i} {field}'))
+        positions.append(rows[0])
+        velocities.append(rows[1])
+        accelerations.append(rows[2])
+    return first, positions, velocities, accelerations
+
+
+def diagnostics(stamp: Time, name: str, level: bytes, message: str, values: dict) -> DiagnosticArray:
+    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id='machine_ctrl')
+    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
+    array = DiagnosticArray()
+    array.header.stamp = stamp
+    array.status = [status]
+    return array

@@ -1,0 +1,123 @@
+"""servo_node: the servo laws of any subset of axes (parameter `axes`: one node per axis,
+one per stage, or all), answering every /joint_states step with /servo_commands.
+
+Inputs per step k: the state (/joint_states), the reference row k of its axes (streamed
+ahead in chunks on /reference, trajectory_msgs/JointTrajectory on the control grid) and,
+for fine axes of a dual-stage pair, the offsets of step k (/dual_stage/offsets). The node
+waits for a missing input up to `input_timeout` s (wall) — so a lock-step run does not
+depend on message timing — and then goes on without it: no reference row = hold the last
+reference position at rest (underrun, counted and reported); no offsets = zero offsets.
+A repeated state stamp (hw_sim re-sends while waiting) is answered with the command already
+computed, so no controller state is ever advanced twice.
+"""
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from machine_ctrl import ros_io
+from machine_ctrl.dual_stage import apply_offsets
+from machine_ctrl.node_common import (Rejections, StepResponder, declare, machine_parameter, main_for,
+                                      use_sim_time, wall_timer)
+from machine_ctrl.reference import ReferenceBuffer
+from machine_ctrl.servo import ServoGroup
+
+
+class ServoNode(Node):
+    def __init__(self, name: str = 'servo', **kwargs):
+        super().__init__(name, **kwargs)
+        use_sim_time(self)
+        self.machine = machine_parameter(self)
+        controlled = [a.name for a in self.machine.axes if a.control is not None]
+        axes = declare(self, 'axes', controlled, 'axes this node controls (machine axis names)')
+        self.feedforward = declare(self, 'feedforward', True, 'velocity/acceleration/friction feed-forward')
+        self.input_timeout = declare(self, 'input_timeout', 0.5, 's (wall) to wait for a reference row or offsets')
+        try:
+            self.servo = ServoGroup(self.machine, axes, feedforward=self.feedforward)
+        except ValueError as exc:
+            self.get_logger().fatal(f'parameter axes: {exc}')
+            raise SystemExit(2) from None
+        self.axes = self.servo.axis_names
+        fine = {p.fine for p in self.machine.dual_stage}
+        self.fine_slots = [i for i, a in enumerate(self.axes) if a in fine]
+        self.fine_names = [self.axes[i] for i in self.fine_slots]
+        coupled = declare(self, 'dual_stage', bool(self.fine_slots), 'wait for /dual_stage/offsets')
+        self.wait_for_offsets = coupled and bool(self.fine_slots)
+
+        self.clock = ros_io.StepClock(self.machine.control_period)
+        self.buffer = ReferenceBuffer(self.axes)
+        self.offsets: dict[int, list[float]] = {}
+        self.missing_offsets = 0
+        self.rejections = Rejections(self)
+
+        self.pub = self.create_publisher(JointState, ros_io.TOPIC_COMMANDS, ros_io.STEP_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
+        self.responder = StepResponder(self, self.pub, self.ready, self.compute, self.input_timeout)
+        self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
+        self.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, ros_io.REFERENCE_QOS)
+        if self.wait_for_offsets:
+            self.create_subscription(JointState, ros_io.TOPIC_OFFSETS, self.on_offsets, ros_io.STEP_QOS)
+        wall_timer(self, 1.0, self.publish_diagnostics)
+        self.get_logger().info(f'ready: axes {" ".join(self.axes)}')
+
+    def on_reference(self, msg: JointTrajectory) -> None:
+        try:
+            self.buffer.add(*ros_io.parse_chunk(self.clock, msg, self.axes))
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('reference', str(exc))
+            return
+        self.responder.poke()
+
+    def on_offsets(self, msg: JointState) -> None:
+        try:
+            self.offsets[self.clock.step(msg.header.stamp)] = ros_io.select(msg, 'position', self.fine_names)
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('offsets', str(exc))
+            return
+        self.responder.poke()
+
+    def on_state(self, msg: JointState) -> None:
+        try:
+            self.responder.on_state(self.clock.step(msg.header.stamp), msg)
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('state', str(exc))
+
+    def ready(self, step: int) -> bool:
+        return self.buffer.has(step) and (not self.wait_for_offsets or step in self.offsets)
+
+    def compute(self, step: int, msg: JointState) -> JointState | None:
+        try:
+            position = ros_io.select(msg, 'position', self.axes)
+            velocity = ros_io.select(msg, 'velocity', self.axes)
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('state', str(exc))
+            return None
+        ref_pos, ref_vel, ref_acc, _ = self.buffer.take(step, position)
+        offsets = self.offsets.pop(step, None)
+        for old in [s for s in self.offsets if s < step]:
+            del self.offsets[old]
+        if offsets is not None:
+            ref_pos = apply_offsets(ref_pos, self.fine_slots, offsets)
+        elif self.wait_for_offsets:
+            self.missing_offsets += 1
+        commands = self.servo.update(ref_pos, ref_vel, ref_acc, position, velocity)
+        return ros_io.joint_state(msg.header.stamp, self.axes, effort=commands)
+
+    def publish_diagnostics(self) -> None:
+        problems = self.buffer.underruns or self.missing_offsets or self.rejections.count
+        step = self.responder.answered_step
+        values = {'axes': ' '.join(self.axes), 'answered_step': step,
+                  'reference_underruns': self.buffer.underruns, 'buffered_steps': len(self.buffer),
+                  'missing_offsets': self.missing_offsets, 'rejected_messages': self.rejections.count,
+                  'last_rejection': self.rejections.last}
+        self.pub_diag.publish(ros_io.diagnostics(
+            self.clock.stamp(step), self.get_name(), DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
+            'reference underrun' if self.buffer.underruns else 'ok', values))
+
+
+main = main_for(ServoNode)
+
+if __name__ == '__main__':
+    raise SystemExit(main())

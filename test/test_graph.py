@@ -1,0 +1,97 @@
+"""The lock-step node graph over real DDS: hw_sim, servo nodes, dual_stage and the
+reference source, as separate processes and all in one process, against the offline
+runner (design.md "Time": same config, same input -> bit-identical states)."""
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from machine_ctrl.graph import default_graph
+from machine_ctrl.offline import run
+from trajectory.contours import circle
+
+STEPS = 2000
+
+
+class StateRecorder:
+    """Collects /joint_states by step in a background executor thread."""
+
+    def __init__(self, node):
+        from rclpy.executors import SingleThreadedExecutor
+        from sensor_msgs.msg import JointState
+
+        from machine_ctrl import ros_io
+        self.clock = None
+        self.rows = {}
+        node.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
+        self.executor = SingleThreadedExecutor(context=node.context)
+        self.executor.add_node(node)
+        self.thread = threading.Thread(target=self.spin, daemon=True)
+        self.running = True
+        self.thread.start()
+
+    def spin(self):
+        while self.running:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def on_state(self, msg):
+        ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.rows[ns // 100_000] = (msg.position.tolist(), msg.velocity.tolist(), msg.effort.tolist())
+
+    def wait_for(self, steps, timeout, supervisor):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if sum(1 for k in list(self.rows) if k < steps) == steps:   # list(): the spin thread adds
+                return
+            supervisor.check()
+            time.sleep(0.1)
+        raise AssertionError(f'got {len(self.rows)} states, last step {max(list(self.rows), default=None)}')
+
+    def stop(self):
+        self.running = False
+        self.thread.join(timeout=2)
+        self.executor.shutdown()
+
+    def arrays(self, steps):
+        rows = [self.rows[k] for k in range(steps)]
+        return tuple(np.array([r[i] for r in rows]) for i in range(3))
+
+
+@pytest.fixture(scope='module')
+def offline(micromill):
+    reference, _ = circle(micromill)
+    return run(micromill, reference, steps=STEPS)
+
+
+def record_graph(micromill, ros_node, ros_supervisor, single_process):
+    recorder = StateRecorder(ros_node('recorder'))
+    try:
+        if single_process:
+            ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.graph',
+                                           '--machine', str(micromill.yaml_path)])
+        else:
+            for spec in default_graph(micromill):
+                ros_supervisor.start(spec.name, spec.argv())
+        recorder.wait_for(STEPS, timeout=120, supervisor=ros_supervisor)
+    finally:
+        ros_supervisor.stop_all()
+        recorder.stop()
+    return recorder.arrays(STEPS)
+
+
+def assert_bit_identical(graph, offline):
+    position, velocity, effort = graph
+    assert np.array_equal(position, offline.measured)
+    assert np.array_equal(velocity, offline.measured_velocity)
+    assert np.array_equal(effort, offline.effort)
+    assert np.ptp(position[:, 0]) > 1e-4          # the circle did move the machine
+
+
+def test_multi_process_graph_equals_offline_runner(micromill, offline, ros_node, ros_supervisor):
+    assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=False), offline)
+
+
+def test_single_process_graph_equals_offline_runner(micromill, offline, ros_node, ros_supervisor):
+    assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=True), offline)
