@@ -16,6 +16,10 @@ PACKAGE = 'machine_ctrl'
 # test/test_install_layout.py).
 EXECUTABLES = {
     'machine-ctrl': 'machine_ctrl.cli:main',
+    'hw_sim_node': 'hw_sim.node:main',
+    'servo_node': 'machine_ctrl.servo_node:main',
+    'dual_stage_node': 'machine_ctrl.dual_stage_node:main',
+    'reference_node': 'machine_ctrl.reference_node:main',
 }
 
 

@@ -2,7 +2,8 @@
 
 Publishes /clock (every `clock_decimation` steps), /joint_states (measured positions,
 differentiated velocities, efforts = commands applied over the previous period; stamp =
-sim time of the step), ground truth on /hw_sim/ground_truth/joint_states and
+sim time of the step), ground truth every `ground_truth_decimation` steps (default 10:
+1 kHz on the micromill) on /hw_sim/ground_truth/joint_states and
 /hw_sim/ground_truth/tool_pose (true tool tip in the workpiece frame; no controller
 subscribes to them) and /diagnostics (1 Hz wall, and at once on a fault). Subscribes
 /servo_commands (sensor_msgs/JointState: name = axes, effort = commands, stamp = the stamp
@@ -57,7 +58,8 @@ class HwSimNode(Node):
         self.republish_period = declare(self, 'republish_period', 0.2, 's (wall) between re-sends while waiting')
         initial = declare(self, 'initial_position', [float(v) for v in self.machine.home],
                           'axis positions at start, axis order (m, rad)')
-        self.publish_truth = declare(self, 'ground_truth', True, 'publish ground-truth topics')
+        self.truth_decimation = declare(self, 'ground_truth_decimation', 10,
+                                        'publish ground truth every N steps (0: never)')
 
         self.clock = ros_io.StepClock(self.machine.control_period)
         self.sim = MachineSimulator(self.machine, initial_position=initial)
@@ -65,7 +67,7 @@ class HwSimNode(Node):
         self.kinematics = Kinematics.from_config(self.machine)
         self.missed_deadlines = 0
         self._latest = {}                        # paced mode: last command per axis
-        self._state_sent_at = time.monotonic()
+        self._state_sent_at = self._step_started_at = time.monotonic()
 
         self.pub_clock = self.create_publisher(Clock, '/clock', 10)
         self.pub_state = self.create_publisher(JointState, ros_io.TOPIC_JOINT_STATES, ros_io.STEP_QOS)
@@ -113,12 +115,13 @@ class HwSimNode(Node):
         self.publish_state()
 
     def on_watchdog(self) -> None:
-        waited = time.monotonic() - self._state_sent_at
-        if self.sim.fault is None and self.lockstep.step > 0 and waited > self.command_timeout:
-            self.fault(f'missing command for {", ".join(self.lockstep.missing)} '
+        now = time.monotonic()
+        if (self.sim.fault is None and self.lockstep.step > 0
+                and now - self._step_started_at > self.command_timeout):
+            self.fault(f'missing command for {" ".join(self.lockstep.missing)} '
                        f'(no answer to step {self.lockstep.step} within {self.command_timeout:g} s)')
-        elif waited > self.republish_period:
-            self.publish_state()                 # late joiners; idempotent for the nodes
+        elif now - self._state_sent_at > self.republish_period:
+            self.publish_state(resend=True)      # late joiners; idempotent for the nodes
 
     def on_paced_tick(self) -> None:
         axes = self.lockstep.axis_names
@@ -158,7 +161,7 @@ class HwSimNode(Node):
         return response
 
     # -- publishing ---------------------------------------------------------------------
-    def publish_state(self) -> None:
+    def publish_state(self, resend: bool = False) -> None:
         step = self.lockstep.step
         stamp = self.clock.stamp(step)
         m = self.sim.measurement
@@ -166,10 +169,12 @@ class HwSimNode(Node):
         self.pub_state.publish(ros_io.joint_state(stamp, axes, m.position, m.velocity, m.effort))
         if step % self.clock_decimation == 0:
             self.pub_clock.publish(Clock(clock=stamp))
-        if self.publish_truth:
+        if self.truth_decimation > 0 and step % self.truth_decimation == 0:
             self.pub_true.publish(ros_io.joint_state(stamp, axes, self.sim.true_position, self.sim.true_velocity))
             self.pub_pose.publish(self.tool_pose(stamp))
         self._state_sent_at = time.monotonic()
+        if not resend:
+            self._step_started_at = self._state_sent_at
 
     def tool_pose(self, stamp) -> PoseStamped:
         pose = self.kinematics.tool_pose(self.sim.true_position)

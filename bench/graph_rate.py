@@ -1,0 +1,93 @@
+"""Lock-step rates ([2/7]): the offline runner against real time, and the node graph
+(hw_sim, servo_coarse, servo_fine, dual_stage, reference; circle reference) in separate
+processes and in one process, each beside a bare rclpy lock-step ring with the same number
+of hops on its critical path (3: hw_sim -> dual_stage -> servo_fine -> hw_sim) measured in
+the same run (bench/ros_chain.py, EventsExecutor like our nodes).
+
+    .venv/bin/python bench/graph_rate.py [--seconds 8]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+from ros_chain import bare_chain_rate, init_context
+
+from machine_ctrl.config import load_machine
+from machine_ctrl.graph import default_graph
+from machine_ctrl.offline import run
+from machine_ctrl.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+from trajectory.contours import circle
+
+HOPS = 3
+
+
+def offline_rate(machine, steps: int = 30000) -> float:
+    reference, _ = circle(machine)
+    start = time.perf_counter()
+    run(machine, reference, steps=steps)
+    return steps / (time.perf_counter() - start)
+
+
+def graph_rate(machine, single_process: bool, seconds: float) -> float:
+    """Steps per second read off hw_sim's /clock (every 10 steps) over `seconds` s after a
+    warm-up of 2 s once stepping has begun."""
+    import rclpy
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+
+    with reserve_ros_domain() as lease, Supervisor(isolated_ros_env(lease.domain_id), stop_timeout=3.0) as sup:
+        specs = default_graph(machine)
+        if single_process:
+            sup.start('graph', [sys.executable, '-m', 'machine_ctrl.graph', '--machine', str(machine.yaml_path)])
+        else:
+            for spec in specs:
+                sup.start(spec.name, spec.argv())
+        context = init_context(lease.domain_id)
+        try:
+            node = Node('rate_probe', context=context)
+            last = {}
+            node.create_subscription(Clock, '/clock', lambda m: last.update(
+                step=(m.clock.sec * 1_000_000_000 + m.clock.nanosec) // 100_000, t=time.monotonic()), 10)
+            executor = rclpy.executors.SingleThreadedExecutor(context=context)
+            executor.add_node(node)
+
+            def spin_until(predicate, timeout):
+                deadline = time.monotonic() + timeout
+                while not predicate() and time.monotonic() < deadline:
+                    executor.spin_once(timeout_sec=0.05)
+                    sup.check()
+            spin_until(lambda: last.get('step', 0) > 100, 60)
+            spin_until(lambda: False, 2.0)
+            step0, t0 = last['step'], last['t']
+            spin_until(lambda: False, seconds)
+            rate = (last['step'] - step0) / (last['t'] - t0)
+            executor.shutdown()
+            node.destroy_node()
+        finally:
+            context.try_shutdown()
+    return rate
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--seconds', type=float, default=8.0)
+    args = parser.parse_args(argv)
+    machine = load_machine()
+    real_time = 1.0 / machine.control_period
+    rate = offline_rate(machine)
+    print(f'offline runner, {machine.name} circle, dual stage: {rate:8.0f} steps/s = {rate / real_time:.2f}x real time '
+          f'({real_time:.0f} steps/s)')
+    print(f'{"graph":28s} {"ours steps/s":>12s} {"bare ring":>10s} {"ratio":>6s}')
+    for single in (False, True):
+        ours = graph_rate(machine, single, args.seconds)
+        bare = bare_chain_rate(HOPS, multiprocess=not single, executor='events')
+        label = 'one process' if single else 'one process per node'
+        print(f'{label:28s} {ours:12.0f} {bare:10.0f} {ours / bare:6.2f}', flush=True)
+
+
+if __name__ == '__main__':
+    os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+    main()

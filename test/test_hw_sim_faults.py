@@ -1,0 +1,134 @@
+"""hw_sim faults over real DDS: a NaN command, a stroke violation and a missing command
+each stop the machine and are reported on /diagnostics; hw_sim keeps running and /hw_sim/reset
+recovers. The test node plays the servos."""
+import math
+import sys
+import threading
+import time
+
+import pytest
+
+
+class Commander:
+    """Answers every /joint_states step with `policy(step, state)` -> efforts or None."""
+
+    def __init__(self, node, axes):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.executors import SingleThreadedExecutor
+        from sensor_msgs.msg import JointState
+        from std_srvs.srv import Trigger
+
+        from machine_ctrl import ros_io
+        self.ros_io, self.node, self.axes = ros_io, node, axes
+        self.policy = lambda step, state: [0.0] * len(axes)
+        self.steps, self.hw_diag = [], None
+        self.pub = node.create_publisher(JointState, ros_io.TOPIC_COMMANDS, ros_io.STEP_QOS)
+        node.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
+        node.create_subscription(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, self.on_diag, 50)
+        self.reset_client = node.create_client(Trigger, '/hw_sim/reset')
+        self.executor = SingleThreadedExecutor(context=node.context)
+        self.executor.add_node(node)
+        self.running = True
+        self.thread = threading.Thread(target=self.spin, daemon=True)
+        self.thread.start()
+
+    def spin(self):
+        while self.running:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def on_state(self, msg):
+        step = (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec) // 100_000
+        self.steps.append(step)
+        efforts = self.policy(step, msg)
+        if efforts is not None:
+            self.pub.publish(self.ros_io.joint_state(msg.header.stamp, self.axes, effort=efforts))
+
+    def on_diag(self, msg):
+        for status in msg.status:
+            if status.name == 'hw_sim':
+                self.hw_diag = (status.level, status.message, {kv.key: kv.value for kv in status.values})
+
+    def wait(self, condition, timeout=30.0, what=''):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if condition():
+                return
+            time.sleep(0.05)
+        raise AssertionError(f'timed out waiting for {what}; last hw_sim diagnostics: {self.hw_diag}')
+
+    def fault(self):
+        return self.hw_diag is not None and self.hw_diag[1].startswith('FAULT')
+
+    def reset(self):
+        from std_srvs.srv import Trigger
+        assert self.reset_client.wait_for_service(timeout_sec=10)
+        future = self.reset_client.call_async(Trigger.Request())
+        self.wait(future.done, what='reset response')
+        return future.result()
+
+    def stop(self):
+        self.running = False
+        self.thread.join(timeout=2)
+        self.executor.shutdown()
+
+
+@pytest.fixture
+def commander(micromill, ros_node, ros_supervisor):
+    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'hw_sim.node', '--ros-args',
+                                    '-p', 'command_timeout:=0.5', '-p', 'republish_period:=0.1'])
+    ros_supervisor.wait_for_line('hw_sim', 'ready', 60)
+    c = Commander(ros_node('servos'), list(micromill.axis_names))
+    yield c
+    c.stop()
+    assert ros_supervisor.alive() == ['hw_sim'], 'hw_sim died'
+
+
+def test_nan_command_stops_the_machine_and_reset_recovers(commander):
+    sent = []
+
+    def policy(step, state):
+        if step == 20 and not sent:
+            sent.append(step)
+            return [math.nan] + [0.0] * 8
+        return [0.0] * 9
+    commander.policy = policy
+    commander.wait(commander.fault, what='fault')
+    assert 'non-finite command for x_c' in commander.hw_diag[1]
+    stopped_at = max(commander.steps)
+    time.sleep(1.0)
+    assert max(commander.steps) == stopped_at == 20          # stopped, state still re-sent
+    assert commander.steps.count(20) > 2
+    response = commander.reset()
+    assert response.success and 'non-finite' in response.message
+    commander.wait(lambda: max(commander.steps) > 40, what='running again after reset')
+
+
+def test_stroke_violation_stops_the_machine(commander):
+    commander.policy = lambda step, s: [0.0] * 3 + [40.0] + [0.0] * 5     # push x_f open loop
+    commander.wait(commander.fault, what='fault')
+    assert 'stroke violation on x_f' in commander.hw_diag[1]
+    assert commander.hw_diag[0] == b'\x02'                                 # DiagnosticStatus.ERROR
+
+
+def test_missing_command_times_out_into_a_fault(commander):
+    commander.policy = lambda step, s: [0.0] * 9 if step < 30 else None
+    commander.wait(commander.fault, what='fault')
+    assert 'missing command for x_c y_c z_c x_f y_f z_f a_f b_f c_f' in commander.hw_diag[1]
+    assert 'no answer to step 30' in commander.hw_diag[1]
+
+
+def test_malformed_commands_are_refused_and_change_nothing(commander):
+    from machine_ctrl import ros_io
+
+    def policy(step, state):
+        if step == 10:   # unknown axis, duplicate names, length mismatch, future stamp
+            stamp = state.header.stamp
+            for names, values in ((['x_c', 'nope'], [0.0, 0.0]), (['x_c', 'x_c'], [0.0, 0.0]), (['x_c'], [0.0, 1.0])):
+                commander.pub.publish(ros_io.joint_state(stamp, names, effort=values))
+            future = ros_io.StepClock(1e-4).stamp(step + 5)
+            commander.pub.publish(ros_io.joint_state(future, commander.axes, effort=[0.0] * 9))
+        return [0.0] * 9
+    commander.policy = policy
+    commander.wait(lambda: commander.hw_diag is not None and int(commander.hw_diag[2]['refused_commands']) >= 4
+                   and max(commander.steps) > 30, what='refusals')
+    assert not commander.fault(), commander.hw_diag
