@@ -13,6 +13,8 @@ Modes (parameter `mode`):
 * lockstep (default): step k -> k+1 once every axis has its step-k command. While waiting,
   the current state is re-sent every `republish_period` s (wall) so nodes that joined late
   still answer; nodes answer a repeated stamp with the command they already computed.
+  `min_subscribers` > 0 holds the machine at step 0 until that many /joint_states
+  subscribers are matched (a recorder that must see every step).
 * paced: steps on the wall clock at `real_time_factor`, applying the latest command of
   each axis (zero-order hold) and counting missed deadlines (axes without a command for
   the step being taken) — the contract a driver for real hardware implements.
@@ -58,6 +60,8 @@ class HwSimNode(Node):
         self.republish_period = declare(self, 'republish_period', 0.2, 's (wall) between re-sends while waiting')
         initial = declare(self, 'initial_position', [float(v) for v in self.machine.home],
                           'axis positions at start, axis order (m, rad)')
+        self.min_subscribers = declare(self, 'min_subscribers', 0,
+                                       'hold at step 0 until /joint_states has this many subscribers')
         self.truth_decimation = declare(self, 'ground_truth_decimation', 10,
                                         'publish ground truth every N steps (0: never)')
 
@@ -104,8 +108,16 @@ class HwSimNode(Node):
         if reason is not None:
             self.refuse(reason)
             return
-        if self.lockstep.complete() and self.sim.fault is None:
+        self.advance_if_ready()
+
+    def advance_if_ready(self) -> None:
+        if self.lockstep.complete() and self.sim.fault is None and self.started():
             self.advance(self.lockstep.take())
+
+    def started(self) -> bool:
+        """Past step 0, or every required subscriber (e.g. a recorder) is matched."""
+        return (self.lockstep.step > 0
+                or self.pub_state.get_subscription_count() >= self.min_subscribers)
 
     def advance(self, commands) -> None:
         was_ok = self.sim.fault is None
@@ -122,6 +134,8 @@ class HwSimNode(Node):
                        f'(no answer to step {self.lockstep.step} within {self.command_timeout:g} s)')
         elif now - self._state_sent_at > self.republish_period:
             self.publish_state(resend=True)      # late joiners; idempotent for the nodes
+        if self.mode == 'lockstep':
+            self.advance_if_ready()
 
     def on_paced_tick(self) -> None:
         axes = self.lockstep.axis_names

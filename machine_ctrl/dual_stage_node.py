@@ -1,8 +1,9 @@
 """dual_stage_node: per step k, the fine-stage reference offsets of the dual-stage coupling
 (thesis section 4.4) from the coarse tracking errors, on /dual_stage/offsets
 (sensor_msgs/JointState: name = fine axes, position = offsets in m, stamp = step k).
-Inputs: /joint_states and the reference stream /reference (all coupled axes). Waits up
-to `input_timeout` s (wall) for a missing reference row, then holds (see servo_node).
+Inputs: /joint_states and the reference stream /reference (all coupled axes). Waits for a
+reference stream that never started; once it has, waits up to `input_timeout` s (wall)
+for a missing row, then holds (see servo_node).
 Service /dual_stage/enable (std_srvs/SetBool) switches the coupling at runtime; while off
 the offsets are zero. Saturation at the fine stroke is counted and reported on /diagnostics.
 """
@@ -39,7 +40,8 @@ class DualStageNode(Node):
 
         self.pub = self.create_publisher(JointState, ros_io.TOPIC_OFFSETS, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
-        self.responder = StepResponder(self, self.pub, self.buffer.has, self.compute, self.input_timeout)
+        self.responder = StepResponder(self, self.pub, self.buffer.has, self.compute, self.input_timeout,
+                                       streaming=lambda: self.buffer.started)
         self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
         self.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, ros_io.REFERENCE_QOS)
         self.create_service(SetBool, '/dual_stage/enable', self.on_enable)

@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     parser.add_argument('--contour', default='circle')
     parser.add_argument('--no-dual-stage', action='store_true')
     parser.add_argument('--hw-sim', action='append', default=[], metavar='KEY=VALUE',
-                        help='hw_sim parameter (value as YAML)')
+                        help='hw_sim parameter (value as YAML), e.g. min_subscribers=4')
     args = parser.parse_args(argv)
     import yaml
     hw = {k: yaml.safe_load(v) for k, v in (item.split('=', 1) for item in args.hw_sim)}

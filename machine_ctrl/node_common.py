@@ -107,14 +107,18 @@ class StepResponder:
     """Answers each /joint_states step exactly once (design.md "Time").
 
     `ready(step)` says whether the inputs for the step are there; the responder waits for
-    them up to `timeout` s (wall), then answers anyway (`compute` handles the gap).
+    them up to `timeout` s (wall), then answers anyway (`compute` handles the gap) — but
+    only once `streaming()` says every input stream has delivered at least once: an input
+    that never started is waited for indefinitely, so a lock-step run does not depend on
+    how fast the graph came up.
     `compute(step, state)` returns the answer message, or None to give no answer. A repeated
     stamp (hw_sim re-sends while waiting) gets the cached answer again; older stamps are
     ignored.
     """
 
-    def __init__(self, node: Node, publisher, ready, compute, timeout: float):
+    def __init__(self, node: Node, publisher, ready, compute, timeout: float, streaming):
         self.publisher, self.ready, self.compute, self.timeout = publisher, ready, compute, timeout
+        self.streaming = streaming
         self.pending = None
         self.pending_since = 0.0
         self.answered = None
@@ -144,6 +148,11 @@ class StepResponder:
             self.answered = (step, answer)
             self.publisher.publish(answer)
 
+    @property
+    def waiting(self) -> bool:
+        return self.pending is not None
+
     def _on_timer(self) -> None:
-        if self.pending is not None and time.monotonic() - self.pending_since > self.timeout:
+        if (self.pending is not None and self.streaming()
+                and time.monotonic() - self.pending_since > self.timeout):
             self.poke(give_up=True)

@@ -55,6 +55,7 @@ class ReferenceBuffer:
         self._first = 0                      # step of _rows[0]
         self._held: list[float] | None = None
         self.underruns = 0
+        self.started = False                 # a chunk has arrived at least once
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -68,6 +69,7 @@ class ReferenceBuffer:
         return self._first <= step < self.end_step
 
     def add(self, first_step: int, positions, velocities, accelerations) -> None:
+        self.started = True
         if not self._rows or first_step > self.end_step or first_step < self._first:
             self._rows.clear()
             self._first = first_step

@@ -3,10 +3,12 @@ one per stage, or all), answering every /joint_states step with /servo_commands.
 
 Inputs per step k: the state (/joint_states), the reference row k of its axes (streamed
 ahead in chunks on /reference, trajectory_msgs/JointTrajectory on the control grid) and,
-for fine axes of a dual-stage pair, the offsets of step k (/dual_stage/offsets). The node
-waits for a missing input up to `input_timeout` s (wall) — so a lock-step run does not
-depend on message timing — and then goes on without it: no reference row = hold the last
-reference position at rest (underrun, counted and reported); no offsets = zero offsets.
+for fine axes of a dual-stage pair, the offsets of step k (/dual_stage/offsets). An input
+stream that has never delivered is waited for (reported on /diagnostics as waiting_for);
+once it has, the node waits for a missing step up to `input_timeout` s (wall) — so a
+lock-step run does not depend on message timing — and then goes on without it: no
+reference row = hold the last reference position at rest (underrun, counted and reported);
+no offsets = zero offsets.
 A repeated state stamp (hw_sim re-sends while waiting) is answered with the command already
 computed, so no controller state is ever advanced twice.
 """
@@ -54,7 +56,9 @@ class ServoNode(Node):
 
         self.pub = self.create_publisher(JointState, ros_io.TOPIC_COMMANDS, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
-        self.responder = StepResponder(self, self.pub, self.ready, self.compute, self.input_timeout)
+        self.offsets_started = False
+        self.responder = StepResponder(self, self.pub, self.ready, self.compute, self.input_timeout,
+                                       streaming=self.streaming)
         self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
         self.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, ros_io.REFERENCE_QOS)
         if self.wait_for_offsets:
@@ -76,6 +80,7 @@ class ServoNode(Node):
         except ros_io.InvalidMessage as exc:
             self.rejections.add('offsets', str(exc))
             return
+        self.offsets_started = True
         self.responder.poke()
 
     def on_state(self, msg: JointState) -> None:
@@ -83,6 +88,9 @@ class ServoNode(Node):
             self.responder.on_state(self.clock.step(msg.header.stamp), msg)
         except ros_io.InvalidMessage as exc:
             self.rejections.add('state', str(exc))
+
+    def streaming(self) -> bool:
+        return self.buffer.started and (self.offsets_started or not self.wait_for_offsets)
 
     def ready(self, step: int) -> bool:
         return self.buffer.has(step) and (not self.wait_for_offsets or step in self.offsets)
@@ -105,10 +113,19 @@ class ServoNode(Node):
         commands = self.servo.update(ref_pos, ref_vel, ref_acc, position, velocity)
         return ros_io.joint_state(msg.header.stamp, self.axes, effort=commands)
 
+    def waiting_for(self) -> str:
+        if not self.responder.waiting:
+            return ''
+        missing = [] if self.buffer.started else ['/reference (never received)']
+        if self.wait_for_offsets and not self.offsets_started:
+            missing.append('/dual_stage/offsets (never received)')
+        return ', '.join(missing) or 'inputs of the current step'
+
     def publish_diagnostics(self) -> None:
         problems = self.buffer.underruns or self.missing_offsets or self.rejections.count
         step = self.responder.answered_step
         values = {'axes': ' '.join(self.axes), 'answered_step': step,
+                  'waiting_for': self.waiting_for(),
                   'reference_underruns': self.buffer.underruns, 'buffered_steps': len(self.buffer),
                   'missing_offsets': self.missing_offsets, 'rejected_messages': self.rejections.count,
                   'last_rejection': self.rejections.last}

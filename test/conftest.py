@@ -3,6 +3,7 @@ import pytest
 
 from machine_ctrl.config import load_machine
 from machine_ctrl.kinematics import Kinematics
+pytest_plugins = ['ros_fixtures']
 
 
 @pytest.fixture(scope='session')

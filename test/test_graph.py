@@ -68,11 +68,13 @@ def offline(micromill):
 def record_graph(micromill, ros_node, ros_supervisor, single_process):
     recorder = StateRecorder(ros_node('recorder'))
     try:
+        # hw_sim holds step 0 until servo_coarse, servo_fine, dual_stage and this recorder
+        # all subscribe /joint_states, so the recorder sees every step
         if single_process:
-            ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.graph',
-                                           '--machine', str(micromill.yaml_path)])
+            ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.graph', '--machine',
+                                           str(micromill.yaml_path), '--hw-sim', 'min_subscribers=4'])
         else:
-            for spec in default_graph(micromill):
+            for spec in default_graph(micromill, hw_sim={'min_subscribers': 4}):
                 ros_supervisor.start(spec.name, spec.argv())
         recorder.wait_for(STEPS, timeout=120, supervisor=ros_supervisor)
     finally:

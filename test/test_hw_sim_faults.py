@@ -10,17 +10,23 @@ import pytest
 
 
 class Commander:
-    """Answers every /joint_states step with `policy(step, state)` -> efforts or None."""
+    """Plays the servos: answers every /joint_states step with `policy(step, state)` ->
+    efforts or None. The default policy is the machine's real servo laws holding the
+    position of step 0 (open-loop zeros would let the table's force noise walk b_f out of
+    its +-8.7 mrad stroke)."""
 
-    def __init__(self, node, axes):
+    def __init__(self, node, axes, machine):
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.executors import SingleThreadedExecutor
         from sensor_msgs.msg import JointState
         from std_srvs.srv import Trigger
 
         from machine_ctrl import ros_io
+        from machine_ctrl.servo import ServoGroup
         self.ros_io, self.node, self.axes = ros_io, node, axes
-        self.policy = lambda step, state: [0.0] * len(axes)
+        self.servo = ServoGroup(machine, axes)
+        self.hold = None
+        self.policy = self.servo_policy
         self.steps, self.hw_diag = [], None
         self.pub = node.create_publisher(JointState, ros_io.TOPIC_COMMANDS, ros_io.STEP_QOS)
         node.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
@@ -31,6 +37,13 @@ class Commander:
         self.running = True
         self.thread = threading.Thread(target=self.spin, daemon=True)
         self.thread.start()
+
+    def servo_policy(self, step, state):
+        position, velocity = state.position.tolist(), state.velocity.tolist()
+        if self.hold is None:
+            self.hold = position
+        zeros = [0.0] * len(self.axes)
+        return self.servo.update(self.hold, zeros, zeros, position, velocity)
 
     def spin(self):
         while self.running:
@@ -77,7 +90,7 @@ def commander(micromill, ros_node, ros_supervisor):
     ros_supervisor.start('hw_sim', [sys.executable, '-m', 'hw_sim.node', '--ros-args',
                                     '-p', 'command_timeout:=0.5', '-p', 'republish_period:=0.1'])
     ros_supervisor.wait_for_line('hw_sim', 'ready', 60)
-    c = Commander(ros_node('servos'), list(micromill.axis_names))
+    c = Commander(ros_node('servos'), list(micromill.axis_names), micromill)
     yield c
     c.stop()
     assert ros_supervisor.alive() == ['hw_sim'], 'hw_sim died'
@@ -90,7 +103,7 @@ def test_nan_command_stops_the_machine_and_reset_recovers(commander):
         if step == 20 and not sent:
             sent.append(step)
             return [math.nan] + [0.0] * 8
-        return [0.0] * 9
+        return commander.servo_policy(step, state)
     commander.policy = policy
     commander.wait(commander.fault, what='fault')
     assert 'non-finite command for x_c' in commander.hw_diag[1]
@@ -104,14 +117,18 @@ def test_nan_command_stops_the_machine_and_reset_recovers(commander):
 
 
 def test_stroke_violation_stops_the_machine(commander):
-    commander.policy = lambda step, s: [0.0] * 3 + [40.0] + [0.0] * 5     # push x_f open loop
+    def policy(step, state):
+        commands = commander.servo_policy(step, state)
+        commands[3] = 40.0                                                 # push x_f open loop
+        return commands
+    commander.policy = policy
     commander.wait(commander.fault, what='fault')
     assert 'stroke violation on x_f' in commander.hw_diag[1]
     assert commander.hw_diag[0] == b'\x02'                                 # DiagnosticStatus.ERROR
 
 
 def test_missing_command_times_out_into_a_fault(commander):
-    commander.policy = lambda step, s: [0.0] * 9 if step < 30 else None
+    commander.policy = lambda step, s: commander.servo_policy(step, s) if step < 30 else None
     commander.wait(commander.fault, what='fault')
     assert 'missing command for x_c y_c z_c x_f y_f z_f a_f b_f c_f' in commander.hw_diag[1]
     assert 'no answer to step 30' in commander.hw_diag[1]
@@ -127,8 +144,31 @@ def test_malformed_commands_are_refused_and_change_nothing(commander):
                 commander.pub.publish(ros_io.joint_state(stamp, names, effort=values))
             future = ros_io.StepClock(1e-4).stamp(step + 5)
             commander.pub.publish(ros_io.joint_state(future, commander.axes, effort=[0.0] * 9))
-        return [0.0] * 9
+        return commander.servo_policy(step, state)
     commander.policy = policy
     commander.wait(lambda: commander.hw_diag is not None and int(commander.hw_diag[2]['refused_commands']) >= 4
                    and max(commander.steps) > 30, what='refusals')
     assert not commander.fault(), commander.hw_diag
+
+
+@pytest.fixture
+def paced_commander(micromill, ros_node, ros_supervisor):
+    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'hw_sim.node', '--ros-args', '-p', 'mode:=paced',
+                                    '-p', 'real_time_factor:=0.02'])       # 200 steps/s of wall time
+    ros_supervisor.wait_for_line('hw_sim', 'ready', 60)
+    c = Commander(ros_node('servos'), list(micromill.axis_names), micromill)
+    yield c
+    c.stop()
+
+
+def test_paced_mode_steps_on_the_wall_clock_and_counts_missed_deadlines(paced_commander):
+    c = paced_commander
+    c.policy = lambda step, state: None                     # nobody answers: every step is late
+    # (with no command at all hw_sim holds the previous ones: zeros, so keep the test short)
+    c.wait(lambda: len(c.steps) > 5, what='first states')
+    first, t0 = max(c.steps), time.monotonic()
+    time.sleep(2.0)
+    rate = (max(c.steps) - first) / (time.monotonic() - t0)
+    assert 120 < rate < 230                                 # 200 steps/s nominal (timer jitter)
+    c.wait(lambda: c.hw_diag is not None and int(c.hw_diag[2]['missed_deadlines']) > 100, what='missed deadlines')
+    assert not c.fault()                                    # paced mode holds the last command instead

@@ -1,0 +1,102 @@
+"""pytest fixtures that keep ROS tests isolated (registered by conftest.py's pytest_plugins).
+
+Why: DDS discovery is machine-wide. Two pytest sessions (two checkouts, CI beside a
+developer, xdist workers) in the same ROS domain would see each other's nodes, and a
+stray message answers the wrong test. So each session leases a domain id of its own
+(an flock under /tmp, see machine_ctrl.processes.reserve_ros_domain) and keeps
+discovery on localhost.
+
+Nothing here imports rclpy at module level and no fixture is autouse: a session that runs
+no ROS test pays nothing. A ROS test asks for ``ros_env`` (directly or through
+``rclpy_context``/``ros_supervisor``) before it initialises rclpy.
+"""
+import os
+import sys
+
+import pytest
+
+from machine_ctrl.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+
+_ROS_VARIABLES = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS',
+                  'ROS_LOCALHOST_ONLY', 'AMENT_PREFIX_PATH')
+
+
+def _rclpy_already_initialised():
+    """rclpy reads ROS_DOMAIN_ID when a context is initialised; a context made before the
+    variables are set would sit in the shared default domain. Checked without importing
+    rclpy, so that this costs nothing when rclpy is unused."""
+    rclpy = sys.modules.get('rclpy')
+    return rclpy is not None and rclpy.ok()
+
+
+@pytest.fixture(scope='session')
+def ros_env():
+    """Lease a ROS domain id for this test session, put it, ROS_AUTOMATIC_DISCOVERY_RANGE=
+    LOCALHOST and AMENT_PREFIX_PATH (default sys.prefix) into os.environ for the
+    in-process nodes, and return the same environment as a dict for child processes.
+    os.environ is restored and the lease released at the end of the session."""
+    if _rclpy_already_initialised():
+        raise RuntimeError('rclpy was initialised before the ros_env fixture set ROS_DOMAIN_ID; '
+                           'request ros_env (or rclpy_context) in every test that uses ROS')
+    saved = {name: os.environ.get(name) for name in _ROS_VARIABLES}
+    with reserve_ros_domain() as lease:
+        env = isolated_ros_env(lease.domain_id)
+        for name in _ROS_VARIABLES:
+            if name in env:
+                os.environ[name] = env[name]
+            else:
+                os.environ.pop(name, None)
+        try:
+            yield dict(env)
+        finally:
+            for name, value in saved.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+
+
+@pytest.fixture
+def rclpy_context(ros_env):
+    """A fresh, initialised rclpy Context in the session's domain, shut down after the test
+    whatever happened. Its own context (not the default one) so that a test cannot leak
+    nodes or state into the next; rclpy's signal handlers are left alone (pytest owns
+    SIGINT). Destroy your nodes before the test ends, or use ``ros_node``."""
+    import rclpy
+    from rclpy.context import Context
+
+    context = Context()
+    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
+    try:
+        yield context
+    finally:
+        context.try_shutdown()
+
+
+@pytest.fixture
+def ros_node(rclpy_context):
+    """Factory ``ros_node(name, **node_kwargs)`` for rclpy nodes on ``rclpy_context``;
+    every node made is destroyed at teardown, before the context is shut down."""
+    from rclpy.node import Node
+
+    nodes = []
+
+    def make(name, **kwargs):
+        node = Node(name, context=rclpy_context, **kwargs)
+        nodes.append(node)
+        return node
+
+    try:
+        yield make
+    finally:
+        for node in reversed(nodes):
+            node.destroy_node()
+
+
+@pytest.fixture
+def ros_supervisor(ros_env, tmp_path):
+    """A Supervisor whose children run in the session's domain, logging to
+    ``tmp_path/logs/<name>.log``; every child (and its process group) is stopped at
+    teardown, also when the test fails."""
+    with Supervisor(ros_env, log_dir=tmp_path / 'logs', stop_timeout=3.0) as supervisor:
+        yield supervisor

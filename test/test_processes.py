@@ -1,0 +1,159 @@
+"""machine_ctrl.processes: the supervisor the graph tests and bringup rely on to start nodes
+and, above all, to leave nothing running afterwards."""
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from machine_ctrl.processes import (ChildExited, Supervisor, isolated_ros_env,
+                                    reserve_ros_domain)
+
+# Tiny children. Each prints 'ready' once its signal dispositions are in place, so a test
+# never signals a child before it has had the chance to ignore the signal.
+SLEEPER = 'import time; print("ready"); time.sleep(60)'
+FAILS = 'import sys; print("starting"); print("config: bad key", file=sys.stderr); sys.exit(3)'
+IGNORES_SIGINT = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); '
+                  'print("ready"); time.sleep(60)')
+IGNORES_SIGINT_AND_SIGTERM = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); '
+                              'signal.signal(signal.SIGTERM, signal.SIG_IGN); print("ready"); time.sleep(60)')
+# Starts a grandchild that survives SIGINT and SIGTERM, reports its pid, then behaves
+# like a node (stays) or, with argv[1] == 'leave', exits and leaves the grandchild behind.
+SPAWNER = f'''
+import subprocess, sys, time
+g = subprocess.Popen([sys.executable, "-c", {IGNORES_SIGINT_AND_SIGTERM!r}], stdout=subprocess.PIPE, text=True)
+assert g.stdout.readline().strip() == "ready"
+print("grandchild", g.pid, flush=True)
+if sys.argv[1:] == ["leave"]:
+    sys.exit(0)
+time.sleep(60)
+'''
+
+
+def py(code, *args):
+    return [sys.executable, '-c', code, *args]
+
+
+def pid_alive(pid):
+    """Running, i.e. present and not a zombie (orphans are never reaped in some containers)."""
+    try:
+        stat = Path(f'/proc/{pid}/stat').read_bytes()
+    except FileNotFoundError:
+        return False
+    return stat[stat.rfind(b')') + 2:].split()[0] not in (b'Z', b'X')
+
+
+@pytest.fixture
+def sup(tmp_path):
+    with Supervisor(log_dir=tmp_path / 'logs', stop_timeout=0.5) as supervisor:
+        yield supervisor
+
+
+def test_children_get_the_given_environment_and_their_own_process_group(tmp_path):
+    env = isolated_ros_env(42, base={'PATH': os.environ.get('PATH', ''), 'ROS_LOCALHOST_ONLY': '1'})
+    code = ('import os; print("env", os.environ["ROS_DOMAIN_ID"], os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"], '
+            '"ROS_LOCALHOST_ONLY" in os.environ, os.getpgid(0) == os.getpid())')
+    with Supervisor(env) as supervisor:
+        supervisor.start('env', py(code))
+        assert supervisor.wait_for_line('env', 'env', timeout=10) == 'env 42 LOCALHOST False True'
+        assert supervisor.wait('env', timeout=10) == 0
+        supervisor.check()      # a child that was waited for has not "exited early"
+
+
+def test_early_exit_is_reported_with_code_and_last_output(sup):
+    sup.start('fails', py(FAILS))
+    with pytest.raises(ChildExited) as exc_info:
+        sup.wait_for_line('fails', 'ready', timeout=10)
+    assert exc_info.value.returncode == 3
+    assert exc_info.value.tail == ['starting', 'config: bad key']
+    assert 'config: bad key' in str(exc_info.value)
+    with pytest.raises(ChildExited, match="'fails' exited with code 3"):
+        sup.check()
+    assert sup.alive() == []
+
+
+def test_sigint_is_enough_for_a_well_behaved_child(sup):
+    sup.start('sleeper', py(SLEEPER))
+    sup.wait_for_line('sleeper', 'ready', timeout=10)
+    assert sup.alive() == ['sleeper']
+    started = time.monotonic()
+    assert sup.stop('sleeper', timeout=5) == -signal.SIGINT
+    assert time.monotonic() - started < 4        # did not wait for the SIGTERM step
+    sup.check()
+    assert 'ready' in (sup.log_dir / 'sleeper.log').read_text()
+
+
+def test_a_child_ignoring_sigint_gets_sigterm_then_sigkill(sup):
+    sup.start('no_int', py(IGNORES_SIGINT))
+    sup.start('no_int_no_term', py(IGNORES_SIGINT_AND_SIGTERM))
+    for name in ('no_int', 'no_int_no_term'):
+        sup.wait_for_line(name, 'ready', timeout=10)
+    codes = sup.stop_all(timeout=0.3)
+    assert codes == {'no_int_no_term': -signal.SIGKILL, 'no_int': -signal.SIGTERM}
+    assert sup.alive() == []
+
+
+def test_stop_all_leaves_no_grandchild(sup):
+    sup.start('spawner', py(SPAWNER))
+    grandchild = int(sup.wait_for_line('spawner', 'grandchild', timeout=10).split()[1])
+    assert pid_alive(grandchild)
+    sup.stop_all(timeout=0.3)
+    assert not pid_alive(grandchild)
+
+
+def test_a_grandchild_left_behind_by_an_exited_child_is_stopped_too(sup):
+    sup.start('leaver', py(SPAWNER, 'leave'))
+    grandchild = int(sup.wait_for_line('leaver', 'grandchild', timeout=10).split()[1])
+    sup['leaver'].process.wait(timeout=10)
+    with pytest.raises(ChildExited):
+        sup.check()
+    assert pid_alive(grandchild)
+    assert sup.stop_all(timeout=0.3) == {'leaver': 0}
+    assert not pid_alive(grandchild)
+
+
+def test_leaving_the_block_on_an_exception_stops_everything():
+    with pytest.raises(KeyError):
+        with Supervisor(stop_timeout=0.3) as supervisor:
+            child = supervisor.start('no_int', py(IGNORES_SIGINT))
+            supervisor.wait_for_line('no_int', 'ready', timeout=10)
+            raise KeyError('test failure inside the block')
+    assert child.returncode == -signal.SIGTERM
+    assert not pid_alive(child.pid)
+
+
+def test_wait_for_line_times_out_with_the_output_so_far(sup):
+    sup.start('sleeper', py(SLEEPER))
+    with pytest.raises(TimeoutError, match='ready'):
+        sup.wait_for_line('sleeper', 'never printed', timeout=0.5)
+
+
+def test_a_name_is_reusable_only_after_its_child_was_stopped(sup):
+    sup.start('node', py(SLEEPER))
+    with pytest.raises(ValueError):
+        sup.start('node', py(SLEEPER))
+    sup.stop('node')
+    sup.start('node', py(SLEEPER))
+    assert sup.alive() == ['node']
+
+
+def test_domain_leases_are_exclusive_until_released(tmp_path):
+    with reserve_ros_domain(5, 6, lock_dir=tmp_path) as a, reserve_ros_domain(5, 6, lock_dir=tmp_path) as b:
+        assert {a.domain_id, b.domain_id} == {5, 6}
+        with pytest.raises(RuntimeError, match='5..6'):
+            reserve_ros_domain(5, 6, lock_dir=tmp_path)
+        a.release()
+        with reserve_ros_domain(5, 6, lock_dir=tmp_path) as c:
+            assert c.domain_id == a.domain_id
+
+
+def test_a_domain_held_by_another_process_is_skipped(tmp_path):
+    hold = ('import fcntl, os, sys, time; fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT); '
+            'fcntl.flock(fd, fcntl.LOCK_EX); print("ready"); time.sleep(60)')
+    with Supervisor(stop_timeout=0.5) as supervisor:
+        supervisor.start('holder', py(hold, str(tmp_path / 'ros_domain_id.7.lock')))
+        supervisor.wait_for_line('holder', 'ready', timeout=10)
+        with reserve_ros_domain(7, 8, lock_dir=tmp_path) as lease:
+            assert lease.domain_id == 8
