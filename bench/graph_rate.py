@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import sys
 import time
 
@@ -73,19 +74,25 @@ def graph_rate(machine, single_process: bool, seconds: float) -> float:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    parser.add_argument('--seconds', type=float, default=8.0)
+    parser.add_argument('--seconds', type=float, default=6.0)
+    parser.add_argument('--repeats', type=int, default=3, help='interleaved measurements per mode')
     args = parser.parse_args(argv)
     machine = load_machine()
     real_time = 1.0 / machine.control_period
     rate = offline_rate(machine)
     print(f'offline runner, {machine.name} circle, dual stage: {rate:8.0f} steps/s = {rate / real_time:.2f}x real time '
           f'({real_time:.0f} steps/s)')
-    print(f'{"graph":28s} {"ours steps/s":>12s} {"bare ring":>10s} {"ratio":>6s}')
+    print(f'{"graph (median of %d)" % args.repeats:28s} {"ours steps/s":>12s} {"bare ring":>10s} '
+          f'{"ratio":>6s}  ratios of the pairs')
     for single in (False, True):
-        ours = graph_rate(machine, single, args.seconds)
-        bare = bare_chain_rate(HOPS, multiprocess=not single, executor='events')
+        pairs = []
+        for _ in range(args.repeats):         # interleaved: both see the same machine load
+            ours = graph_rate(machine, single, args.seconds)
+            pairs.append((ours, bare_chain_rate(HOPS, multiprocess=not single, executor='events')))
+        ours, bare = (statistics.median(p[i] for p in pairs) for i in (0, 1))
+        ratios = ' '.join(f'{o / b:.2f}' for o, b in pairs)
         label = 'one process' if single else 'one process per node'
-        print(f'{label:28s} {ours:12.0f} {bare:10.0f} {ours / bare:6.2f}', flush=True)
+        print(f'{label:28s} {ours:12.0f} {bare:10.0f} {ours / bare:6.2f}  {ratios}', flush=True)
 
 
 if __name__ == '__main__':

@@ -8,7 +8,7 @@ cheaper than numpy on tiny arrays, and results do not depend on how axes are gro
   along the stroke. Integrated with `substeps` semi-implicit Euler steps per period (the
   bristle deflection by its exact exponential for the frozen velocity, so it never
   overshoots); the substep count is chosen so that halving it changes results < 1 %
-  (bench/plant_convergence.py).
+  (test/test_plant.py; circle statistics: README "Simulation").
 * :class:`LinearAxis` — any linear axis: the free-floating maglev table (Eqs. 4.69-4.72) with
   an optional lightly damped resonance / anti-resonance pair (the flexibility the notch
   filters of Table 4.4 were designed against), or a voltage-normalized servo drive

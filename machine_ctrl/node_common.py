@@ -6,6 +6,7 @@ import sys
 import time
 
 import rclpy
+from rclpy.task import Future
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -50,17 +51,20 @@ def wall_timer(node: Node, period: float, callback):
 
 
 def spin(nodes, executor=None) -> None:
-    """Spin until Ctrl-C / SIGTERM (rclpy's handlers shut the context down). A spin_once
-    loop, not executor.spin(): with rclpy 7.1's EventsExecutor, spin() never fires timers
-    and does not return when the context is shut down (checked here)."""
+    """Spin until Ctrl-C / SIGTERM (rclpy's handlers shut the context down). Not
+    executor.spin(): with rclpy 7.1's EventsExecutor, spinning without a timeout never fires
+    timers nor callbacks for other processes' messages, and ignores SIGINT/SIGTERM (checked
+    here). spin_until_future_complete on a future that never completes, with a finite
+    timeout, dispatches events inside the executor without returning to Python per event."""
     executor = executor or DefaultExecutor()
     for node in nodes:
         executor.add_node(node)
     logger = nodes[0].get_logger()
+    never = Future()
     try:
         while rclpy.ok():
             try:
-                executor.spin_once(timeout_sec=0.1)
+                executor.spin_until_future_complete(never, timeout_sec=1.0)
             except (KeyboardInterrupt, ExternalShutdownException):
                 raise
             except Exception as exc:  # noqa: BLE001 - a node never dies from a callback error
