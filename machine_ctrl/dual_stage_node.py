@@ -10,40 +10,30 @@ the offsets are zero. Saturation at the fine stroke is counted and reported on /
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
-from trajectory_msgs.msg import JointTrajectory
 
 from machine_ctrl import ros_io
 from machine_ctrl.dual_stage import DualStageCoupling
-from machine_ctrl.node_common import (Rejections, StepResponder, declare, machine_parameter, main_for,
-                                      use_sim_time, wall_timer)
-from machine_ctrl.reference import ReferenceBuffer
+from machine_ctrl.node_common import declare, machine_parameter, main_for, wall_timer
+from machine_ctrl.step_node import StepNode
 
 
-class DualStageNode(Node):
+class DualStageNode(StepNode):
     def __init__(self, name: str = 'dual_stage', **kwargs):
         super().__init__(name, **kwargs)
-        use_sim_time(self)
         self.machine = machine_parameter(self)
         if not self.machine.dual_stage:
             self.get_logger().fatal(f'{self.machine.name}: the machine config has no dual_stage pairs')
             raise SystemExit(2)
         enabled = declare(self, 'enabled', True, 'coupling on at start')
-        self.input_timeout = declare(self, 'input_timeout', 0.5, 's (wall) to wait for a reference row')
         self.coupling = DualStageCoupling(self.machine, enabled=enabled)
         self.axes = self.machine.axis_names
-        self.clock = ros_io.StepClock(self.machine.control_period)
-        self.buffer = ReferenceBuffer(self.axes)
-        self.rejections = Rejections(self)
-
+        self.make_buffer(self.axes)
         self.pub = self.create_publisher(JointState, ros_io.TOPIC_OFFSETS, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
-        self.responder = StepResponder(self, self.pub, self.buffer.has, self.compute, self.input_timeout,
-                                       streaming=lambda: self.buffer.started)
-        self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
-        self.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, ros_io.REFERENCE_QOS)
+        self.start_stepping(self.machine, self.axes, self.pub, self.buffer.has, self.compute,
+                            streaming=lambda: self.buffer.started)
         self.create_service(SetBool, '/dual_stage/enable', self.on_enable)
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: fine axes {" ".join(self.coupling.fine_axes)}')
@@ -54,25 +44,9 @@ class DualStageNode(Node):
         response.message = f'dual-stage coupling {"on" if request.data else "off"}'
         return response
 
-    def on_reference(self, msg: JointTrajectory) -> None:
-        try:
-            self.buffer.add(*ros_io.parse_chunk(self.clock, msg, self.axes))
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('reference', str(exc))
-            return
-        self.responder.poke()
-
-    def on_state(self, msg: JointState) -> None:
-        try:
-            self.responder.on_state(self.clock.step(msg.header.stamp), msg)
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('state', str(exc))
-
     def compute(self, step: int, msg: JointState) -> JointState | None:
-        try:
-            position = ros_io.select(msg, 'position', self.axes)
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('state', str(exc))
+        position = self.positions(msg, self.axes)
+        if position is None:
             return None
         ref_pos, _, _, _ = self.buffer.take(step, position)
         result = self.coupling.update(ref_pos, position)

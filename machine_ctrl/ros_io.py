@@ -96,14 +96,19 @@ def select(msg: JointState, field: str, wanted, allow_nonfinite: bool = False) -
         if allow_nonfinite or all_finite(picked):
             return picked
         raise InvalidMessage(f'{field} holds NaN or inf')
+    picked = [float(values[i]) for i in columns(names, wanted)]
+    return picked if allow_nonfinite else _finite(picked, field)
+
+
+def columns(names, wanted) -> list[int]:
+    """Index in `names` of every `wanted` joint; names must be unique and complete."""
     if len(set(names)) != len(names):
         raise InvalidMessage('duplicate joint names')
     index = {n: i for i, n in enumerate(names)}
     missing = [w for w in wanted if w not in index]
     if missing:
         raise InvalidMessage(f'missing joints {", ".join(missing)}')
-    picked = [float(values[index[w]]) for w in wanted]
-    return picked if allow_nonfinite else _finite(picked, field)
+    return [index[w] for w in wanted]
 
 
 def trajectory_chunk(clock: StepClock, first_step: int, names, positions, velocities, accelerations) -> JointTrajectory:
@@ -123,16 +128,10 @@ def parse_chunk(clock: StepClock, msg: JointTrajectory, wanted):
     """(first_step, positions, velocities, accelerations) for the `wanted` axes. Points must
     be consecutive control steps; velocities/accelerations may be empty (taken as zero)."""
     names = list(msg.joint_names)
-    if len(set(names)) != len(names):
-        raise InvalidMessage('duplicate joint names')
-    index = {n: i for i, n in enumerate(names)}
-    missing = [w for w in wanted if w not in index]
-    if missing:
-        raise InvalidMessage(f'reference lacks joints {", ".join(missing)}')
+    picks = columns(names, wanted)
     if not msg.points:
         raise InvalidMessage('reference chunk has no points')
     first = clock.step(msg.header.stamp)
-    columns = [index[w] for w in wanted]
     zeros = [0.0] * len(names)
     positions, velocities, accelerations = [], [], []
     for i, point in enumerate(msg.points):
@@ -144,7 +143,7 @@ def parse_chunk(clock: StepClock, msg: JointTrajectory, wanted):
             values = list(getattr(point, field)) or (zeros if field != 'positions' else [])
             if len(values) != len(names):
                 raise InvalidMessage(f'point {i}: {len(values)} {field} for {len(names)} joints')
-            rows.append(_finite([values[c] for c in columns], f'point {i} {field}'))
+            rows.append(_finite([values[c] for c in picks], f'point {i} {field}'))
         positions.append(rows[0])
         velocities.append(rows[1])
         accelerations.append(rows[2])

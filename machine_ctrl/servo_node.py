@@ -15,27 +15,22 @@ computed, so no controller state is ever advanced twice.
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory
 
 from machine_ctrl import ros_io
 from machine_ctrl.dual_stage import apply_offsets
-from machine_ctrl.node_common import (Rejections, StepResponder, declare, machine_parameter, main_for,
-                                      use_sim_time, wall_timer)
-from machine_ctrl.reference import ReferenceBuffer
+from machine_ctrl.node_common import declare, machine_parameter, main_for, wall_timer
 from machine_ctrl.servo import ServoGroup
+from machine_ctrl.step_node import StepNode
 
 
-class ServoNode(Node):
+class ServoNode(StepNode):
     def __init__(self, name: str = 'servo', **kwargs):
         super().__init__(name, **kwargs)
-        use_sim_time(self)
         self.machine = machine_parameter(self)
         controlled = [a.name for a in self.machine.axes if a.control is not None]
         axes = declare(self, 'axes', controlled, 'axes this node controls (machine axis names)')
         self.feedforward = declare(self, 'feedforward', True, 'velocity/acceleration/friction feed-forward')
-        self.input_timeout = declare(self, 'input_timeout', 0.5, 's (wall) to wait for a reference row or offsets')
         try:
             self.servo = ServoGroup(self.machine, axes, feedforward=self.feedforward)
         except ValueError as exc:
@@ -47,32 +42,18 @@ class ServoNode(Node):
         self.fine_names = [self.axes[i] for i in self.fine_slots]
         coupled = declare(self, 'dual_stage', bool(self.fine_slots), 'wait for /dual_stage/offsets')
         self.wait_for_offsets = coupled and bool(self.fine_slots)
-
-        self.clock = ros_io.StepClock(self.machine.control_period)
-        self.buffer = ReferenceBuffer(self.axes)
         self.offsets: dict[int, list[float]] = {}
+        self.offsets_started = False
         self.missing_offsets = 0
-        self.rejections = Rejections(self)
 
+        self.make_buffer(self.axes)
         self.pub = self.create_publisher(JointState, ros_io.TOPIC_COMMANDS, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
-        self.offsets_started = False
-        self.responder = StepResponder(self, self.pub, self.ready, self.compute, self.input_timeout,
-                                       streaming=self.streaming)
-        self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
-        self.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, ros_io.REFERENCE_QOS)
+        self.start_stepping(self.machine, self.axes, self.pub, self.ready, self.compute, self.streaming)
         if self.wait_for_offsets:
             self.create_subscription(JointState, ros_io.TOPIC_OFFSETS, self.on_offsets, ros_io.STEP_QOS)
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: axes {" ".join(self.axes)}')
-
-    def on_reference(self, msg: JointTrajectory) -> None:
-        try:
-            self.buffer.add(*ros_io.parse_chunk(self.clock, msg, self.axes))
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('reference', str(exc))
-            return
-        self.responder.poke()
 
     def on_offsets(self, msg: JointState) -> None:
         try:
@@ -83,12 +64,6 @@ class ServoNode(Node):
         self.offsets_started = True
         self.responder.poke()
 
-    def on_state(self, msg: JointState) -> None:
-        try:
-            self.responder.on_state(self.clock.step(msg.header.stamp), msg)
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('state', str(exc))
-
     def streaming(self) -> bool:
         return self.buffer.started and (self.offsets_started or not self.wait_for_offsets)
 
@@ -96,12 +71,10 @@ class ServoNode(Node):
         return self.buffer.has(step) and (not self.wait_for_offsets or step in self.offsets)
 
     def compute(self, step: int, msg: JointState) -> JointState | None:
-        try:
-            position = ros_io.select(msg, 'position', self.axes)
-            velocity = ros_io.select(msg, 'velocity', self.axes)
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('state', str(exc))
+        measured = self.positions(msg, self.axes, velocities=True)
+        if measured is None:
             return None
+        position, velocity = measured
         ref_pos, ref_vel, ref_acc, _ = self.buffer.take(step, position)
         offsets = self.offsets.pop(step, None)
         for old in [s for s in self.offsets if s < step]:
@@ -124,8 +97,7 @@ class ServoNode(Node):
     def publish_diagnostics(self) -> None:
         problems = self.buffer.underruns or self.missing_offsets or self.rejections.count
         step = self.responder.answered_step
-        values = {'axes': ' '.join(self.axes), 'answered_step': step,
-                  'waiting_for': self.waiting_for(),
+        values = {'axes': ' '.join(self.axes), 'answered_step': step, 'waiting_for': self.waiting_for(),
                   'reference_underruns': self.buffer.underruns, 'buffered_steps': len(self.buffer),
                   'missing_offsets': self.missing_offsets, 'rejected_messages': self.rejections.count,
                   'last_rejection': self.rejections.last}

@@ -23,9 +23,12 @@ class StateRecorder:
         from sensor_msgs.msg import JointState
 
         from machine_ctrl import ros_io
-        self.clock = None
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
         self.rows = {}
-        node.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
+        # deep reader queue: the graph may outrun this thread for a while, and a keep-last
+        # reader overwrites what it has not taken yet
+        qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
+        node.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, qos)
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)
         self.thread = threading.Thread(target=self.spin, daemon=True)

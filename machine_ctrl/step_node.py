@@ -1,0 +1,57 @@
+"""Base of the nodes that answer every lock-step state from the streamed reference (the
+servo and dual-stage nodes): the reference buffer fed from /reference, the /joint_states
+subscription, one answer per step (StepResponder) and the count of refused messages."""
+from __future__ import annotations
+
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from machine_ctrl import ros_io
+from machine_ctrl.node_common import Rejections, StepResponder, declare, use_sim_time
+from machine_ctrl.reference import ReferenceBuffer
+
+
+class StepNode(Node):
+    def __init__(self, name: str, **kwargs):
+        super().__init__(name, **kwargs)
+        use_sim_time(self)
+        self.input_timeout = declare(self, 'input_timeout', 0.5,
+                                     's (wall) to wait for a missing reference row or offsets')
+        self.rejections = Rejections(self)
+
+    def start_stepping(self, machine, reference_axes, publisher, ready, compute, streaming) -> None:
+        """Subscribe /joint_states and /reference; `ready`, `compute`, `streaming` as in
+        StepResponder."""
+        self.clock = ros_io.StepClock(machine.control_period)
+        self.reference_axes = tuple(reference_axes)
+        self.responder = StepResponder(self, publisher, ready, compute, self.input_timeout, streaming)
+        self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
+        self.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, ros_io.REFERENCE_QOS)
+
+    def make_buffer(self, axes) -> ReferenceBuffer:
+        self.buffer = ReferenceBuffer(axes)
+        return self.buffer
+
+    def on_reference(self, msg: JointTrajectory) -> None:
+        try:
+            self.buffer.add(*ros_io.parse_chunk(self.clock, msg, self.reference_axes))
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('reference', str(exc))
+            return
+        self.responder.poke()
+
+    def on_state(self, msg: JointState) -> None:
+        try:
+            self.responder.on_state(self.clock.step(msg.header.stamp), msg)
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('state', str(exc))
+
+    def positions(self, msg: JointState, axes, velocities: bool = False):
+        """Measured positions (and velocities) of `axes` from a state, or None if refused."""
+        try:
+            position = ros_io.select(msg, 'position', axes)
+            return (position, ros_io.select(msg, 'velocity', axes)) if velocities else position
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('state', str(exc))
+            return None
