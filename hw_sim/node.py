@@ -65,6 +65,7 @@ class HwSimNode(Node):
         self.truth_decimation = declare(self, 'ground_truth_decimation', 10,
                                         'publish ground truth every N steps (0: never)')
 
+        self.check_parameters(initial)
         self.clock = ros_io.StepClock(self.machine.control_period)
         self.sim = MachineSimulator(self.machine, initial_position=initial)
         self.lockstep = LockStep(axes)
@@ -87,6 +88,22 @@ class HwSimNode(Node):
             wall_timer(self, self.machine.control_period / self.real_time_factor, self.on_paced_tick)
         self.publish_state()
         self.get_logger().info(f'ready: {self.machine.name}, {self.mode}, {len(axes)} axes')
+
+    def check_parameters(self, initial) -> None:
+        problems = []
+        if not 0.0 < self.real_time_factor <= 1.0:
+            problems.append(f'real_time_factor must be in (0, 1], got {self.real_time_factor}')
+        if self.command_timeout <= 0.0 or self.republish_period <= 0.0:
+            problems.append('command_timeout and republish_period must be > 0')
+        if len(initial) != len(self.machine.axes) or not ros_io.all_finite(initial):
+            problems.append(f'initial_position needs {len(self.machine.axes)} finite values, got {list(initial)}')
+        else:
+            outside = [a.name for a, q in zip(self.machine.axes, initial) if not a.in_stroke(q)]
+            if outside:
+                problems.append(f'initial_position outside the stroke of {", ".join(outside)}')
+        if problems:
+            self.get_logger().fatal(f'parameters: {"; ".join(problems)}')
+            raise SystemExit(2)
 
     # -- stepping ----------------------------------------------------------------------
     def on_command(self, msg: JointState) -> None:
@@ -134,8 +151,7 @@ class HwSimNode(Node):
                        f'(no answer to step {self.lockstep.step} within {self.command_timeout:g} s)')
         elif now - self._state_sent_at > self.republish_period:
             self.publish_state(resend=True)      # late joiners; idempotent for the nodes
-        if self.mode == 'lockstep':
-            self.advance_if_ready()
+        self.advance_if_ready()                  # e.g. a recorder matched meanwhile
 
     def on_paced_tick(self) -> None:
         axes = self.lockstep.axis_names

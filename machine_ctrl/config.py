@@ -50,13 +50,6 @@ class DriveConfig:
         return self.force_constant * self.amplifier_gain
 
 
-@dataclass(frozen=True)
-class Limits:
-    velocity: float
-    acceleration: float
-    jerk: float
-
-
 def _positive(**kw):
     return field(metadata={'check': 'positive'}, **kw)
 
@@ -66,15 +59,22 @@ def _nonnegative(**kw):
 
 
 @dataclass(frozen=True)
+class Limits:
+    velocity: float = _positive()
+    acceleration: float = _positive()
+    jerk: float = _positive()
+
+
+@dataclass(frozen=True)
 class FrictionConfig:
     """Plant friction of a linear-motor axis: LuGre bristle dynamics (thesis Eqs. 4.58,
     4.62) whose steady state is the asymmetric Stribeck curve of Eq. (4.41), with the
     magnitude varying sinusoidally along the stroke. Pairs are (positive, negative direction)
     magnitudes."""
-    static: tuple[float, float]               # N, F_stat
-    coulomb: tuple[float, float]              # N, F_coul
-    omega1: tuple[float, float]               # m/s, Stribeck decay of static friction
-    omega2: tuple[float, float]               # m/s, rise of Coulomb friction
+    static: tuple[float, float] = _nonnegative()     # N, F_stat
+    coulomb: tuple[float, float] = _nonnegative()    # N, F_coul
+    omega1: tuple[float, float] = _positive()        # m/s, Stribeck decay of static friction
+    omega2: tuple[float, float] = _positive()        # m/s, rise of Coulomb friction
     sigma0: float = _positive()               # N/m, bristle stiffness
     sigma1: float = _nonnegative()            # N*s/m, bristle damping
     variation: float = _nonnegative(default=0.0)            # relative amplitude along the stroke
@@ -296,12 +296,6 @@ def _drive(s: _Section) -> DriveConfig:
     return drive
 
 
-def _limits(s: _Section) -> Limits:
-    limits = Limits(*(s.number(k, positive=True) for k in ('velocity', 'acceleration', 'jerk')))
-    s.finish()
-    return limits
-
-
 def _read(s: _Section, cls):
     """Read dataclass ``cls`` from section ``s`` by its field names and type hints: floats
     (checked by the field's metadata), number pairs, nested dataclasses (optional when the
@@ -340,8 +334,9 @@ def _value(s: _Section, f, hint):
     if len(raw) != 2:                                # tuple[float, float]
         s.fail(f'must be a pair of numbers, got {raw!r}', name)
     pair = _Section({'0': raw[0], '1': raw[1]}, s.file, f'{s.key}.{name}')
-    return (pair.number('0', nonnegative=f.name != 'disturbance_bounds'),
-            pair.number('1', nonnegative=f.name != 'disturbance_bounds'))
+    check = f.metadata.get('check')
+    return tuple(pair.number(k, positive=check == 'positive', nonnegative=check == 'nonnegative')
+                 for k in ('0', '1'))
 
 
 def _control(s: _Section) -> ControlConfig:
@@ -354,7 +349,7 @@ def _control(s: _Section) -> ControlConfig:
 
 
 def _axis(s: _Section, name: str, joint: urdf.Joint) -> AxisConfig:
-    limits = _limits(s.section('limits'))
+    limits = _read(s.section('limits'), Limits)
     if not math.isclose(joint.velocity, limits.velocity, rel_tol=1e-9):
         s.fail(f'{limits.velocity:g} differs from the URDF joint velocity limit {joint.velocity:g}',
                'limits.velocity')
