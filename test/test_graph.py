@@ -100,3 +100,47 @@ def test_multi_process_graph_equals_offline_runner(micromill, offline, ros_node,
 
 def test_single_process_graph_equals_offline_runner(micromill, offline, ros_node, ros_supervisor):
     assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=True), offline)
+
+
+def test_dual_stage_switches_off_and_on_at_runtime(micromill, ros_node, ros_supervisor):
+    """/dual_stage/enable (std_srvs/SetBool) on the running graph: offsets drop to exactly
+    zero while off and come back when on."""
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+    from std_srvs.srv import SetBool
+
+    from machine_ctrl import ros_io
+    node = ros_node('switcher')
+    offsets = []
+    node.create_subscription(JointState, ros_io.TOPIC_OFFSETS, lambda m: offsets.append(list(m.position)),
+                             ros_io.STEP_QOS)
+    client = node.create_client(SetBool, '/dual_stage/enable')
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.graph', '--machine', str(micromill.yaml_path)])
+
+    def spin_until(predicate, timeout=60.0):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            assert time.monotonic() < deadline, 'timed out'
+            executor.spin_once(timeout_sec=0.05)
+            ros_supervisor.check()
+
+    def switch(on):
+        assert client.wait_for_service(timeout_sec=30)
+        future = client.call_async(SetBool.Request(data=on))
+        spin_until(future.done)
+        assert future.result().success
+        del offsets[:]
+        spin_until(lambda: len(offsets) > 300)
+
+    try:
+        spin_until(lambda: len(offsets) > 300)
+        assert any(v != 0.0 for row in offsets for v in row)          # coupling works
+        switch(False)
+        assert all(v == 0.0 for row in offsets[50:] for v in row)      # off: zero offsets
+        switch(True)
+        assert any(v != 0.0 for row in offsets[50:] for v in row)
+    finally:
+        executor.shutdown()
+        ros_supervisor.stop_all()
