@@ -1,0 +1,291 @@
+"""Redundancy resolution (trajectory/redundancy.py, Yuen thesis §3.3-3.8, Algorithm 1).
+
+The paths are analytic; their derivatives come from a small truncated-Taylor (jet)
+arithmetic written here, independently of the code under test.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from machine_ctrl.kinematics import orientation_basis
+from trajectory.redundancy import (RedundancySettings, Resolution, _basis,
+                                   initial_configuration, resolve)
+
+
+class Jet:
+    """Value and first three derivatives d^k/ds^k of a scalar function of s."""
+
+    def __init__(self, d):
+        self.d = np.asarray(d, dtype=float)
+
+    @staticmethod
+    def const(c):
+        return Jet([c, 0.0, 0.0, 0.0])
+
+    def __add__(self, other):
+        other = other if isinstance(other, Jet) else Jet.const(other)
+        return Jet(self.d + other.d)
+
+    __radd__ = __add__
+
+    def __neg__(self):
+        return Jet(-self.d)
+
+    def __sub__(self, other):
+        return self + (-other)
+
+    def __mul__(self, other):
+        if not isinstance(other, Jet):
+            return Jet(self.d * other)
+        f, g = self.d, other.d
+        return Jet([f[0] * g[0], f[1] * g[0] + f[0] * g[1],
+                    f[2] * g[0] + 2 * f[1] * g[1] + f[0] * g[2],
+                    f[3] * g[0] + 3 * f[2] * g[1] + 3 * f[1] * g[2] + f[0] * g[3]])
+
+    __rmul__ = __mul__
+
+    def _chain(self, f0, f1, f2, f3):
+        """Faa di Bruno to third order for an outer function with derivatives f0..f3."""
+        u1, u2, u3 = self.d[1:]
+        return Jet([f0, f1 * u1, f2 * u1**2 + f1 * u2, f3 * u1**3 + 3 * f2 * u1 * u2 + f1 * u3])
+
+    def sin(self):
+        s, c = math.sin(self.d[0]), math.cos(self.d[0])
+        return self._chain(s, c, -s, -c)
+
+    def cos(self):
+        s, c = math.sin(self.d[0]), math.cos(self.d[0])
+        return self._chain(c, -s, -c, s)
+
+
+class JetPath:
+    """Path interface of trajectory.redundancy from a function s-jet -> (P jets, O jets)."""
+
+    def __init__(self, length, function):
+        self.length, self._f = length, function
+
+    def _eval(self, s):
+        p, o = self._f(Jet([s, 1.0, 0.0, 0.0]))
+        return np.array([c.d for c in p]).T, np.array([c.d for c in o]).T   # (4, 3) each
+
+    def evaluate(self, s):
+        p, o = self._eval(s)
+        return p[0], o[0]
+
+    def derivatives(self, s, order):
+        p, o = self._eval(s)
+        return p[order], o[order]
+
+
+def circle(radius, centre, turns=1.0):
+    """x-y circle P = c + R (cos(s/R), sin(s/R), 0), O = +z (thesis §3.4)."""
+    def f(s):
+        t = s * (1.0 / radius)
+        return ((t.cos() * radius + centre[0], t.sin() * radius + centre[1], Jet.const(centre[2])),
+                (Jet.const(0.0), Jet.const(0.0), Jet.const(1.0)))
+    return JetPath(2 * math.pi * radius * turns, f)
+
+
+def tilted_helix(radius, pitch, turns, centre, shear=0.05):
+    """Helix of `turns` turns, its axis tilted by `shear` (x += shear z), with a tool axis
+    O = (cos a sin g, -sin a, cos a cos g) wobbling twice per turn: a = 3.5 mrad sin(2t),
+    g = 0.5 mrad + 3 mrad cos(2t), i.e. at most 0.29 deg from vertical."""
+    k = math.hypot(radius, pitch / (2 * math.pi))
+
+    def f(s):
+        t = s * (1.0 / k)
+        z = t * (pitch / (2 * math.pi))
+        p = (t.cos() * radius + z * shear + centre[0], t.sin() * radius + centre[1], z + centre[2])
+        a = (t * 2.0).sin() * 3.5e-3
+        g = (t * 2.0).cos() * 3e-3 + 0.5e-3
+        o = (a.cos() * g.sin(), -a.sin(), a.cos() * g.cos())
+        return p, o
+    return JetPath(2 * math.pi * turns * k, f)
+
+
+@pytest.fixture(scope='module')
+def home_tip(micromill, micromill_kin):
+    return micromill_kin.forward(np.array(micromill.home))[0]
+
+
+def task_errors(kin, path, res):
+    ep, eo = [], []
+    for s, q in zip(res.s, res.q):
+        p, o = kin.forward(q)
+        pd, od = path.evaluate(s)
+        ep.append(np.linalg.norm(p - pd))
+        eo.append(math.atan2(np.linalg.norm(np.cross(o, od)), o @ od))
+    return np.array(ep), np.array(eo)
+
+
+def strokes(machine):
+    lo = np.array([a.stroke[0] if a.stroke else -np.inf for a in machine.axes])
+    hi = np.array([a.stroke[1] if a.stroke else np.inf for a in machine.axes])
+    return lo, hi
+
+
+def test_jet_path_derivatives_match_finite_differences():
+    # guards the test paths themselves
+    path = tilted_helix(2e-3, 0.5e-3, 1, (0, 0, 0))
+    h = 1e-5
+    for s in (1e-3, 5e-3):
+        for order in (1, 2, 3):
+            lo = np.concatenate(path.derivatives(s - h, order - 1) if order > 1 else path.evaluate(s - h))
+            hi = np.concatenate(path.derivatives(s + h, order - 1) if order > 1 else path.evaluate(s + h))
+            exact = np.concatenate(path.derivatives(s, order))
+            assert np.allclose((hi - lo) / (2 * h), exact, rtol=1e-5, atol=1e-5 * np.abs(exact).max())
+
+
+def test_basis_is_the_kinematics_basis():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        o = rng.normal(size=3)
+        o /= np.linalg.norm(o)
+        assert np.allclose(_basis(o), orientation_basis(o), atol=1e-15)
+
+
+@pytest.fixture(scope='module')
+def helix_run(micromill, micromill_kin, home_tip):
+    path = tilted_helix(2e-3, 0.5e-3, 2, home_tip + np.array([-2e-3, 0, -0.5e-3]))
+    return path, resolve(path, micromill_kin, micromill, RedundancySettings())
+
+
+def test_helix_tracks_the_path_inside_the_strokes(micromill, micromill_kin, helix_run):
+    path, res = helix_run
+    assert isinstance(res, Resolution)
+    n = len(res.s)
+    assert res.q.shape == res.dq.shape == res.ddq.shape == res.dddq.shape == (n, 9)
+    assert res.s[0] == 0.0 and res.s[-1] == pytest.approx(path.length, rel=1e-15)
+    assert np.allclose(np.diff(res.s), path.length / (n - 1))
+    ep, eo = task_errors(micromill_kin, path, res)
+    assert ep.max() <= 1e-9 and eo.max() <= 1e-9
+    assert res.max_position_error == pytest.approx(ep.max(), abs=1e-13)
+    assert res.max_orientation_error <= 1e-9
+    lo, hi = strokes(micromill)
+    assert np.all(res.q >= lo) and np.all(res.q <= hi)
+    # the redundant pairs really share the motion: the coarse axes carry the mm
+    assert np.ptp(res.q[:, 0]) > 3e-3 and np.ptp(res.q[:, 1]) > 3e-3
+
+
+def test_drift_without_projection_stays_small(micromill, micromill_kin, home_tip):
+    # RK4 + the K_e correction alone (Eq. 3.27, no Newton projection): thesis Fig. 3.7 level
+    path = tilted_helix(2e-3, 0.5e-3, 1, home_tip + np.array([-2e-3, 0, -0.5e-3]))
+    res = resolve(path, micromill_kin, micromill, RedundancySettings(projection_iterations=0))
+    ep, eo = task_errors(micromill_kin, path, res)
+    assert ep.max() <= 1e-9 and eo.max() <= 1e-9
+
+
+XY = ('x_c', 'y_c', 'x_f', 'y_f')
+
+
+def circle_run(micromill, kin, home_tip, beta):
+    path = circle(4e-3, home_tip)     # thesis §3.4: R = 4 mm in the x-y plane
+    settings = RedundancySettings(active_axes=XY, beta=beta)
+    return path, resolve(path, kin, micromill, settings)
+
+
+def test_circle_stroke_cost_keeps_fine_axes_inside(micromill, micromill_kin, home_tip):
+    names = micromill.axis_names
+    xf, yf = names.index('x_f'), names.index('y_f')
+    frozen = [names.index(a) for a in names if a not in XY]
+    _, free = circle_run(micromill, micromill_kin, home_tip, beta=0.0)         # Fig. 3.2
+    path, held = circle_run(micromill, micromill_kin, home_tip, beta=5e-5)     # Fig. 3.3
+    # without the cost the minimum-norm rate splits the motion equally: x_f = x_c motion,
+    # +-2 mm of a 4 mm circle, far outside the +-100 µm fine stroke
+    assert np.abs(free.q[:, [xf, yf]]).max() > 1e-3
+    assert np.allclose(np.ptp(free.q[:, xf]), 4e-3, rtol=1e-6)
+    assert np.abs(held.q[:, [xf, yf]]).max() < 100e-6
+    for res in (free, held):
+        assert np.all(res.q[:, frozen] == res.q[0, frozen])
+        assert res.max_position_error <= 1e-9
+    ep, _ = task_errors(micromill_kin, path, held)
+    assert ep.max() <= 1e-9
+
+
+def test_circle_minimum_norm_derivatives_are_exact(micromill, micromill_kin, home_tip):
+    # beta = 0, a, b, c frozen at 0: P_x = -x_c - x_f + const, so the minimum-norm rate is
+    # d^k x_c/ds^k = d^k x_f/ds^k = -d^k P_x/ds^k / 2 (and the same for y), exactly.
+    path, res = circle_run(micromill, micromill_kin, home_tip, beta=0.0)
+    names = micromill.axis_names
+    for k, out in ((1, res.dq), (2, res.ddq), (3, res.dddq)):
+        expected = np.array([path.derivatives(s, k)[0][:2] for s in res.s]) * -0.5
+        scale = np.abs(expected).max()                  # 0.5, 125 1/m, 3.1e4 1/m²
+        for axis, col in (('x_c', 0), ('x_f', 0), ('y_c', 1), ('y_f', 1)):
+            err = np.abs(out[:, names.index(axis)] - expected[:, col]).max()
+            assert err <= 1e-6 * scale, (axis, k, err / scale)
+
+
+def fd_derivatives(res, stride):
+    """4th-order central differences of the resolved q over s (spacing stride * Δs), on the
+    strided samples 3 .. M-4 (M samples)."""
+    q, h = res.q[::stride], (res.s[stride] - res.s[0])
+    m = len(q)
+
+    def at(j):
+        return q[3 + j:m - 3 + j]
+    d1 = (-at(2) + 8 * at(1) - 8 * at(-1) + at(-2)) / (12 * h)
+    d2 = (-at(2) + 16 * at(1) - 30 * at(0) + 16 * at(-1) - at(-2)) / (12 * h**2)
+    d3 = (-at(3) + 8 * at(2) - 13 * at(1) + 13 * at(-1) - 8 * at(-2) + at(-3)) / (8 * h**3)
+    return d1, d2, d3
+
+
+def assert_derivatives_match(res, tolerances, skip):
+    """dq, ddq, dddq of the resolution against 4th-order differences of its samples q[n]
+    (spacing 2 Δs), relative to max|d^k q/ds^k| of each axis, after `skip` strided samples."""
+    stride = 2
+    d1, d2, d3 = fd_derivatives(res, stride)
+    for k, fd, out, tolerance in zip((1, 2, 3), (d1, d2, d3), (res.dq, res.ddq, res.dddq),
+                                     tolerances):
+        ours = out[::stride][3:-3][skip:]
+        scale = np.abs(ours).max(axis=0)
+        scale[scale == 0] = 1.0
+        rel = (np.abs(ours - fd[skip:]) / scale).max()
+        assert rel < tolerance, (k, rel)
+
+
+def test_derivatives_match_finite_differences_of_q_helix(helix_run):
+    # Δs = 20 µm: the differences of the samples themselves are off by up to 3e-5 / 3e-4 /
+    # 4.5e-3 of max|d^k q/ds^k| (k = 1, 2, 3; worst on y_f: the differences' truncation and
+    # the RK4 discretization of the stiff nullspace mode, rate beta/h_f² = 5e3 1/m; they
+    # shrink ~10x when Δs halves, see the next test). The first 0.4 mm (start-up transient of
+    # that mode) are left out.
+    _, res = helix_run
+    assert_derivatives_match(res, (1e-4, 1e-3, 1e-2), skip=10)
+
+
+def test_derivatives_match_finite_differences_of_q_fine_step(micromill, micromill_kin, home_tip):
+    # Δs = 5 µm over a quarter of the 4 mm circle with the stroke cost: the sample
+    # differences are accurate to ~1e-5 (k = 1, 2) and ~2e-4 (k = 3) of max|d^k q/ds^k|
+    path = circle(4e-3, home_tip, turns=0.25)
+    settings = RedundancySettings(active_axes=XY, beta=5e-5, step=5e-6)
+    res = resolve(path, micromill_kin, micromill, settings)
+    assert_derivatives_match(res, (1e-5, 1e-4, 5e-4), skip=40)
+
+
+def test_initial_configuration_matches_path_start(micromill, micromill_kin, home_tip):
+    path = tilted_helix(2e-3, 0.5e-3, 1, home_tip + np.array([-2e-3, 0, -0.5e-3]))
+    q0 = initial_configuration(path, micromill_kin, micromill)
+    p, o = micromill_kin.forward(q0)
+    pd, od = path.evaluate(0.0)
+    assert np.linalg.norm(p - pd) < 1e-12 and np.linalg.norm(o - od) < 1e-12
+    # the stroke weighting leaves the fine linear axes essentially at home
+    assert np.abs(q0[3:6]).max() < 1e-8
+
+
+def test_bad_inputs_are_rejected(micromill, micromill_kin, home_tip):
+    path = circle(4e-3, home_tip)
+    with pytest.raises(ValueError):
+        RedundancySettings(step=0.0)
+    with pytest.raises(ValueError):
+        RedundancySettings(beta=-1.0)
+    with pytest.raises(ValueError):
+        resolve(path, micromill_kin, micromill, RedundancySettings(active_axes=('x_q',)))
+    with pytest.raises(ValueError):
+        resolve(path, micromill_kin, micromill, q0=np.full(9, np.nan))
+    # z cannot follow a path away from z with x, y only
+    away = circle(4e-3, home_tip + np.array([0, 0, 1e-3]))
+    with pytest.raises(ValueError):
+        resolve(away, micromill_kin, micromill, RedundancySettings(active_axes=XY))
