@@ -137,8 +137,9 @@ class StepResponder:
             if step == self.answered[0]:
                 self.publisher.publish(self.answered[1])
             return
+        if self.pending is None or self.pending[0] != step:     # a re-send keeps its first arrival
+            self.pending_since = time.monotonic()
         self.pending = (step, msg)
-        self.pending_since = time.monotonic()
         self.poke()
 
     def poke(self, give_up: bool = False) -> None:
