@@ -21,6 +21,11 @@ Stable outputs (scripts rely on them):
   prints ``{"bandwidth_hz": {"x_c": ..., "x_f": ..., "x_dual": ..., ...}, "frequencies_hz":
   [...], "gain": {...}}``.
 
+* ``machine-ctrl plan PATH --machine M --out DIR [--json] [--feed F]``: plans a toolpath (CSV
+  or built-in name) without running it, writes DIR/references.csv (``time,<axes>``, SI) and
+  prints traversal time, planning time, max tool-pose deviation and per-axis peak
+  |v|, |a|, |j| over the limits (``--json``: one object).
+
 MACHINE is a machine name (``config/machines/<name>.yaml``) or a path to such a YAML file;
 the default is micromill_9axis. Configuration errors print one line and exit with 2.
 """
@@ -184,6 +189,37 @@ def cmd_experiment(args) -> int:
     return 0
 
 
+def cmd_plan(args) -> int:
+    """``plan PATH --machine M --out DIR [--json] [--feed F]``: plan without running, write
+    DIR/references.csv (time, then each axis position in info order, SI) and a summary."""
+    import os
+    import numpy as np
+    from trajectory.planner import DEFAULT_FEED, plan
+    machine = load_machine(args.machine)
+    try:
+        result = plan(args.path, machine, feed=DEFAULT_FEED if args.feed is None else args.feed)
+        os.makedirs(args.out, exist_ok=True)
+        ref = result.reference
+        table = np.column_stack((np.arange(len(ref)) * ref.period, ref.position))
+        np.savetxt(os.path.join(args.out, 'references.csv'), table, fmt='%.17g', delimiter=',',
+                   header='time,' + ','.join(machine.axis_names), comments='')
+    except (ValueError, OSError) as exc:
+        print(f'machine-ctrl: plan: {" ".join(str(exc).split())}', file=sys.stderr)
+        return 2
+    summary = result.summary()
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print(f"traversal time   {summary['traversal_time']:.4f} s ({summary['samples']} samples)")
+    print(f"planning time    {summary['planning_time']:.3f} s")
+    print(f"max deviation    {summary['max_position_deviation']:.3g} m, "
+          f"{summary['max_orientation_deviation']:.3g} rad")
+    print('axis  |v|/v_max  |a|/a_max  |j|/j_max')
+    for name, r in summary['peak_ratios'].items():
+        print(f"{name:5s} {r['velocity']:9.4f}  {r['acceleration']:9.4f}  {r['jerk']:9.4f}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='machine-ctrl', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -200,6 +236,13 @@ def build_parser() -> argparse.ArgumentParser:
     experiment.add_argument('--json', action='store_true', help='one JSON object on stdout')
     experiment.add_argument('--quiet', action='store_true', help='no progress on stderr')
     experiment.set_defaults(run=cmd_experiment)
+    plan = sub.add_parser('plan', help='plan a toolpath and write the sampled references')
+    plan.add_argument('path', help='CSV file (px,py,pz,oi,oj,ok, SI) or built-in toolpath name')
+    plan.add_argument('--machine', default=DEFAULT_MACHINE)
+    plan.add_argument('--out', required=True, help='directory for references.csv')
+    plan.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    plan.add_argument('--feed', type=float, help='process feed limit, m/s (default: the planner\'s, 10 mm/s)')
+    plan.set_defaults(run=cmd_plan)
     return parser
 
 

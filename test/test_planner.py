@@ -1,0 +1,69 @@
+"""plan(): fit -> resolve -> feed -> sample, and `machine-ctrl plan`."""
+import json
+
+import numpy as np
+import pytest
+
+from machine_ctrl import cli
+from trajectory import toolpath
+from trajectory.planner import plan
+
+
+@pytest.fixture(scope='module')
+def short_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp('cl') / 'quarter_helix.csv'
+    toolpath.write_csv(path, toolpath.helix(turns=0.25))
+    return path
+
+
+@pytest.fixture(scope='module')
+def planned(micromill, short_csv):
+    return plan(str(short_csv), micromill, feed=0.01)
+
+
+def test_plan_result_is_exact_inside_the_limits_and_at_rest(planned, micromill):
+    r = planned
+    assert r.max_position_deviation <= 1e-9 and r.max_orientation_deviation <= 1e-9
+    assert set(r.peak_ratios) == set(micromill.axis_names)
+    for name, ratios in r.peak_ratios.items():
+        assert max(ratios.values()) <= 1.001, name
+    ref = r.reference
+    assert r.traversal_time == pytest.approx((len(ref) - 1) * micromill.control_period)
+    assert r.traversal_time >= r.path.length / 0.01          # the process feed limit
+    assert not ref.velocity[[0, -1]].any() and not ref.acceleration[[0, -1]].any()
+    T = micromill.control_period
+    jerk = np.abs(np.diff(ref.position, 3, axis=0)).max(axis=0) / T**3
+    assert (jerk <= 1.001 * np.array([a.limits.jerk for a in micromill.axes])).all()
+
+
+def test_plan_rejects_a_bad_feed(micromill):
+    with pytest.raises(ValueError, match='feed'):
+        plan('circle_xy', micromill, feed=-1.0)
+
+
+def test_cli_plan_writes_references_and_json(short_csv, tmp_path, capsys, micromill):
+    out = tmp_path / 'out'
+    assert cli.main(['plan', str(short_csv), '--out', str(out), '--json']) == 0
+    summary = json.loads(capsys.readouterr().out)
+    for key in ('traversal_time', 'planning_time', 'max_position_deviation',
+                'max_orientation_deviation', 'peak_ratios'):
+        assert key in summary
+    assert list(summary['peak_ratios']) == list(micromill.axis_names)
+    lines = (out / 'references.csv').read_text().splitlines()
+    assert lines[0] == 'time,' + ','.join(micromill.axis_names)
+    table = np.loadtxt(out / 'references.csv', delimiter=',', skiprows=1)
+    assert table[0, 0] == 0.0
+    assert table[-1, 0] == pytest.approx(summary['traversal_time'])
+
+
+@pytest.mark.parametrize('content', [None, 'px,py,pz,oi,oj,ok\n0,0,0,0,0,1\nx,1,2,3,4,5\n'])
+def test_cli_plan_bad_path_exits_2_with_one_line(tmp_path, capsys, content):
+    if content is None:
+        target = 'no_such_toolpath'
+    else:
+        target = tmp_path / 'bad.csv'
+        target.write_text(content)
+    assert cli.main(['plan', str(target), '--out', str(tmp_path / 'o')]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ''
+    assert len(captured.err.strip().splitlines()) == 1

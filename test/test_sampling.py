@@ -1,0 +1,88 @@
+"""Septic interpolation (Eqs. 3.39-3.40) and time sampling (Eq. 3.38) of a resolved path."""
+import math
+
+import numpy as np
+import pytest
+
+from trajectory import toolpath
+from trajectory.feedrate import FeedLimits, optimize_feed
+from trajectory.redundancy import resolve
+from trajectory.sampling import SepticInterpolant, sample
+from trajectory.spline import ArcLengthPath
+
+
+def test_septic_interpolant_reproduces_a_degree_7_polynomial_and_its_derivatives():
+    poly = np.polynomial.Polynomial([0.3, -1.0, 2.0, 0.5, -4.0, 1.5, 0.7, -2.0])
+    s = np.array([0.0, 0.13, 0.31, 0.5, 0.82, 1.0])
+    data = [poly.deriv(k)(s)[:, None] for k in range(4)]
+    interp = SepticInterpolant(s, *data)
+    x = np.linspace(0.0, 1.0, 97)
+    for k in range(4):
+        assert np.allclose(interp.evaluate(x, k)[:, 0], poly.deriv(k)(x), rtol=0, atol=1e-10)
+
+
+def test_septic_interpolant_rejects_non_increasing_nodes():
+    q = np.zeros((3, 1))
+    with pytest.raises(ValueError, match='increasing'):
+        SepticInterpolant([0.0, 1.0, 1.0], q, q, q, q)
+
+
+@pytest.fixture(scope='module')
+def quarter_helix(micromill, micromill_kin):
+    path = ArcLengthPath.fit(toolpath.helix(turns=0.25))
+    res = resolve(path, micromill_kin, micromill)
+    limits = FeedLimits.from_machine(micromill, 0.01)
+    idx = np.arange(0, len(res.s), 2) if (len(res.s) - 1) % 2 == 0 else np.arange(len(res.s))
+    profile = optimize_feed(res.s[idx], res.dq[idx], res.ddq[idx], res.dddq[idx], limits)
+    result = sample(SepticInterpolant.from_resolution(res), profile.s, profile.b, limits,
+                    micromill.control_period, micromill.axis_names)
+    return path, res, result
+
+
+def test_sampled_positions_follow_the_path_exactly(quarter_helix, micromill_kin):
+    path, _, result = quarter_helix
+    p_path, o_path = path.evaluate(result.s)
+    for k in range(0, len(result.s), 5):
+        p, o = micromill_kin.forward(result.reference.position[k])
+        assert np.linalg.norm(p - p_path[k]) <= 1e-9
+        angle = math.atan2(np.linalg.norm(np.cross(o, o_path[k])), o @ o_path[k])
+        assert angle <= 1e-9
+
+
+def test_sampled_references_keep_strokes_and_limits_by_finite_differences(quarter_helix, micromill):
+    _, _, result = quarter_helix
+    ref = result.reference
+    T = micromill.control_period
+    assert ref.period == T
+    held = np.vstack([np.repeat(ref.position[:1], 3, 0), ref.position, np.repeat(ref.position[-1:], 3, 0)])
+    for i, axis in enumerate(micromill.axes):
+        if axis.stroke:
+            assert axis.stroke[0] <= ref.position[:, i].min() and ref.position[:, i].max() <= axis.stroke[1]
+        x = held[:, i]
+        assert np.abs(np.diff(x)).max() / T <= 1.001 * axis.limits.velocity
+        assert np.abs(np.diff(x, 2)).max() / T**2 <= 1.001 * axis.limits.acceleration
+        assert np.abs(np.diff(x, 3)).max() / T**3 <= 1.001 * axis.limits.jerk
+
+
+def test_reference_starts_and_ends_at_rest_on_the_path_ends(quarter_helix):
+    path, res, result = quarter_helix
+    ref = result.reference
+    assert result.s[0] == 0.0 and result.s[-1] == pytest.approx(path.length, abs=1e-15)
+    assert np.allclose(ref.position[0], res.q[0], rtol=0, atol=1e-15)
+    assert np.allclose(ref.position[-1], res.q[-1], rtol=0, atol=1e-15)
+    for a in (ref.velocity, ref.acceleration):
+        assert not a[0].any() and not a[-1].any()
+
+
+def test_velocity_reference_matches_the_position_differences(quarter_helix, micromill):
+    _, _, result = quarter_helix
+    ref = result.reference
+    central = (ref.position[2:] - ref.position[:-2]) / (2 * ref.period)
+    scale = np.array([a.limits.velocity for a in micromill.axes])
+    assert np.max(np.abs(central - ref.velocity[1:-1]) / scale) < 1e-3
+
+
+def test_no_faster_than_the_process_feed_limit(quarter_helix):
+    path, _, result = quarter_helix
+    assert result.duration >= path.length / 0.01
+    assert result.sdot.max() <= 0.01 * 1.001

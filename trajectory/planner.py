@@ -1,0 +1,113 @@
+"""Path planning end to end (Yuen thesis Ch. 3): fit R(s) (Eq. 3.12) -> redundancy
+resolution (Algorithm 1) -> feed optimization (§3.9) -> septic interpolation and time
+sampling (§3.10, Eqs. 3.38-3.40), with the sampled references checked against the limits
+and the tool pose of the sampled q checked against R(s)."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from machine_ctrl.config import MachineConfig, load_machine
+from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.reference import Reference
+from trajectory import toolpath
+from trajectory.feedrate import FeedLimits, FeedProfile, optimize_feed
+from trajectory.redundancy import RedundancySettings, Resolution, resolve
+from trajectory.sampling import SepticInterpolant, Sampling, sample
+from trajectory.spline import ArcLengthPath
+
+# assumed: process feed limit 10 mm/s. The thesis sets the process limit of its finishing
+# pass at 10 [mm/s] (§6.2, Fig. 6.7: "the limitation of the feedrate will also come from the
+# process itself, which was set at 10 [mm/s]"); no other process limit is stated.
+DEFAULT_FEED = 10e-3
+# assumed: <= 1000 feed nodes (optimize_feed takes ~2 s for 9 axes at this size; its grid
+# error is a few %, which the sampler's verification absorbs).
+MAX_FEED_NODES = 1000
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    reference: Reference
+    traversal_time: float            # s, first to last sample
+    planning_time: float             # s, wall: fit + resolve + feed + sampling (not the pose check)
+    max_position_deviation: float    # m, |FK(q(t_k)) - P(s_k)| over every sample
+    max_orientation_deviation: float  # rad, angle between FK tool axis and O(s_k)
+    peak_ratios: dict                # axis -> {'velocity', 'acceleration', 'jerk'}: peak / limit
+    path: ArcLengthPath
+    resolution: Resolution
+    feed: FeedProfile
+    sampling: Sampling
+
+    def summary(self) -> dict:
+        return {'traversal_time': self.traversal_time, 'planning_time': self.planning_time,
+                'max_position_deviation': self.max_position_deviation,
+                'max_orientation_deviation': self.max_orientation_deviation,
+                'samples': len(self.reference), 'control_period': self.reference.period,
+                'feed_scale': self.sampling.feed_scale, 'peak_ratios': self.peak_ratios}
+
+
+def load_toolpath(cl_or_name) -> toolpath.CLData:
+    """CLData as given, a built-in name, or a CSV path."""
+    if isinstance(cl_or_name, toolpath.CLData):
+        return cl_or_name
+    name = str(cl_or_name)
+    if name in toolpath.BUILTIN:
+        return toolpath.builtin(name)
+    import os
+    if not os.path.isfile(name):
+        raise ValueError(f'{name}: not a built-in toolpath ({", ".join(toolpath.BUILTIN)}) '
+                         'nor a CSV file')
+    return toolpath.read_csv(name)
+
+
+def feed_subgrid(n_intervals: int, max_nodes: int = MAX_FEED_NODES) -> int | None:
+    """Stride of the largest uniform subgrid (including both ends) of a grid with n_intervals
+    and at most max_nodes nodes, if it keeps >= max_nodes / 2 nodes; else None."""
+    for count in range(min(n_intervals, max_nodes - 1), max(1, (max_nodes - 1) // 2) - 1, -1):
+        if n_intervals % count == 0:
+            return n_intervals // count
+    return None
+
+
+def plan(cl_or_name, machine, feed: float = DEFAULT_FEED, settings: RedundancySettings | None = None,
+         q0=None, kinematics: Kinematics | None = None, max_feed_nodes: int = MAX_FEED_NODES) -> PlanResult:
+    """Plan the toolpath (CLData, built-in name or CSV path) on `machine` (MachineConfig or
+    name) with the process feed limit `feed` (m/s)."""
+    if not (isinstance(feed, (int, float)) and math.isfinite(feed) and feed > 0):
+        raise ValueError(f'feed must be a positive finite speed in m/s, got {feed!r}')
+    if not isinstance(machine, MachineConfig):
+        machine = load_machine(machine)
+    kinematics = kinematics or Kinematics.from_config(machine)
+    cl = load_toolpath(cl_or_name)
+    start = time.perf_counter()
+    path = ArcLengthPath.fit(cl)
+    res = resolve(path, kinematics, machine, settings, q0)
+    interp = SepticInterpolant.from_resolution(res)
+    limits = FeedLimits.from_machine(machine, feed)
+    n = len(res.s) - 1
+    stride = feed_subgrid(n, max_feed_nodes)
+    if stride is not None:
+        idx = np.arange(0, n + 1, stride)
+        fs, d1, d2, d3 = res.s[idx], res.dq[idx], res.ddq[idx], res.dddq[idx]
+    else:   # no uniform subgrid of the right size: derivatives of the septic interpolant
+        fs = np.linspace(res.s[0], res.s[-1], max_feed_nodes)
+        d1, d2, d3 = (interp.evaluate(fs, k) for k in (1, 2, 3))
+    profile = optimize_feed(fs, d1, d2, d3, limits)
+    sampling = sample(interp, profile.s, profile.b, limits, machine.control_period, machine.axis_names)
+    planning_time = time.perf_counter() - start
+
+    ref = sampling.reference
+    p_path, o_path = path.evaluate(sampling.s)
+    ep = eo = 0.0
+    for k in range(len(ref)):
+        p, o = kinematics.forward(ref.position[k])
+        ep = max(ep, float(np.linalg.norm(p - p_path[k])))
+        c = np.cross(o, o_path[k])
+        eo = max(eo, math.atan2(float(np.linalg.norm(c)), float(o @ o_path[k])))
+    ratios = {name: {'velocity': float(r[0]), 'acceleration': float(r[1]), 'jerk': float(r[2])}
+              for name, r in zip(machine.axis_names, sampling.peak_ratios)}
+    return PlanResult(ref, sampling.duration, planning_time, ep, eo, ratios, path, res, profile,
+                      sampling)

@@ -1,0 +1,306 @@
+"""Interpolation and time sampling of a resolved path (Yuen thesis section 3.10,
+Eqs. 3.38-3.40): axis references at the control period from q(s) and the feed profile.
+
+**Septic interpolation (Eqs. 3.39-3.40).** Between the resolution nodes s[n], s[n+1] each
+axis is the 7th-order polynomial that matches q, q', q'', q''' (d/ds) at both ends, so q(s)
+is C3 in s. The coefficients solve the 8 x 8 system of Eq. 3.40; here it is solved once on
+the normalized interval u = (s - s[n]) / Δs in [0, 1] (the data scaled by Δs^k), and the
+polynomial is written about s[n] (q[n] + sum_k c_k u^k) instead of in powers of the global
+s, which keeps the round-off at the size of q's own (Eq. 3.39 as printed, in powers of s,
+would lose digits for s >> Δs).
+
+**Time law (Eq. 3.38).** The thesis steps s[k+1] = s[k] + sdot T + sddot T²/2 with the
+feed of the optimizer; that explicit step cannot leave a rest point (sdot = sddot = 0
+there) and its error accumulates. Here s(t) is the exact solution of ds/dt = sdot(s) with
+sdot(s) = sqrt(b(s)), b the feed profile:
+
+* b between the feed nodes: b(s) = E(s) g(s), E(s) = (s (L - s) / L)^(4/3) the shape of a
+  constant-jerk start from rest at s = 0 and stop at s = L (sdot ~ d^(2/3), which is the
+  rest envelope feedrate.py bounds b with), g a C2 cubic spline through b[n] / E(s[n])
+  (clipped >= 0). So b is C2 inside the path and the ends are reached at rest with finite
+  jerk.
+* ds/dt = sqrt(E g) is singular at the rest ends (1/sdot is not integrable by plain
+  quadrature and the ODE does not leave s = 0). With s = L h(u), h(u) = u³(10 - 15u + 6u²)
+  (h' = 30 u² (1 - u)² vanishes to second order at both ends, like sdot), the ODE becomes
+  du/dt = f(u) = L^(-1/3) (p(u) p(1 - u))^(2/3) sqrt(g(s)) / 30, p(u) = 10 - 15u + 6u²,
+  which is smooth and positive on [0, 1]. t(u) = ∫ du / f is computed with Gauss-Legendre
+  quadrature on the u-images of the feed nodes (f is smooth inside each), and u(t_k) by
+  Newton's method on t(u) = t_k: s(t) is exact to round-off, so finite differences of the
+  sampled positions see the planned motion, not integration noise.
+* The duration is stretched to a whole number K of control periods (at most one period),
+  so the last sample t_K = K T is the path end at rest.
+* References: qdot = q' sdot, qddot = q'' sdot² + q' sddot with sddot = b'(s) / 2.
+
+**Verification.** The feed optimizer only checks its grid. The sampled positions, padded
+with three rest samples on either side (the machine holds before and after), are
+differenced at the control period (velocity, acceleration, jerk); if any axis exceeds
+`tolerance` x its limit, b is scaled down globally by the exact factor of a time stretch
+(v ~ c^(1/2), a ~ c, j ~ c^(3/2)) and the path is resampled, at most `max_passes` times.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from machine_ctrl.reference import Reference
+
+# Eq. 3.40 with Δs = 1 (rows: q[n], q[n+1], q'[n], q'[n+1], q''[n], q''[n+1], q'''[n],
+# q'''[n+1]; columns: coefficients of u^7 ... u^0).
+_EQ_340 = np.array([
+    [0, 0, 0, 0, 0, 0, 0, 1],
+    [1, 1, 1, 1, 1, 1, 1, 1],
+    [0, 0, 0, 0, 0, 0, 1, 0],
+    [7, 6, 5, 4, 3, 2, 1, 0],
+    [0, 0, 0, 0, 0, 2, 0, 0],
+    [42, 30, 20, 12, 6, 2, 0, 0],
+    [0, 0, 0, 0, 6, 0, 0, 0],
+    [210, 120, 60, 24, 6, 0, 0, 0]], dtype=float)
+_EQ_340_INV = np.linalg.inv(_EQ_340)
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(10)
+
+
+class SepticInterpolant:
+    """q(s) of Eqs. 3.39-3.40 through nodes s (N,) with q, q', q'', q''' (N, axes)."""
+
+    def __init__(self, s, q, dq, ddq, dddq):
+        s = np.asarray(s, float)
+        data = [np.asarray(a, float) for a in (q, dq, ddq, dddq)]
+        if s.ndim != 1 or len(s) < 2 or not np.all(np.isfinite(s)) or np.any(np.diff(s) <= 0):
+            raise ValueError('septic interpolation needs >= 2 strictly increasing finite nodes')
+        for a in data:
+            if a.ndim != 2 or a.shape[0] != len(s) or not np.all(np.isfinite(a)):
+                raise ValueError(f'node data must be finite with shape ({len(s)}, axes)')
+        self.s = s
+        self.q = data[0]
+        h = np.diff(s)[:, None]
+        # right-hand side of Eq. 3.40 on u in [0, 1]: derivatives scaled by h^k, q[n] taken out
+        rhs = np.stack([np.zeros_like(data[0][:-1]), data[0][1:] - data[0][:-1],
+                        data[1][:-1] * h, data[1][1:] * h,
+                        data[2][:-1] * h**2, data[2][1:] * h**2,
+                        data[3][:-1] * h**3, data[3][1:] * h**3], axis=1)      # (N-1, 8, axes)
+        coef = np.einsum('ij,njk->nik', _EQ_340_INV, rhs)                       # u^7 ... u^0
+        self._coef = coef[:, ::-1, :]                                           # u^0 ... u^7
+        self._h = h[:, 0]
+
+    @classmethod
+    def from_resolution(cls, resolution) -> SepticInterpolant:
+        r = resolution
+        return cls(r.s, r.q, r.dq, r.ddq, r.dddq)
+
+    def evaluate(self, s, order: int = 0) -> np.ndarray:
+        """d^order q / ds^order (order 0..3) at s (M,) -> (M, axes); s is clipped to the nodes."""
+        if order not in (0, 1, 2, 3):
+            raise ValueError(f'derivative order must be 0..3, got {order!r}')
+        s = np.atleast_1d(np.asarray(s, float))
+        n = np.clip(np.searchsorted(self.s, s, side='right') - 1, 0, len(self.s) - 2)
+        h = self._h[n]
+        u = ((np.clip(s, self.s[0], self.s[-1]) - self.s[n]) / h)[:, None]
+        c = self._coef[n]                                                       # (M, 8, axes)
+        value = np.zeros((len(s), c.shape[2]))
+        for k in range(7, order - 1, -1):                                       # Horner in u
+            factor = math.perm(k, order)
+            value = value * u + factor * c[:, k, :]
+        if order == 0:
+            value = value - c[:, 0, :] + self.q[n]     # c_0 = 0 exactly; q[n] added unrounded
+        return value / h[:, None] ** order
+
+
+@dataclass(frozen=True)
+class TimeLaw:
+    """s(t) of a feed profile (module docstring): b(s) = scale * E(s) g(s)."""
+    length: float
+    g: CubicSpline
+    floor: float
+    u_nodes: np.ndarray          # u-images of the feed nodes
+    t_nodes: np.ndarray          # t(u_nodes) at scale 1
+
+    @classmethod
+    def from_profile(cls, s, b) -> TimeLaw:
+        s, b = np.asarray(s, float), np.asarray(b, float)
+        if len(s) < 4 or len(b) != len(s) or not np.all(np.isfinite(b)) or np.any(np.diff(s) <= 0):
+            raise ValueError('the feed profile needs >= 4 finite nodes on increasing s')
+        length = float(s[-1] - s[0])
+        d = s - s[0]
+        e = _shape(d, length)
+        g = np.empty_like(b)
+        g[1:-1] = np.maximum(b[1:-1], 0.0) / e[1:-1]
+        g[0], g[-1] = g[1], g[-2]              # the rest ends: continue the neighbour's ratio
+        if not np.max(g) > 0:
+            raise ValueError('the feed profile is zero everywhere')
+        spline = CubicSpline(d, g)
+        floor = 1e-9 * float(np.max(g))        # keeps f > 0: the path never stalls inside
+        u_nodes = _inverse_smoothstep(d / length)
+        law = cls(length, spline, floor, u_nodes, np.zeros(len(d)))
+        pieces = law._integral(u_nodes[:-1], u_nodes[1:])
+        object.__setattr__(law, 't_nodes', np.concatenate(([0.0], np.cumsum(pieces))))
+        return law
+
+    @property
+    def duration(self) -> float:
+        return float(self.t_nodes[-1])
+
+    def rate(self, u) -> np.ndarray:
+        """f(u) = du/dt at scale 1."""
+        p0, p1 = _p(u), _p(1.0 - u)
+        g = np.maximum(self.g(self.length * _h(u)), self.floor)
+        return self.length ** (-1.0 / 3.0) * (p0 * p1) ** (2.0 / 3.0) * np.sqrt(g) / 30.0
+
+    def _integral(self, a, b) -> np.ndarray:
+        """∫_a^b du / f(u), elementwise (Gauss-Legendre, f smooth between feed nodes)."""
+        half = (b - a) / 2.0
+        mid = (a + b) / 2.0
+        nodes = mid[:, None] + half[:, None] * _GL_X[None, :]
+        return half * np.sum(_GL_W / self.rate(nodes), axis=1)
+
+    def u_at(self, t) -> np.ndarray:
+        """u with t(u) = t (scale 1), by Newton's method from the bracketing feed nodes."""
+        t = np.clip(np.asarray(t, float), 0.0, self.duration)
+        i = np.clip(np.searchsorted(self.t_nodes, t, side='right') - 1, 0, len(self.t_nodes) - 2)
+        lo, hi = self.u_nodes[i], self.u_nodes[i + 1]
+        frac = (t - self.t_nodes[i]) / (self.t_nodes[i + 1] - self.t_nodes[i])
+        u = lo + frac * (hi - lo)
+        for _ in range(8):
+            residual = self.t_nodes[i] + self._integral(lo, u) - t
+            u_new = np.clip(u - residual * self.rate(u), lo, hi)
+            done = np.max(np.abs(u_new - u)) <= 1e-16
+            u = u_new
+            if done:
+                break
+        return u
+
+    def feed(self, s):
+        """(sdot, sddot) at s (scale 1): sqrt(b) and b'/2."""
+        d = np.asarray(s, float)
+        e = _shape(d, self.length)
+        g = self.g(d)
+        dg = np.where(g > self.floor, self.g(d, 1), 0.0)
+        g = np.maximum(g, self.floor)
+        x = np.clip(d * (self.length - d) / self.length, 0.0, None)
+        de = (4.0 / 3.0) * np.cbrt(x) * (self.length - 2.0 * d) / self.length
+        return np.sqrt(e * g), 0.5 * (de * g + e * dg)
+
+
+def _shape(d, length):
+    """E(s) = (s (L - s) / L)^(4/3)."""
+    x = np.clip(d * (length - d) / length, 0.0, None)
+    return x * np.cbrt(x)
+
+
+def _p(u):
+    return 10.0 - 15.0 * u + 6.0 * u * u
+
+
+def _h(u):
+    return u ** 3 * _p(u)
+
+
+def _inverse_smoothstep(y) -> np.ndarray:
+    """u in [0, 1] with h(u) = y (bisection to round-off; h is monotone)."""
+    y = np.asarray(y, float)
+    lo, hi = np.zeros_like(y), np.ones_like(y)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        below = _h(mid) < y
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    u = 0.5 * (lo + hi)
+    u[y <= 0.0], u[y >= 1.0] = 0.0, 1.0
+    return u
+
+
+def finite_difference_peaks(position, period: float, velocity, acceleration, jerk) -> np.ndarray:
+    """(axes, 3) peak |v|, |a|, |j| over their limits from differences of the positions
+    (steps, axes) at the period, padded with three rest samples on either side."""
+    p = np.asarray(position, float)
+    p = np.vstack([np.repeat(p[:1], 3, axis=0), p, np.repeat(p[-1:], 3, axis=0)])
+    peaks = [np.max(np.abs(np.diff(p, k, axis=0)), axis=0) / period**k for k in (1, 2, 3)]
+    return np.column_stack([peaks[0] / np.asarray(velocity, float),
+                            peaks[1] / np.asarray(acceleration, float),
+                            peaks[2] / np.asarray(jerk, float)])
+
+
+def _smooth(x):
+    """C3 smoothstep 0 -> 1 on [0, 1]."""
+    return x**4 * (35.0 - 84.0 * x + 70.0 * x * x - 20.0 * x**3)
+
+
+def _ratios(position, period, velocity, acceleration, jerk):
+    """Peak ratios (axes, 3) and, per sample, the worst limit ratio expressed as the factor
+    on b that a time stretch would need (v ~ b^1/2, a ~ b, j ~ b^3/2)."""
+    p = np.asarray(position, float)
+    p = np.vstack([np.repeat(p[:1], 3, axis=0), p, np.repeat(p[-1:], 3, axis=0)])
+    n = len(position)
+    need = np.zeros(n)
+    peaks = []
+    for k, limit, power in ((1, velocity, 2.0), (2, acceleration, 1.0), (3, jerk, 2.0 / 3.0)):
+        r = np.abs(np.diff(p, k, axis=0)) / period**k / limit
+        peaks.append(np.max(r, axis=0))
+        worst = np.max(r, axis=1) ** power
+        # difference j covers padded samples j..j+k, i.e. samples j-3..j+k-3
+        idx = np.clip(np.arange(len(worst)) - 3 + k // 2, 0, n - 1)
+        np.maximum.at(need, idx, worst)
+    return np.column_stack(peaks), need
+
+
+@dataclass(frozen=True)
+class Sampling:
+    """Result of :func:`sample`."""
+    reference: Reference
+    s: np.ndarray                # (K+1,) path displacement of every sample, m
+    sdot: np.ndarray             # (K+1,) m/s
+    feed_scale: float            # final global factor on b (1: the optimizer's profile)
+    passes: int                  # sampling passes made (1 + rescalings)
+    peak_ratios: np.ndarray      # (axes, 3) finite-difference peak |v|, |a|, |j| / limit
+
+    @property
+    def duration(self) -> float:
+        return (len(self.s) - 1) * self.reference.period
+
+
+def sample(interpolant: SepticInterpolant, feed_s, feed_b, limits, period: float,
+           axis_names, tolerance: float = 1.001, max_passes: int = 6) -> Sampling:
+    """References at the control period `period` (s) along the interpolated path, following
+    the feed profile b (= sdot², nodes feed_s, feed_b) within the axis limits (`limits`:
+    velocity, acceleration, jerk arrays, e.g. a feedrate.FeedLimits). Eq. 3.38 (module
+    docstring); raises ValueError when no scaling within `max_passes` meets `tolerance`."""
+    if not (period > 0 and math.isfinite(period)):
+        raise ValueError(f'control period must be > 0 s, got {period!r}')
+    feed_s = np.asarray(feed_s, float)
+    if abs(feed_s[0] - interpolant.s[0]) > 1e-12 or abs(feed_s[-1] - interpolant.s[-1]) > 1e-9:
+        raise ValueError('the feed profile must span the interpolated path')
+    axis_names = tuple(axis_names)
+    vel, acc, jer = (np.asarray(getattr(limits, k), float)
+                     for k in ('velocity', 'acceleration', 'jerk'))
+    d_nodes = feed_s - feed_s[0]
+    b = np.maximum(np.asarray(feed_b, float), 0.0)
+    scale = 1.0
+    for passes in range(1, max_passes + 1):
+        law = TimeLaw.from_profile(d_nodes, scale * b)
+        duration = law.duration
+        steps = max(3, math.ceil(duration / period - 1e-9))
+        stretch = steps * period / duration                 # >= 1: whole number of periods
+        u = law.u_at(np.arange(steps + 1) * (duration / steps))
+        u[0], u[-1] = 0.0, 1.0
+        d = law.length * _h(u)
+        d[-1] = law.length
+        sdot, sddot = law.feed(d)
+        sdot, sddot = sdot / stretch, sddot / stretch**2
+        sdot[0] = sdot[-1] = sddot[0] = sddot[-1] = 0.0
+        s = d + interpolant.s[0]
+        q = interpolant.evaluate(s, 0)
+        dq = interpolant.evaluate(s, 1)
+        ddq = interpolant.evaluate(s, 2)
+        ratios, local = _ratios(q, period, vel, acc, jer)
+        if np.max(ratios) <= tolerance:
+            reference = Reference(axis_names, period, q, dq * sdot[:, None],
+                                  ddq * sdot[:, None] ** 2 + dq * sddot[:, None])
+            return Sampling(reference, s, sdot, scale / stretch**2, passes, ratios)
+        # assumed: aim 0.1 % below the limit so the next pass lands inside the tolerance
+        # assumed: aim 0.1 % below the limit so the next pass lands inside the tolerance.
+        # Global, not local: rescaling feed nodes locally steepens b' and b'' at the edges of
+        # the window and raised the jerk (tried: the rest ends got worse pass after pass).
+        scale = scale * 0.999 / float(np.max(local))
+    raise ValueError(f'sampled references exceed the limits by {np.max(ratios):.4g}x after '
+                     f'{max_passes} passes')
