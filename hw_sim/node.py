@@ -72,6 +72,7 @@ class HwSimNode(Node):
         self.kinematics = Kinematics.from_config(self.machine)
         self.missed_deadlines = 0
         self._latest = {}                        # paced mode: last command per axis
+        self._start_announced = False
         self._state_sent_at = self._step_started_at = time.monotonic()
 
         self.pub_clock = self.create_publisher(Clock, '/clock', 10)
@@ -128,13 +129,14 @@ class HwSimNode(Node):
         self.advance_if_ready()
 
     def advance_if_ready(self) -> None:
-        if self.lockstep.complete() and self.sim.fault is None and self.started():
-            self.advance(self.lockstep.take())
-
-    def started(self) -> bool:
-        """Past step 0, or every required subscriber (e.g. a recorder) is matched."""
-        return (self.lockstep.step > 0
-                or self.pub_state.get_subscription_count() >= self.min_subscribers)
+        if not (self.lockstep.complete() and self.sim.fault is None):
+            return
+        if self.lockstep.step == 0 and not self._start_announced:
+            if self.pub_state.get_subscription_count() < self.min_subscribers:
+                return                       # hold at step 0 until e.g. a recorder is matched
+            self._start_announced = True
+            self.publish_state(resend=True)  # step 0 again, now that every subscriber is there
+        self.advance(self.lockstep.take())
 
     def advance(self, commands) -> None:
         was_ok = self.sim.fault is None
