@@ -173,3 +173,19 @@ def test_paced_mode_steps_on_the_wall_clock_and_counts_missed_deadlines(paced_co
     c.wait(lambda: max(c.steps) > 120 and c.hw_diag is not None
            and int(c.hw_diag[2]['missed_deadlines']) >= 90, what='missed deadlines')
     assert not c.fault()            # paced mode holds the last command instead of faulting
+
+
+@pytest.mark.parametrize('args, message', [
+    (['-p', 'mode:=turbo'], 'mode: must be lockstep or paced'),
+    (['-p', 'real_time_factor:=2.0'], 'real_time_factor must be in (0, 1]'),
+    (['-p', 'initial_position:=[0.0,0.0]'], 'initial_position needs 9 finite values'),
+    (['-p', 'initial_position:=[0.9,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0]'], 'outside the stroke of x_c'),
+    (['-p', 'machine:=nosuch'], 'nosuch: unknown machine'),
+])
+def test_bad_parameters_stop_start_up_with_one_line(ros_env, args, message):
+    import subprocess
+    result = subprocess.run([sys.executable, '-m', 'hw_sim.node', '--ros-args', *args], env=ros_env,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    fatal = [line for line in result.stderr.splitlines() + result.stdout.splitlines() if 'FATAL' in line]
+    assert len(fatal) == 1 and message in fatal[0], result.stderr
