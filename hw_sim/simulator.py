@@ -19,7 +19,6 @@ from machine_ctrl.config import MachineConfig
 
 @dataclass(frozen=True)
 class Measurement:
-    step: int
     position: tuple[float, ...]      # encoder / probe readings, axis order
     velocity: tuple[float, ...]      # differentiated readings
     effort: tuple[float, ...]        # commands applied during the previous period
@@ -52,8 +51,8 @@ class MachineSimulator:
 
     def _measure(self) -> None:
         readings = [s.measure(p.position) for s, p in zip(self.sensors, self.plants)]
-        self.measurement = Measurement(self.step_index, tuple(r[0] for r in readings),
-                                       tuple(r[1] for r in readings), self.applied)
+        self.measurement = Measurement(tuple(r[0] for r in readings), tuple(r[1] for r in readings),
+                                       self.applied)
 
     @property
     def true_position(self) -> tuple[float, ...]:
@@ -85,13 +84,11 @@ class MachineSimulator:
             self._measure()
         else:
             held = self.measurement
-            self.measurement = Measurement(self.step_index, held.position, (0.0,) * len(held.position),
-                                           self.applied)
+            self.measurement = Measurement(held.position, (0.0,) * len(held.position), self.applied)
         return self.measurement
 
     def _check_strokes(self) -> None:
-        for plant, (lo, hi) in zip(self.plants, self._strokes):
+        for axis, plant, (lo, hi) in zip(self.machine.axes, self.plants, self._strokes):
             if not lo <= plant.position <= hi:
-                axis = self.machine.axes[self.plants.index(plant)]
                 self.stop(f'stroke violation on {axis.name}: {plant.position:.9g} {axis.unit} '
                           f'outside [{lo:g}, {hi:g}]')

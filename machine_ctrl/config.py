@@ -34,28 +34,28 @@ DRIVE_TYPES = {
 }
 
 
-@dataclass(frozen=True)
-class DriveConfig:
-    type: str
-    mass: float                      # kg or kg*m^2 (servo_voltage: V*s^2/m or V*s^2/rad)
-    damping: float                   # viscous friction per unit velocity
-    command_limit: float             # |u| saturation, in the command's unit
-    force_constant: float = 1.0      # N/A (linear_motor), else 1
-    amplifier_gain: float = 1.0      # A/V (linear_motor), else 1
-    command_resolution: float = 0.0  # quantization step of u, 0 = none
-
-    @property
-    def gain(self) -> float:
-        """Force (or torque) per unit command."""
-        return self.force_constant * self.amplifier_gain
-
-
 def _positive(**kw):
     return field(metadata={'check': 'positive'}, **kw)
 
 
 def _nonnegative(**kw):
     return field(metadata={'check': 'nonnegative'}, **kw)
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    type: str = field(metadata={'choices': tuple(DRIVE_TYPES)})
+    mass: float = _positive()        # kg or kg*m^2 (servo_voltage: V*s^2/m or V*s^2/rad)
+    damping: float = _nonnegative()  # viscous friction per unit velocity
+    command_limit: float = _positive()                  # |u| saturation, in the command's unit
+    force_constant: float = _positive(default=1.0)      # N/A (linear_motor), else 1
+    amplifier_gain: float = _positive(default=1.0)      # A/V (linear_motor), else 1
+    command_resolution: float = _nonnegative(default=0.0)  # quantization step of u, 0 = none
+
+    @property
+    def gain(self) -> float:
+        """Force (or torque) per unit command."""
+        return self.force_constant * self.amplifier_gain
 
 
 @dataclass(frozen=True)
@@ -148,7 +148,7 @@ CONTROL_LAWS = ('sliding_mode', 'ppi', 'lead_lag')
 
 @dataclass(frozen=True)
 class ControlConfig:
-    law: str
+    law: str = field(metadata={'choices': CONTROL_LAWS})
     sliding_mode: SlidingModeGains | None = None
     lugre_feedforward: LuGreFeedforwardGains | None = None   # used with sliding_mode and ppi
     ppi: PPIGains | None = None
@@ -282,20 +282,6 @@ class _Section:
             self.fail(f'unknown key(s): {", ".join(unknown)}')
 
 
-def _drive(s: _Section) -> DriveConfig:
-    drive = DriveConfig(
-        type=s.string('type', choices=DRIVE_TYPES),
-        mass=s.number('mass', positive=True),
-        damping=s.number('damping', nonnegative=True),
-        command_limit=s.number('command_limit', positive=True),
-        force_constant=s.number('force_constant', 1.0, positive=True),
-        amplifier_gain=s.number('amplifier_gain', 1.0, positive=True),
-        command_resolution=s.number('command_resolution', 0.0, nonnegative=True),
-    )
-    s.finish()
-    return drive
-
-
 def _read(s: _Section, cls):
     """Read dataclass ``cls`` from section ``s`` by its field names and type hints: floats
     (checked by the field's metadata), number pairs, nested dataclasses (optional when the
@@ -321,7 +307,7 @@ def _value(s: _Section, f, hint):
             s.fail(f'must be a whole number, got {value:g}', name)
         return int(value)
     if hint is str:
-        return s.string(name)
+        return s.string(name, choices=f.metadata.get('choices'))
     if is_dataclass(hint):
         return _read(s.section(name), hint)
     args = typing.get_args(hint)
@@ -341,8 +327,6 @@ def _value(s: _Section, f, hint):
 
 def _control(s: _Section) -> ControlConfig:
     control = _read(s, ControlConfig)
-    if control.law not in CONTROL_LAWS:
-        s.fail(f'must be one of {", ".join(CONTROL_LAWS)}, got {control.law!r}', 'law')
     if getattr(control, control.law) is None:
         s.fail(f'law {control.law} needs its gains section {control.law!r}')
     return control
@@ -358,7 +342,7 @@ def _axis(s: _Section, name: str, joint: urdf.Joint) -> AxisConfig:
         kind='linear' if joint.type == 'prismatic' else 'rotary',
         stroke=joint.stroke,
         limits=limits,
-        drive=_drive(s.section('drive')),
+        drive=_read(s.section('drive'), DriveConfig),
         sensor_resolution=s.number('sensor_resolution', positive=True),
         effort=joint.effort,
         plant=_read(s.section('plant'), PlantConfig) if 'plant' in s.data else None,
