@@ -64,6 +64,13 @@ class Contour:
         return best
 
 
+# assumed: the thesis does not say how its contours start and stop; quintic feed ramps of
+# 0.2 s (peak tangential acceleration 0.09 m/s^2 at 10 mm/s) and 0.1 s of rest before and
+# after, so start-up and settling are inside the statistics as on a real machine.
+RAMP_TIME = 0.2     # s
+DWELL = 0.1         # s
+
+
 def _two_axis_reference(machine: MachineConfig, axes, xy, vxy, axy, dwell: float) -> Reference:
     period = machine.control_period
     pad = int(round(dwell / period))
@@ -81,8 +88,9 @@ def _two_axis_reference(machine: MachineConfig, axes, xy, vxy, axy, dwell: float
 
 
 def circle(machine: MachineConfig, radius=0.030, feed=0.010, start_angle=-math.pi / 4,
-           ramp_time=0.2, dwell=0.1, axes=('x_c', 'y_c')) -> tuple[Reference, Contour]:
-    """One revolution about the origin of `axes` (thesis Table 6.1: R = 30 mm at 600 mm/min).
+           ramp_time=RAMP_TIME, dwell=DWELL, axes=('x_c', 'y_c')) -> tuple[Reference, Contour]:
+    """One revolution about the origin of `axes` (thesis Table 6.1 / Fig. 6.13: R = 30 mm at
+    600 mm/min; seed-notes.md: one revolution takes 18.85 s).
     Starting at -45 deg puts all four axis reversals in the middle of the run."""
     s, v, a = rest_to_rest(2.0 * math.pi * radius, feed, ramp_time, machine.control_period)
     theta = start_angle + s / radius
@@ -94,7 +102,7 @@ def circle(machine: MachineConfig, radius=0.030, feed=0.010, start_angle=-math.p
     return _two_axis_reference(machine, axes, xy, vxy, axy, dwell), Contour('circle', radius=radius)
 
 
-def square(machine: MachineConfig, side=0.020, feed=0.010, ramp_time=0.2, dwell=0.1,
+def square(machine: MachineConfig, side=0.020, feed=0.010, ramp_time=RAMP_TIME, dwell=DWELL,
            axes=('x_c', 'y_c')) -> tuple[Reference, Contour]:
     """Square about the origin, counter-clockwise from the lower-left corner, stopping at
     each corner. assumed: side 20 mm (thesis Table 6.2 does not state it)."""
