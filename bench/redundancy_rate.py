@@ -21,7 +21,8 @@ from trajectory.redundancy import RedundancySettings, resolve
 class Helix:
     """P = c + (r cos t, r sin t, a t), t = s / k (unit speed); O from two small angles,
     alpha = A sin t, gamma = G cos t: O = (cos alpha sin gamma, -sin alpha, cos alpha cos gamma).
-    Derivatives of O by central differences (good enough for a rate measurement)."""
+    Derivatives of O by central differences (good enough for a rate measurement). Takes an
+    array s (M,) and returns (M, 3) arrays, as trajectory.redundancy expects."""
 
     def __init__(self, centre, length, radius=2e-3, pitch=0.5e-3, tilt=3e-3):
         self.c, self.r, self.a = np.asarray(centre, float), radius, pitch / (2 * math.pi)
@@ -29,19 +30,22 @@ class Helix:
         self.length, self.tilt = length, tilt
 
     def _o(self, s):
-        t = s / self.k
-        al, ga = self.tilt * math.sin(t), self.tilt * math.cos(t)
-        return np.array([math.cos(al) * math.sin(ga), -math.sin(al), math.cos(al) * math.cos(ga)])
+        t = np.asarray(s, float) / self.k
+        al, ga = self.tilt * np.sin(t), self.tilt * np.cos(t)
+        return np.column_stack((np.cos(al) * np.sin(ga), -np.sin(al), np.cos(al) * np.cos(ga)))
 
     def evaluate(self, s):
-        t = s / self.k
-        return self.c + np.array([self.r * math.cos(t), self.r * math.sin(t), self.a * t]), self._o(s)
+        t = np.asarray(s, float) / self.k
+        p = self.c + np.column_stack((self.r * np.cos(t), self.r * np.sin(t), self.a * t))
+        return p, self._o(s)
 
     def derivatives(self, s, order):
+        s = np.asarray(s, float)
         t, f = s / self.k, self.k ** -order
-        c, sn = math.cos(t), math.sin(t)
+        c, sn = np.cos(t), np.sin(t)
         d = [(-sn, c), (-c, -sn), (sn, -c)][order - 1]
-        p = np.array([self.r * d[0] * f, self.r * d[1] * f, self.a / self.k if order == 1 else 0.0])
+        p = np.column_stack((self.r * d[0] * f, self.r * d[1] * f,
+                             np.full_like(s, self.a / self.k if order == 1 else 0.0)))
         h = 1e-5
         if order == 1:
             o = (self._o(s + h) - self._o(s - h)) / (2 * h)

@@ -71,13 +71,19 @@ class JetPath:
         p, o = self._f(Jet([s, 1.0, 0.0, 0.0]))
         return np.array([c.d for c in p]).T, np.array([c.d for c in o]).T   # (4, 3) each
 
+    def _order(self, s, order):
+        """d^order P/ds^order and d^order O/ds^order at a scalar s or an array of s."""
+        if np.ndim(s) == 0:
+            p, o = self._eval(float(s))
+            return p[order], o[order]
+        rows = [self._eval(float(x)) for x in s]
+        return np.array([p[order] for p, _ in rows]), np.array([o[order] for _, o in rows])
+
     def evaluate(self, s):
-        p, o = self._eval(s)
-        return p[0], o[0]
+        return self._order(s, 0)
 
     def derivatives(self, s, order):
-        p, o = self._eval(s)
-        return p[order], o[order]
+        return self._order(s, order)
 
 
 def circle(radius, centre, turns=1.0):
@@ -289,3 +295,46 @@ def test_bad_inputs_are_rejected(micromill, micromill_kin, home_tip):
     away = circle(4e-3, home_tip + np.array([0, 0, 1e-3]))
     with pytest.raises(ValueError):
         resolve(away, micromill_kin, micromill, RedundancySettings(active_axes=XY))
+
+
+def test_grid_stencils_are_exact_for_degree_6_polynomials_and_converge_on_a_sine():
+    from trajectory.redundancy import _along_s
+    poly = np.polynomial.Polynomial([0.2, -1.0, 0.5, 3.0, -2.0, 0.7, -0.4])
+    for h in (0.1, 0.013):
+        s = np.arange(12) * h
+        f = np.column_stack((poly(s), 2.0 * poly(s)))
+        for order in (1, 2):
+            exact = poly.deriv(order)(s)
+            got = _along_s(f, h, order)
+            assert np.allclose(got[:, 0], exact, rtol=0, atol=1e-6 * np.abs(exact).max())
+            assert np.allclose(got[:, 1], 2.0 * exact, rtol=0, atol=2e-6 * np.abs(exact).max())
+    # centred 7-point stencils are O(h^6): halving h divides the error by ~64
+    errors = []
+    for h in (0.2, 0.1):
+        s = np.arange(40) * h
+        got = _along_s(np.sin(s)[:, None], h, 2)[10:-10, 0]
+        errors.append(np.abs(got + np.sin(s[10:-10])).max())
+    assert 40 < errors[0] / errors[1] < 90
+
+
+class CountingKinematics:
+    """Kinematics wrapper counting forward_and_jacobian calls."""
+
+    def __init__(self, kin):
+        self.kin, self.calls = kin, 0
+
+    def forward_and_jacobian(self, q):
+        self.calls += 1
+        return self.kin.forward_and_jacobian(q)
+
+
+def test_five_kinematics_evaluations_per_step(micromill, micromill_kin, home_tip):
+    # the four RK4 stages and the projection's check, whose FK and Jacobian the next step's
+    # first stage reuses; the derivative outputs cost none
+    path = tilted_helix(2e-3, 0.5e-3, 0.1, home_tip + np.array([-2e-3, 0, -0.5e-3]))
+    q0 = initial_configuration(path, micromill_kin, micromill)
+    counting = CountingKinematics(micromill_kin)
+    res = resolve(path, counting, micromill, q0=q0)
+    steps = len(res.s) - 1
+    assert steps > 50
+    assert counting.calls <= 5 * steps + 3

@@ -72,6 +72,17 @@ def feed_subgrid(n_intervals: int, max_nodes: int = MAX_FEED_NODES) -> int | Non
     return None
 
 
+def pose_deviations(kinematics: Kinematics, q, p_path, o_path) -> tuple[float, float]:
+    """Largest |FK position(q[k]) - p_path[k]| (m) and angle between the FK tool axis and
+    o_path[k] (rad) over the rows k of q."""
+    fk = [kinematics.forward(row) for row in q]
+    p = np.array([f[0] for f in fk])
+    o = np.array([f[1] for f in fk])
+    cross = np.linalg.norm(np.cross(o, o_path), axis=1)
+    angle = np.arctan2(cross, np.sum(o * o_path, axis=1))
+    return float(np.max(np.linalg.norm(p - p_path, axis=1))), float(np.max(angle))
+
+
 def plan(cl_or_name, machine, feed: float = DEFAULT_FEED, settings: RedundancySettings | None = None,
          q0=None, kinematics: Kinematics | None = None, max_feed_nodes: int = MAX_FEED_NODES) -> PlanResult:
     """Plan the toolpath (CLData, built-in name or CSV path) on `machine` (MachineConfig or
@@ -100,13 +111,7 @@ def plan(cl_or_name, machine, feed: float = DEFAULT_FEED, settings: RedundancySe
     planning_time = time.perf_counter() - start
 
     ref = sampling.reference
-    p_path, o_path = path.evaluate(sampling.s)
-    ep = eo = 0.0
-    for k in range(len(ref)):
-        p, o = kinematics.forward(ref.position[k])
-        ep = max(ep, float(np.linalg.norm(p - p_path[k])))
-        c = np.cross(o, o_path[k])
-        eo = max(eo, math.atan2(float(np.linalg.norm(c)), float(o @ o_path[k])))
+    ep, eo = pose_deviations(kinematics, ref.position, *path.evaluate(sampling.s))
     ratios = {name: {'velocity': float(r[0]), 'acceleration': float(r[1]), 'jerk': float(r[2])}
               for name, r in zip(machine.axis_names, sampling.peak_ratios)}
     return PlanResult(ref, sampling.duration, planning_time, ep, eo, ratios, path, res, profile,

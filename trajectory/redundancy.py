@@ -3,7 +3,8 @@ Algorithm 1): axis positions q[n] and their geometric derivatives dq/ds, d²q/ds
 at fixed displacement steps s[n] = n Δs.
 
 The toolpath R(s) = [P(s); O(s)] (Eq. 3.12) is any object with ``length`` (m),
-``evaluate(s) -> (P, O)`` and ``derivatives(s, order) -> (d^kP/ds^k, d^kO/ds^k)``.
+``evaluate(s) -> (P, O)`` and ``derivatives(s, order) -> (d^kP/ds^k, d^kO/ds^k)`` that take
+an array s (M,) and return (M, 3) arrays (as spline.ArcLengthPath).
 
 Resolved rate (Eq. 3.27, with the errata of seed-notes.md applied)::
 
@@ -34,14 +35,22 @@ After every step an optional Newton projection q += J_t^# e_t (at most
 ``projection_iterations``) keeps the task error below ``projection_tolerance``.
 
 Derivatives: along the exact solution e_t = 0 identically, so every derivative of the drift
-term vanishes there and q' = g0(s, q), q'' = d/ds g0, q''' = d²/ds² g0 with g0 the rate without
-the K_e term. These total derivatives are evaluated as directional differences of g0 along
-the second-order Taylor curve c(t) = (s + t, q + t q' + t²/2 q''): d/dt g0(c(t)) at t=0 is q''
-and d²/dt² g0(c(t)) is q''' (c''(0) carries the q'' term). Central differences of step
-``derivative_step`` (one-sided 2nd-order stencils within one step of the path ends), so the
-truncation error is O(h²) (relative ~h²/(12 ρ²) for a path with radius of curvature ρ) and
-the round-off ~eps/h² relative to |g0|. For the 4 mm circle both are < 1e-7 relative.
+term vanishes there and q' = g0(s, q), q'' = d/ds g0, q''' = d²/ds² g0 with g0 the rate
+without the K_e term. q'[n] = g0(s[n], q[n]) is computed exactly at every node (it is the
+first RK4 stage of step n without its drift part: no extra evaluation); q'' and q''' are the
+first and second derivatives of the samples q'[n] along s, by 7-point finite-difference
+stencils on the uniform grid (weights from the Taylor conditions; centred, and shifted
+one-sided within three steps of the path ends). Truncation: O(Δs^6) centred, i.e.
+~(Δs/ρ)^6 relative for a path feature of length ρ (the 4 mm circle at Δs = 20 µm: ~1e-14),
+O(Δs^5) / O(Δs^4) one-sided; the stiff nullspace start-up transient (length ~0.2 mm, 10
+steps) is the worst feature. Round-off: ~eps |q'| sum|w| / Δs² for q''' (~1e-4 1/m² at
+20 µm, against |q'''| ~ 1/ρ² ~ 1e4-1e5 1/m² on mm-sized features). Earlier versions
+differenced g0 along a Taylor curve 1 µm off the grid: five more rate evaluations per node.
 Caveat: mu of Eq. 3.22 is only C¹ at w = w0, so q''' jumps where w crosses w0.
+
+Cost: per step four rate evaluations (the RK4 stages) and the projection's task evaluation,
+whose FK and Jacobian are reused by the next step's first stage; R(s) and dR/ds are
+evaluated once, vectorized, at the nodes and the RK4 midpoints.
 """
 from __future__ import annotations
 
@@ -78,17 +87,13 @@ class RedundancySettings:
     # Newton projection after each RK4 step (0 iterations: off).
     projection_iterations: int = 2
     projection_tolerance: float = 1e-13
-    # assumed: finite-difference step of the derivative outputs; 1 µm balances the
-    # O(h²/ρ²) truncation against the O(eps/h²) round-off for radii of curvature ~ mm.
-    derivative_step: float = 1e-6
     # assumed: scale (rad) of an unlimited axis in the stroke-weighted Newton solve for q0;
     # comparable to 1/5 of a turn, so c_f is used only as much as the coarse axes.
     unlimited_scale: float = 1.0
     initial_iterations: int = 50
 
     def __post_init__(self):
-        for name in ('step', 'drift_gain', 'manipulability_threshold', 'derivative_step',
-                     'unlimited_scale'):
+        for name in ('step', 'drift_gain', 'manipulability_threshold', 'unlimited_scale'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f'{name} must be a positive finite number, got {value!r}')
@@ -132,9 +137,9 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
 
 
 class _Resolver:
-    def __init__(self, path, kinematics: Kinematics, machine: MachineConfig,
+    def __init__(self, kinematics: Kinematics, machine: MachineConfig,
                  settings: RedundancySettings):
-        self.path, self.kin, self.settings = path, kinematics, settings
+        self.kin, self.settings = kinematics, settings
         names = tuple(machine.axis_names)
         active = names if settings.active_axes is None else tuple(settings.active_axes)
         unknown = [a for a in active if a not in names]
@@ -187,36 +192,37 @@ class _Resolver:
             g[self.limited] = 2.0 * u / (self.half * (1.0 - u * u) ** 2)
         return g
 
-    def task_error(self, s, p, o, b):
-        pd, od = self.path.evaluate(s)
-        pd, od = np.asarray(pd, float), np.asarray(od, float)
-        return np.concatenate((pd - p, b.T @ (od - o))), pd, od
-
-    def rate(self, s, q, drift=True):
-        """g(s, q) of Eq. 3.28: the full n-vector dq/ds (frozen axes 0)."""
-        p, o, b, jt = self.task(q)
+    def rate(self, target, q, task=None):
+        """(g, g0) at one s: g(s, q) of Eq. 3.27 and g0, the same without the drift term, as
+        full n-vectors (frozen axes 0). `target` = (P, O, dP/ds, dO/ds) of R at s; `task`, if
+        given, is self.task(q) already evaluated."""
+        p, o, b, jt = self.task(q) if task is None else task
+        pd, od, dpd, dod = target
         jsharp = self.damped_inverse(jt)
-        dp, do = self.path.derivatives(s, 1)
-        v = np.concatenate((np.asarray(dp, float), b.T @ np.asarray(do, float)))
-        if drift and self.settings.drift_gain:
-            v = v + self.settings.drift_gain * self.task_error(s, p, o, b)[0]
-        dqa = jsharp @ v
+        dqa = jsharp @ np.concatenate((dpd, b.T @ dod))
         beta = self.settings.beta
         if beta:
             grad = self.grad_h(q[self.active])
             dqa -= beta * (grad - jsharp @ (jt @ grad))
-        dq = np.zeros_like(q)
-        dq[self.active] = dqa
-        return dq
+        g0 = np.zeros_like(q)
+        g0[self.active] = dqa
+        g = g0
+        if self.settings.drift_gain:
+            error = np.concatenate((pd - p, b.T @ (od - o)))
+            g = g0.copy()
+            g[self.active] += jsharp @ (self.settings.drift_gain * error)
+        return g, g0
 
     # --- Newton solves ----------------------------------------------------------------
-    def project(self, s, q, iterations, tolerance, weighted=False):
-        """Newton iterations q += J^# e_t on the active axes; returns q, position error (m),
-        orientation error (rad) after the last evaluation."""
+    def project(self, pd, od, q, iterations, tolerance, weighted=False):
+        """Newton iterations q += J^# e_t on the active axes towards R = (pd, od); returns q,
+        position error (m), orientation error (rad) and self.task(q), all of the last
+        evaluation."""
         q = q.copy()
         for it in range(iterations + 1):
-            p, o, b, jt = self.task(q)
-            e, pd, od = self.task_error(s, p, o, b)
+            task = self.task(q)
+            p, o, b, jt = task
+            e = np.concatenate((pd - p, b.T @ (od - o)))
             ep, eo = float(np.linalg.norm(pd - p)), _angle(o, od)
             if (ep <= tolerance and eo <= tolerance) or it == iterations:
                 break
@@ -228,38 +234,41 @@ class _Resolver:
             else:
                 step = self.damped_inverse(jt) @ e
             q[self.active] += step
-        return q, ep, eo
+        return q, ep, eo, task
 
 
-def _stencils(h):
-    """(offsets, first-derivative weights, second-derivative weights) for the centred and the
-    two one-sided stencils, all O(h²)."""
-    centred = (np.array([-1.0, 0.0, 1.0]) * h, np.array([-0.5, 0.0, 0.5]) / h,
-               np.array([1.0, -2.0, 1.0]) / h**2)
-    forward = (np.array([0.0, 1.0, 2.0, 3.0]) * h, np.array([-1.5, 2.0, -0.5, 0.0]) / h,
-               np.array([2.0, -5.0, 4.0, -1.0]) / h**2)
-    backward = (-forward[0], -forward[1], forward[2])
-    return centred, forward, backward
+def _fd_weights(offsets, order: int) -> np.ndarray:
+    """Weights w with sum_i w_i f(x + offsets_i h) = h^order f^(order)(x) + O(h^len(offsets)
+    - order): the Taylor (Vandermonde) conditions solved exactly."""
+    offsets = np.asarray(offsets, float)
+    vander = offsets[None, :] ** np.arange(len(offsets))[:, None]
+    rhs = np.zeros(len(offsets))
+    rhs[order] = math.factorial(order)
+    return np.linalg.solve(vander, rhs)
 
 
-def _derivatives(res: _Resolver, s, q, length, stencils):
-    """q', q'', q''' at (s, q) by directional differences of g0 along the Taylor curve."""
-    h = res.settings.derivative_step
-    centred, forward, backward = stencils
-    if s - h < 0.0:
-        offsets, w1, w2 = forward
-    elif s + h > length:
-        offsets, w1, w2 = backward
-    else:
-        offsets, w1, w2 = centred
-    q1 = res.rate(s, q, drift=False)
-    rates = [q1 if t == 0.0 else res.rate(s + t, q + t * q1, drift=False) for t in offsets]
-    q2 = sum(w * r for w, r in zip(w1, rates))          # O(h²) first pass
-    rates = [q1 if t == 0.0 else res.rate(s + t, q + t * q1 + 0.5 * t * t * q2, drift=False)
-             for t in offsets]
-    q2 = sum(w * r for w, r in zip(w1, rates))
-    q3 = sum(w * r for w, r in zip(w2, rates))
-    return q1, q2, q3
+# assumed: 7-point stencils for q'', q''' from q' (module docstring): O(Δs^6) centred,
+# O(Δs^5)/O(Δs^4) within three steps of the path ends, where they are one-sided.
+_STENCIL = 7
+
+
+def _along_s(f: np.ndarray, h: float, order: int) -> np.ndarray:
+    """d^order f/ds^order of samples f (M, n) on a uniform grid of spacing h, by 7-point
+    finite-difference stencils (centred inside, shifted one-sided near the ends)."""
+    m = len(f)
+    k = np.arange(m)
+    start = np.clip(k - _STENCIL // 2, 0, m - _STENCIL)
+    shift = k - start                                     # position of node k in its window
+    weights = np.array([_fd_weights(np.arange(_STENCIL) - c, order) for c in range(_STENCIL)])
+    windows = f[start[:, None] + np.arange(_STENCIL)]     # (M, stencil, n)
+    return np.einsum('kj,kjn->kn', weights[shift], windows) / h**order
+
+
+def _path_samples(path, s):
+    """P, O, dP/ds, dO/ds of R at the arc lengths s (M,), each (M, 3)."""
+    p, o = (np.asarray(a, float).reshape(len(s), 3) for a in path.evaluate(s))
+    dp, do = (np.asarray(a, float).reshape(len(s), 3) for a in path.derivatives(s, 1))
+    return p, o, dp, do
 
 
 def initial_configuration(path, kinematics: Kinematics, machine: MachineConfig,
@@ -270,10 +279,12 @@ def initial_configuration(path, kinematics: Kinematics, machine: MachineConfig,
     the fine axes stay near home. Raises ValueError when R(0) cannot be reached with the
     active axes (e.g. a z offset with only x-y axes active)."""
     settings = settings or RedundancySettings()
-    res = _Resolver(path, kinematics, machine, settings)
+    res = _Resolver(kinematics, machine, settings)
     q = np.array(machine.home if start is None else start, dtype=float)
     res.rank = _task_rank(res, q)
-    q, ep, eo = res.project(0.0, q, settings.initial_iterations, 1e-14, weighted=True)
+    pd, od = _path_samples(path, np.zeros(1))[:2]
+    q, ep, eo, _ = res.project(pd[0], od[0], q, settings.initial_iterations, 1e-14,
+                               weighted=True)
     if ep > 1e-12 or eo > 1e-12:
         raise ValueError(f'cannot reach R(0) with the active axes: residual {ep:.3g} m, '
                          f'{eo:.3g} rad')
@@ -288,13 +299,13 @@ def _task_rank(res: _Resolver, q) -> int:
 def resolve(path, kinematics: Kinematics, machine: MachineConfig,
             settings: RedundancySettings | None = None, q0=None) -> Resolution:
     """Algorithm 1 of the thesis: integrate Eq. 3.27 with RK4 (Eq. 3.24) from q0 over
-    s in [0, path.length] in N = ceil(S / settings.step) equal steps; see the module
-    docstring for the rate, the projection and the derivative outputs."""
+    s in [0, path.length] in N = max(6, ceil(S / settings.step)) equal steps; see the
+    module docstring for the rate, the projection and the derivative outputs."""
     settings = settings or RedundancySettings()
     length = float(path.length)
     if not (math.isfinite(length) and length > 0):
         raise ValueError(f'path length must be positive and finite, got {length!r}')
-    res = _Resolver(path, kinematics, machine, settings)
+    res = _Resolver(kinematics, machine, settings)
     if q0 is None:
         q = initial_configuration(path, kinematics, machine, settings)
     else:
@@ -302,28 +313,30 @@ def resolve(path, kinematics: Kinematics, machine: MachineConfig,
         if q.shape != (len(machine.axis_names),) or not np.all(np.isfinite(q)):
             raise ValueError(f'q0 must be {len(machine.axis_names)} finite axis positions')
     res.rank = _task_rank(res, q)
-    n_steps = max(1, math.ceil(length / settings.step - 1e-9))
+    # at least one stencil's worth of nodes for the derivative outputs
+    n_steps = max(_STENCIL - 1, math.ceil(length / settings.step - 1e-9))
     ds = length / n_steps
     s = np.arange(n_steps + 1) * ds
     s[-1] = length
-    n = len(q)
-    qs = np.empty((n_steps + 1, n))
-    d1, d2, d3 = (np.empty((n_steps + 1, n)) for _ in range(3))
-    stencils = _stencils(settings.derivative_step)
-    _, ep, eo = res.project(0.0, q, 0, 0.0)
+    half = np.arange(2 * n_steps + 1) * (0.5 * ds)       # R at the grid and the RK4 midpoints
+    half[-1] = length
+    target = _path_samples(path, half)
+    at = lambda j: tuple(a[j] for a in target)           # noqa: E731
+    qs, dq = np.empty((n_steps + 1, len(q))), np.empty((n_steps + 1, len(q)))
+    q, ep, eo, task = res.project(target[0][0], target[1][0], q, 0, 0.0)
     max_ep, max_eo = ep, eo
     qs[0] = q
     for k in range(n_steps):
-        sk = s[k]
-        k1 = res.rate(sk, q)
-        k2 = res.rate(sk + 0.5 * ds, q + 0.5 * ds * k1)
-        k3 = res.rate(sk + 0.5 * ds, q + 0.5 * ds * k2)
-        k4 = res.rate(sk + ds, q + ds * k3)
+        k1, dq[k] = res.rate(at(2 * k), q, task)
+        k2 = res.rate(at(2 * k + 1), q + 0.5 * ds * k1)[0]
+        k3 = res.rate(at(2 * k + 1), q + 0.5 * ds * k2)[0]
+        k4 = res.rate(at(2 * k + 2), q + ds * k3)[0]
         q = q + (k1 + 2.0 * k2 + 2.0 * k3 + k4) * (ds / 6.0)
-        q, ep, eo = res.project(s[k + 1], q, settings.projection_iterations,
-                                settings.projection_tolerance)
+        q, ep, eo, task = res.project(target[0][2 * k + 2], target[1][2 * k + 2], q,
+                                      settings.projection_iterations,
+                                      settings.projection_tolerance)
         max_ep, max_eo = max(max_ep, ep), max(max_eo, eo)
         qs[k + 1] = q
-    for k in range(n_steps + 1):
-        d1[k], d2[k], d3[k] = _derivatives(res, s[k], qs[k], length, stencils)
-    return Resolution(s, qs, d1, d2, d3, max_ep, max_eo, tuple(machine.axis_names))
+    dq[-1] = res.rate(at(2 * n_steps), q, task)[1]
+    return Resolution(s, qs, dq, _along_s(dq, ds, 1), _along_s(dq, ds, 2), max_ep, max_eo,
+                      tuple(machine.axis_names))
