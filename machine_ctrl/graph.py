@@ -4,7 +4,9 @@ benchmarks; `machine-ctrl bringup` ([7/7]) builds on it.
 
 Default layout for a machine with dual-stage pairs: hw_sim, one servo node per stage
 (fine stage: every axis with the drive type of the pairs' fine axes — the whole maglev
-table; coarse stage: the other controlled axes), dual_stage, and the reference source.
+table; coarse stage: the other controlled axes), dual_stage, and the reference source:
+the trajectory node (contour None; the machine starts at home, or where `hw_sim` says),
+or the reference node playing a test contour (the machine starts where it starts).
 """
 from __future__ import annotations
 
@@ -43,27 +45,33 @@ def _param_text(value) -> str:
     if isinstance(value, bool):
         return 'true' if value else 'false'
     if isinstance(value, (list, tuple)):
+        if any(isinstance(v, float) for v in value):     # ROS parameter arrays have one type
+            value = [float(v) for v in value]
         return '[' + ','.join(_param_text(v) for v in value) + ']'
     return str(value)
 
 
-def default_graph(machine: MachineConfig, contour: str = 'circle', dual_stage: bool = True,
+def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_stage: bool = True,
                   hw_sim: dict | None = None) -> list[NodeSpec]:
     fine_types = {machine.axis(p.fine).drive.type for p in machine.dual_stage}
     controlled = [a for a in machine.axes if a.control is not None]
     fine = [a.name for a in controlled if a.drive.type in fine_types]
     coarse = [a.name for a in controlled if a.drive.type not in fine_types]
     common = {'machine': str(machine.yaml_path)}
-    # until [3/7] plans an approach move, the machine starts where the contour starts
-    start = [float(v) for v in contour_reference(machine, contour).position[0]]
-    hw = {**common, 'initial_position': start, **(hw_sim or {})}
+    if contour is None:
+        source = NodeSpec('trajectory', 'trajectory.node', 'TrajectoryNode', common)
+        hw = {**common, **(hw_sim or {})}
+    else:   # a contour has no approach move: the machine starts where the contour starts
+        source = NodeSpec('reference', 'machine_ctrl.reference_node', 'ReferenceNode', {**common, 'contour': contour})
+        start = [float(v) for v in contour_reference(machine, contour).position[0]]
+        hw = {**common, 'initial_position': start, **(hw_sim or {})}
     specs = [NodeSpec('hw_sim', 'hw_sim.node', 'HwSimNode', hw),
              NodeSpec('servo_coarse', 'machine_ctrl.servo_node', 'ServoNode', {**common, 'axes': coarse})]
     if fine:
         specs.append(NodeSpec('servo_fine', 'machine_ctrl.servo_node', 'ServoNode', {**common, 'axes': fine}))
         specs.append(NodeSpec('dual_stage', 'machine_ctrl.dual_stage_node', 'DualStageNode',
                               {**common, 'enabled': dual_stage}))
-    specs.append(NodeSpec('reference', 'machine_ctrl.reference_node', 'ReferenceNode', {**common, 'contour': contour}))
+    specs.append(source)
     return specs
 
 
@@ -82,14 +90,16 @@ def main(argv=None) -> int:
 
     parser = argparse.ArgumentParser(prog='python -m machine_ctrl.graph', description=main.__doc__)
     parser.add_argument('--machine', default=DEFAULT_MACHINE)
-    parser.add_argument('--contour', default='circle')
+    parser.add_argument('--contour', default='circle',
+                        help="test contour of the reference node, or 'none' for the trajectory node")
     parser.add_argument('--no-dual-stage', action='store_true')
     parser.add_argument('--hw-sim', action='append', default=[], metavar='KEY=VALUE',
                         help='hw_sim parameter (value as YAML), e.g. min_subscribers=4')
     args = parser.parse_args(argv)
     import yaml
     hw = {k: yaml.safe_load(v) for k, v in (item.split('=', 1) for item in args.hw_sim)}
-    specs = default_graph(load_machine(args.machine), args.contour, not args.no_dual_stage, hw)
+    contour = None if args.contour == 'none' else args.contour
+    specs = default_graph(load_machine(args.machine), contour, not args.no_dual_stage, hw)
     rclpy.init()
     spin(create_nodes(specs))
     return 0

@@ -86,16 +86,93 @@ def _check_extrema(machine: MachineConfig, trajectory: Trajectory) -> None:
                              f'outside its stroke {axis.stroke}')
 
 
-def move_to(machine: MachineConfig, goal, start: AxisState | None = None, scale: float = 1.0) -> Reference:
+def move_to(machine: MachineConfig, goal, start: AxisState | None = None, scale: float = 1.0,
+            minimum_duration: float = 0.0) -> Reference:
     """Time-optimal jerk-limited move from `start` (default: at rest at home) to `goal`
-    (at rest), sampled at the control period."""
+    (at rest), sampled at the control period; it takes at least `minimum_duration` s."""
     goal = validate_goal(machine, goal)
     start = start or AxisState.at_rest(machine.home)
     inp = _input(machine, start, scale)
     inp.target_position = goal.tolist()
     inp.target_velocity = [0.0] * len(goal)
     inp.target_acceleration = [0.0] * len(goal)
+    if minimum_duration > 0.0:
+        inp.minimum_duration = minimum_duration
     return _plan(machine, inp)
+
+
+def through_waypoints(machine: MachineConfig, start, names, points, times) -> Reference:
+    """Joint goal (trajectory_msgs/JointTrajectory semantics): from `start` (axis positions,
+    at rest) through every point of `points` (values for the axes `names`, a subset; the
+    others keep their position), stopping at each. `times` (s from the start) are either
+    all zero (each move time-optimal) or strictly increasing: arrive at point i no earlier
+    than times[i]. ValueError naming the first problem."""
+    index = _axis_columns(machine, names)
+    if not points:
+        raise ValueError('joint goal has no points')
+    if len(times) != len(points):
+        raise ValueError(f'{len(times)} times for {len(points)} points')
+    times = [float(t) for t in times]
+    if not np.isfinite(times).all():
+        raise ValueError('time_from_start holds NaN or inf')
+    timed = any(t != 0.0 for t in times)
+    if timed and not all(b > a for a, b in zip([0.0] + times, times)):
+        raise ValueError(f'time_from_start must be all zero or strictly increasing from > 0, got {times}')
+    position = np.array(start, dtype=float)
+    goals = []
+    for i, values in enumerate(points):
+        values = np.asarray(values, dtype=float)
+        if values.shape != (len(index),):
+            raise ValueError(f'point {i}: {values.size} positions for {len(index)} joints')
+        position = position.copy()
+        position[index] = values
+        try:
+            goals.append(validate_goal(machine, position))
+        except ValueError as exc:
+            raise ValueError(f'point {i}: {exc}') from None
+    segments, state, previous = [], AxisState.at_rest(start), 0.0
+    for goal, t in zip(goals, times):
+        segment = move_to(machine, goal, state, minimum_duration=(t - previous) if timed else 0.0)
+        segments.append(segment if not segments else tail(segment))
+        state, previous = AxisState.at_rest(goal), t
+    return concatenate(segments)
+
+
+def _axis_columns(machine: MachineConfig, names) -> list[int]:
+    names = list(names)
+    if not names:
+        raise ValueError('joint goal names no joints')
+    if len(set(names)) != len(names):
+        raise ValueError('duplicate joint names')
+    unknown = [n for n in names if n not in machine.axis_names]
+    if unknown:
+        raise ValueError(f'unknown joints {", ".join(unknown)} (axes: {" ".join(machine.axis_names)})')
+    return [machine.axis_names.index(n) for n in names]
+
+
+def tail(reference: Reference) -> Reference:
+    """Reference without its first row (the previous segment's last)."""
+    return Reference(reference.axis_names, reference.period, reference.position[1:],
+                     reference.velocity[1:], reference.acceleration[1:])
+
+
+def stroke_violation(machine: MachineConfig, reference: Reference) -> str:
+    """'' if every sampled position is inside its axis's stroke, else the first offender."""
+    for i, axis in enumerate(machine.axes):
+        if axis.stroke is None:
+            continue
+        lo, hi = reference.position[:, i].min(), reference.position[:, i].max()
+        if lo < axis.stroke[0] or hi > axis.stroke[1]:
+            return f'{axis.name} reaches [{lo:.6g}, {hi:.6g}] {axis.unit}, outside its stroke {axis.stroke}'
+    return ''
+
+
+def concatenate(references) -> Reference:
+    """References played back to back (each starts where the previous ended)."""
+    first = references[0]
+    return Reference(first.axis_names, first.period,
+                     *(np.concatenate([getattr(r, f) for r in references])
+                       for f in ('position', 'velocity', 'acceleration')))
 
 
 def home(machine: MachineConfig, start: AxisState, scale: float = 1.0) -> Reference:

@@ -1,0 +1,310 @@
+"""trajectory_node in the running lock-step graph (hw_sim, servos, dual_stage, trajectory;
+each node its own process, real DDS), driven only through its topics and services:
+refused goals move nothing, a tool path runs end to end after an approach from where the
+machine stands, joint goals, home and feed hold."""
+import math
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from machine_ctrl import ros_io
+from machine_ctrl.graph import default_graph
+from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.processes import Supervisor
+
+START = [1e-3, -0.5e-3, 0.2e-3, 0, 0, 0, 0, 0, 0]      # hw_sim's initial position, away from home
+
+
+class Client:
+    """Goals in, /reference rows, /trajectory/status, /diagnostics and the true joint
+    positions out; spun in a background thread."""
+
+    def __init__(self, node, machine):
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+        from nav_msgs.msg import Path
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState
+        from std_srvs.srv import Trigger
+        from trajectory_msgs.msg import JointTrajectory
+
+        self.node, self.machine = node, machine
+        self.clock = ros_io.StepClock(machine.control_period)
+        self.rows = {}                     # step -> reference position (last message wins)
+        self.statuses = []
+        self.diagnostics = {}
+        self.truth = None
+        self.lock = threading.Lock()
+        deep = QoSProfile(depth=100_000, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        node.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, deep)
+        latched = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        node.create_subscription(DiagnosticStatus, '/trajectory/status', self.statuses.append, latched)
+        node.create_subscription(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, self.on_diagnostics, 100)
+        node.create_subscription(JointState, ros_io.TOPIC_TRUE_JOINT_STATES, self.on_truth, 10)
+        self.pub_path = node.create_publisher(Path, '/trajectory/path', 10)
+        self.pub_goal = node.create_publisher(JointTrajectory, '/trajectory/joint_goal', 10)
+        self.hold = node.create_client(Trigger, '/trajectory/hold')
+        self.home = node.create_client(Trigger, '/trajectory/home')
+        self.executor = SingleThreadedExecutor(context=node.context)
+        self.executor.add_node(node)
+        self.running = True
+        self.thread = threading.Thread(target=self.spin, daemon=True)
+        self.thread.start()
+
+    def spin(self):
+        while self.running:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def stop(self):
+        self.running = False
+        self.thread.join(timeout=2)
+        self.executor.shutdown()
+
+    def on_reference(self, msg):
+        first, positions, _, _ = ros_io.parse_chunk(self.clock, msg, self.machine.axis_names)
+        with self.lock:
+            for i, p in enumerate(positions):
+                self.rows[first + i] = p
+
+    def on_diagnostics(self, msg):
+        for status in msg.status:
+            self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
+
+    def on_truth(self, msg):
+        self.truth = np.array(msg.position)
+
+    # -- views ---------------------------------------------------------------------------
+    def status(self):
+        return {kv.key: kv.value for kv in self.statuses[-1].values} if self.statuses else {}
+
+    def reference(self):
+        """The streamed reference as one array, steps first..last."""
+        with self.lock:
+            steps = sorted(self.rows)
+            assert steps == list(range(steps[0], steps[-1] + 1)), 'the stream has a gap'
+            return steps[0], np.array([self.rows[k] for k in steps])
+
+    def wait(self, predicate, what, timeout=120.0, supervisor=None):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            assert time.monotonic() < deadline, f'timed out waiting for {what}; status {self.status()}'
+            if supervisor is not None:
+                supervisor.check()
+            time.sleep(0.05)
+
+    def wait_states(self, after, states, supervisor):
+        """Wait until the statuses published after the first `after` went through `states`
+        in this order (others may come between)."""
+        def seen():
+            wanted = iter(states)
+            target = next(wanted)
+            for status in self.statuses[after:]:
+                if status.message == target:
+                    target = next(wanted, None)
+                    if target is None:
+                        return True
+            return False
+        self.wait(seen, f'states {states}', supervisor=supervisor)
+
+    def call(self, client):
+        from std_srvs.srv import Trigger
+        assert client.wait_for_service(timeout_sec=30)
+        future = client.call_async(Trigger.Request())
+        self.wait(future.done, 'service answer')
+        return future.result()
+
+    # -- goals -----------------------------------------------------------------------------
+    def send_path(self, positions, axes, frame='workpiece'):
+        from geometry_msgs.msg import PoseStamped
+        from nav_msgs.msg import Path
+        msg = Path()
+        msg.header.frame_id = frame
+        for p, o in zip(positions, axes):
+            pose = PoseStamped()
+            pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = map(float, p)
+            q = quaternion_z_to(o)
+            (pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z,
+             pose.pose.orientation.w) = map(float, q)
+            msg.poses.append(pose)
+        self.pub_path.publish(msg)
+
+    def send_goal(self, names, points, times=None):
+        from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+        msg = JointTrajectory()
+        msg.joint_names = list(names)
+        for i, values in enumerate(points):
+            point = JointTrajectoryPoint(positions=[float(v) for v in values])
+            if times is not None:
+                point.time_from_start = self.clock.duration(round(times[i] / self.machine.control_period))
+            msg.points.append(point)
+        self.pub_goal.publish(msg)
+
+
+def quaternion_z_to(o):
+    """(x, y, z, w) of a rotation taking +z to the unit vector o (any vector, for bad input)."""
+    o = np.asarray(o, float)
+    n = np.linalg.norm(o)
+    if not n > 0 or not np.isfinite(n):
+        return (*o, 0.0) if not np.isfinite(n) else (0.0, 0.0, 0.0, 0.0)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, o / n)
+    half = 0.5 * math.acos(float(np.clip(o[2] / n, -1, 1)))
+    s = np.linalg.norm(axis)
+    axis = axis / s if s > 0 else np.array([1.0, 0.0, 0.0])
+    return (*(math.sin(half) * axis), math.cos(half))
+
+
+def arc(machine, points=24, radius=1e-3):
+    """A half circle of tool tips starting at the home tool tip, tool axis +z."""
+    tip, _ = Kinematics.from_config(machine).forward(np.zeros(len(machine.axes)))
+    th = np.linspace(0.0, math.pi, points)
+    p = np.column_stack([tip[0] + radius * (np.cos(th) - 1), tip[1] + radius * np.sin(th), np.full(points, tip[2])])
+    return p, np.tile([0.0, 0.0, 1.0], (points, 1))
+
+
+@pytest.fixture(scope='module')
+def graph(micromill, ros_env, tmp_path_factory):
+    with Supervisor(ros_env, log_dir=tmp_path_factory.mktemp('logs'), stop_timeout=3.0) as supervisor:
+        for spec in default_graph(micromill, contour=None, hw_sim={'initial_position': START}):
+            supervisor.start(spec.name, spec.argv())
+        yield supervisor
+
+
+@pytest.fixture(scope='module')
+def client(micromill, graph, ros_env):
+    import rclpy
+    from rclpy.context import Context
+    context = Context()
+    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
+    node = rclpy.create_node('trajectory_client', context=context)
+    c = Client(node, micromill)
+    try:
+        c.wait(lambda: c.status().get('streamed_to_step', '') not in ('', None), 'streaming', supervisor=graph)
+        yield c
+    finally:
+        c.stop()
+        node.destroy_node()
+        context.try_shutdown()
+
+
+def assert_within_limits(machine, positions, tolerance=1.001):
+    t = machine.control_period
+    for order, name in ((1, 'velocity'), (2, 'acceleration'), (3, 'jerk')):
+        limit = np.array([getattr(a.limits, name) for a in machine.axes])
+        peak = np.abs(np.diff(positions, order, axis=0)).max(axis=0) / t**order
+        assert (peak <= tolerance * limit).all(), f'{name}: {peak / limit}'
+
+
+BAD_GOALS = [
+    ('path', dict(frame='map'), "frame_id 'map' is not the workpiece frame"),
+    ('path', dict(points=5), 'need at least'),
+    ('path', dict(nan=True), 'not finite'),
+    ('path', dict(zero_axis=True), 'zero length'),
+    ('path', dict(repeat=True), 'repeats point'),
+    ('path', dict(shift=0.2), 'planning failed'),
+    ('goal', (['x_c', 'q_z'], [[1e-3, 0.0]]), 'unknown joints q_z'),
+    ('goal', (['x_c', 'x_c'], [[1e-3, 1e-3]]), 'duplicate joint names'),
+    ('goal', (['x_c', 'y_c'], [[1e-3]]), '1 positions for 2 joints'),
+    ('goal', (['x_c'], [[float('nan')]]), 'NaN or inf'),
+    ('goal', (['x_f'], [[0.5e-3]]), 'outside its stroke'),
+    ('goal', (['x_c'], [[1e-3], [2e-3]], [0.2, 0.1]), 'strictly increasing'),
+    ('goal', (['x_c'], []), 'no points'),
+]
+
+
+def send_bad(client, machine, kind, spec):
+    if kind == 'goal':
+        client.send_goal(*spec)
+        return
+    p, o = arc(machine, points=spec.get('points', 24))
+    if spec.get('nan'):
+        p[3, 1] = float('nan')
+    if spec.get('zero_axis'):
+        o[4] = 0.0
+    if spec.get('repeat'):
+        p[6] = p[5]
+    p[:, 0] += spec.get('shift', 0.0)
+    client.send_path(p, o, frame=spec.get('frame', 'workpiece'))
+
+
+def test_invalid_goals_are_refused_with_the_reason_and_nothing_moves(micromill, graph, client):
+    client.wait(lambda: client.truth is not None, 'ground truth', supervisor=graph)
+    before = client.truth.copy()
+    for kind, spec, reason in BAD_GOALS:
+        count = int(client.status().get('rejected_goals', 0))
+        send_bad(client, micromill, kind, spec)
+        client.wait(lambda: int(client.status().get('rejected_goals', 0)) == count + 1, f'refusal of {spec}',
+                    supervisor=graph)
+        assert reason in client.status()['last_rejection'], (spec, client.status()['last_rejection'])
+        assert client.status()['state'] == 'idle'
+    first, reference = client.reference()
+    assert (reference == reference[0]).all()                   # the stream only ever held
+    np.testing.assert_allclose(reference[0], START, atol=50e-9)  # ... the measured start position
+    np.testing.assert_allclose(client.truth, before, atol=1e-6)
+    assert set(graph.alive()) == {spec.name for spec in default_graph(micromill, contour=None)}
+
+
+def test_path_runs_end_to_end_after_an_approach_from_where_the_machine_is(micromill, graph, client):
+    held_from = client.reference()[1][-1]
+    p, o = arc(micromill)
+    n = len(client.statuses)
+    client.send_path(p, o)
+    client.wait_states(n, ['running', 'idle'], graph)
+    status = client.status()
+    start, end = int(status['motion_start_step']), int(status['motion_end_step'])
+    client.wait(lambda: int(client.status()['step']) > end + 100, 'settling', supervisor=graph)
+
+    first, reference = client.reference()
+    motion = reference[start - first:end - first + 1]
+    np.testing.assert_array_equal(motion[0], held_from)        # the approach starts where the machine was held
+    assert np.abs(motion[0] - START).max() < 50e-9             # = the measured position
+    assert_within_limits(micromill, reference)                 # no jump anywhere in the stream
+    kin = Kinematics.from_config(micromill)
+    tip, axis = kin.forward(motion[-1])
+    np.testing.assert_allclose(tip, p[-1], atol=1e-9)
+    np.testing.assert_allclose(axis, o[-1], atol=1e-9)
+    true_tip, _ = kin.forward(client.truth)
+    assert np.linalg.norm(true_tip - p[-1]) < 2e-6              # the machine followed
+    for servo in ('servo_coarse', 'servo_fine'):
+        client.wait(lambda: servo in client.diagnostics, f'{servo} diagnostics', supervisor=graph)
+        assert client.diagnostics[servo]['reference_underruns'] == '0'
+
+
+def test_joint_goal_home_and_feed_hold(micromill, graph, client):
+    n = len(client.statuses)
+    client.send_goal(['x_c', 'y_c'], [[3e-3, 1e-3], [4e-3, -1e-3]], [0.0, 0.0])
+    client.wait_states(n, ['running', 'idle'], graph)
+    client.wait(lambda: client.truth is not None and abs(client.truth[1] + 1e-3) < 2e-6, 'reaching the goal',
+                supervisor=graph)
+    assert abs(client.truth[0] - 4e-3) < 2e-6
+
+    # a long move, held while under way: a smooth stop short of the goal
+    n = len(client.statuses)
+    client.send_goal(['x_c'], [[-40e-3]])
+    client.wait_states(n, ['running'], graph)
+    status = client.status()
+    start, end = int(status['motion_start_step']), int(status['motion_end_step'])
+    client.wait(lambda: int(client.status()['step']) > start + (end - start) // 4, 'motion under way',
+                supervisor=graph)
+    refused = int(client.status()['rejected_goals'])
+    client.send_goal(['y_c'], [[0.0]])                          # one motion at a time
+    client.wait(lambda: int(client.status()['rejected_goals']) == refused + 1, 'refusal', supervisor=graph)
+    assert 'busy (running)' in client.status()['last_rejection']
+    answer = client.call(client.hold)
+    assert answer.success, answer.message
+    client.wait_states(n, ['holding', 'idle'], graph)
+    first, reference = client.reference()
+    assert_within_limits(micromill, reference)
+    stop_at = reference[int(client.status()['motion_end_step']) - first]
+    assert -40e-3 + 1e-3 < stop_at[0] < 4e-3 - 1e-3            # stopped on the way
+
+    assert not client.call(client.hold).success                 # nothing to hold now
+    n = len(client.statuses)
+    assert client.call(client.home).success
+    client.wait_states(n, ['running', 'idle'], graph)
+    client.wait(lambda: np.abs(client.truth[:3]).max() < 2e-6, 'home', supervisor=graph)

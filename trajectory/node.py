@@ -1,0 +1,308 @@
+"""trajectory_node: accepts tool paths and joint goals, plans them, and streams the axis
+references to the servos ahead of time (design.md "Time").
+
+Inputs (every one validated; a refused goal moves nothing and its reason is published on
+/trajectory/status and logged):
+* `/trajectory/path` (nav_msgs/Path): cutter-location data in the workpiece frame
+  (header.frame_id = the machine's workpiece frame; pose position = tool tip in m, pose
+  z-axis = tool axis). Planned with `trajectory.planner.plan` at the `feed` parameter
+  (m/s), preceded by a jerk-limited approach (Ruckig) from where the stream holds the
+  machine to the path's start configuration.
+* `/trajectory/joint_goal` (trajectory_msgs/JointTrajectory): axis goals (m, rad) for any
+  subset of the axes (the others stay); several points are waypoints, each reached at
+  rest; time_from_start all zero (time-optimal) or strictly increasing (earliest arrival).
+* `/trajectory/hold` (std_srvs/Trigger): feed hold, a smooth stop (Ruckig) from the
+  reference's state a little ahead of the machine; the rest of the motion is dropped.
+* `/trajectory/home` (std_srvs/Trigger): move to the machine's home at rest.
+
+Goals are accepted only while idle: one motion at a time, a goal during planning, a
+motion or a fault is refused. After a motion the last position is held.
+
+Outputs: `/reference` chunks (trajectory_msgs/JointTrajectory on the control grid, as the
+servos read them), `/trajectory/status` (diagnostic_msgs/DiagnosticStatus, latched:
+message = state idle | planning | running | holding | fault; values: progress, motion,
+last_rejection, ...), `/diagnostics`.
+
+Timing: the node reads the sim step from /clock and keeps `lookahead_steps` rows streamed
+ahead; a new motion starts at the first row not yet streamed, so it begins up to
+`lookahead_steps` after the goal is accepted (plus the planning time) and never jumps.
+Before the first /joint_states arrives nothing is streamed (the servos wait); then the
+stream holds the measured position. When hw_sim reports a fault (/diagnostics, level
+ERROR) the motion is dropped and the reference at the fault step is held; after hw_sim's
+reset the state returns to idle.
+"""
+from __future__ import annotations
+
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from nav_msgs.msg import Path
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
+
+from machine_ctrl import ros_io
+from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.node_common import Rejections, declare, machine_parameter, main_for, use_sim_time, wall_timer
+from machine_ctrl.reference import Reference
+from trajectory import moves, toolpath
+from trajectory.planner import DEFAULT_FEED, plan
+from trajectory.stream import ReferenceStream
+
+TOPIC_PATH = '/trajectory/path'
+TOPIC_JOINT_GOAL = '/trajectory/joint_goal'
+TOPIC_STATUS = '/trajectory/status'
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+GOAL_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def path_to_cl(msg: Path, frame: str) -> toolpath.CLData:
+    """CL data of a nav_msgs/Path (positions = tool tips, pose z-axes = tool axes)."""
+    if msg.header.frame_id != frame:
+        raise ValueError(f'frame_id {msg.header.frame_id!r} is not the workpiece frame {frame!r}')
+    bad = [i for i, p in enumerate(msg.poses) if p.header.frame_id not in ('', frame)]
+    if bad:
+        raise ValueError(f'pose {bad[0]}: frame_id {msg.poses[bad[0]].header.frame_id!r} is not {frame!r}')
+    if not msg.poses:
+        raise ValueError('path has no poses')
+    p = np.array([(q.pose.position.x, q.pose.position.y, q.pose.position.z) for q in msg.poses])
+    o = np.array([(q.pose.orientation.x, q.pose.orientation.y, q.pose.orientation.z, q.pose.orientation.w)
+                  for q in msg.poses])
+    return toolpath.from_arrays(p, toolpath.axes_from_quaternions(o))
+
+
+def plan_path(machine, kinematics, cl: toolpath.CLData, feed: float) -> Reference:
+    """The path's references, checked against the strokes."""
+    reference = plan(cl, machine, feed, kinematics=kinematics).reference
+    problem = moves.stroke_violation(machine, reference)
+    if problem:
+        raise ValueError(f'planned path leaves a stroke: {problem}')
+    return reference
+
+
+class TrajectoryNode(Node):
+    def __init__(self, name: str = 'trajectory', **kwargs):
+        super().__init__(name, **kwargs)
+        use_sim_time(self)
+        self.machine = machine_parameter(self)
+        self.feed = declare(self, 'feed', DEFAULT_FEED, 'process feed limit of tool paths, m/s')
+        self.chunk_steps = max(1, declare(self, 'chunk_steps', 500, 'rows per /reference message'))
+        self.lookahead = max(2 * self.chunk_steps, declare(self, 'lookahead_steps', 3000, 'rows kept ahead'))
+        if not (isinstance(self.feed, float) and np.isfinite(self.feed) and self.feed > 0):
+            self.get_logger().fatal(f'parameter feed: must be a positive speed in m/s, got {self.feed!r}')
+            raise SystemExit(2)
+        self.kinematics = Kinematics.from_config(self.machine)
+        self.clock = ros_io.StepClock(self.machine.control_period)
+        self.rejections = Rejections(self)
+        self.stream: ReferenceStream | None = None
+        self.state = 'idle'
+        self.step = 0                                  # latest sim step seen on /clock
+        self.planner = ThreadPoolExecutor(max_workers=1)
+        self.planning: tuple[Future, str] | None = None
+        self.fault = ''
+
+        self.pub_reference = self.create_publisher(JointTrajectory, ros_io.TOPIC_REFERENCE, ros_io.REFERENCE_QOS)
+        self.pub_status = self.create_publisher(DiagnosticStatus, TOPIC_STATUS, LATCHED)
+        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
+        self.sub_state = self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_first_state,
+                                                  ros_io.STEP_QOS)
+        self.create_subscription(Clock, '/clock', self.on_clock, 10)
+        self.create_subscription(Path, TOPIC_PATH, self.on_path, GOAL_QOS)
+        self.create_subscription(JointTrajectory, TOPIC_JOINT_GOAL, self.on_joint_goal, GOAL_QOS)
+        self.create_subscription(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, self.on_diagnostics, 50)
+        self.create_service(Trigger, '/trajectory/hold', self.on_hold)
+        self.create_service(Trigger, '/trajectory/home', self.on_home)
+        wall_timer(self, 0.05, self.check_planning)
+        wall_timer(self, 1.0, self.publish_status)
+        self.publish_status()
+        self.get_logger().info(f'ready: feed {self.feed * 1e3:g} mm/s; waiting for /joint_states')
+
+    # -- time and streaming ----------------------------------------------------------------
+    def on_first_state(self, msg: JointState) -> None:
+        """Start streaming: hold the measured position from the step of the first state."""
+        try:
+            step = self.clock.step(msg.header.stamp)
+            position = ros_io.select(msg, 'position', self.machine.axis_names)
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('state', str(exc))
+            return
+        self.destroy_subscription(self.sub_state)    # the stream knows the state from here on
+        self.stream = ReferenceStream(self.machine.axis_names, self.machine.control_period, position, step)
+        self.step = max(self.step, step)
+        self.fill()
+        self.publish_status()
+
+    def on_clock(self, msg: Clock) -> None:
+        try:
+            self.step = max(self.step, self.clock.step(msg.clock))
+        except ros_io.InvalidMessage:
+            return
+        self.fill()
+        if self.state in ('running', 'holding') and not self.stream.busy(self.step):
+            self.set_state('idle')
+
+    def fill(self) -> None:
+        if self.stream is None:
+            return
+        while self.stream.next_step < self.step + self.lookahead:
+            first, p, v, a = self.stream.take(self.chunk_steps)
+            self.pub_reference.publish(ros_io.trajectory_chunk(self.clock, first, self.machine.axis_names, p, v, a))
+
+    # -- goals -----------------------------------------------------------------------------
+    def refuse_goal(self, what: str, reason: str) -> None:
+        self.rejections.add(what, reason)
+        self.publish_status()
+
+    def idle_or_refuse(self, what: str) -> bool:
+        if self.stream is None:
+            reason = 'the machine state is not known yet (no /joint_states)'
+        elif self.state == 'fault':
+            reason = f'machine is faulted ({self.fault}); reset hw_sim first'
+        elif self.state != 'idle':
+            reason = f'busy ({self.state}); one motion at a time'
+        else:
+            return True
+        self.refuse_goal(what, reason)
+        return False
+
+    def on_path(self, msg: Path) -> None:
+        if not self.idle_or_refuse('path'):
+            return
+        try:
+            cl = path_to_cl(msg, self.machine.workpiece_frame)
+        except ValueError as exc:
+            self.refuse_goal('path', str(exc))
+            return
+        self.planning = (self.planner.submit(plan_path, self.machine, self.kinematics, cl, self.feed),
+                         f'path of {len(cl)} points')
+        self.set_state('planning')
+
+    def on_joint_goal(self, msg: JointTrajectory) -> None:
+        if not self.idle_or_refuse('joint goal'):
+            return
+        here = self.stream.state(self.stream.next_step).position
+        times = [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in msg.points]
+        try:
+            reference = moves.through_waypoints(self.machine, here, msg.joint_names,
+                                                [list(p.positions) for p in msg.points], times)
+        except ValueError as exc:
+            self.refuse_goal('joint goal', str(exc))
+            return
+        self.begin(reference, f'joint goal ({len(msg.points)} points)')
+
+    def check_planning(self) -> None:
+        """Pick up a finished plan: approach from the held position, then the path."""
+        if self.planning is None or not self.planning[0].done():
+            return
+        future, label = self.planning
+        self.planning = None
+        if self.state != 'planning':          # a fault came in meanwhile
+            return
+        try:
+            path = future.result()
+            here = self.stream.state(self.stream.next_step).position
+            approach = moves.move_to(self.machine, path.position[0], moves.AxisState.at_rest(here))
+        except ValueError as exc:
+            self.set_state('idle')
+            self.refuse_goal('path', f'planning failed: {exc}')
+            return
+        self.begin(moves.concatenate([approach, moves.tail(path)]), label)
+
+    def begin(self, reference: Reference, label: str) -> None:
+        self.stream.start(reference, label)
+        self.get_logger().info(f'{label}: {len(reference)} steps from step {self.stream.motion.start}')
+        self.set_state('running')
+        self.fill()
+
+    def on_hold(self, request, response):
+        if self.state != 'running' or self.stream is None:
+            response.success, response.message = False, f'nothing to hold ({self.state})'
+            return response
+        at = self.step + self.chunk_steps          # beyond any step the servos may have taken
+        if not self.stream.busy(at):
+            response.success, response.message = True, 'motion ends before a stop could'
+            return response
+        try:
+            stop = moves.smooth_stop(self.machine, self.stream.state(at))
+        except ValueError as exc:
+            response.success, response.message = False, f'cannot stop smoothly: {exc}'
+            return response
+        self.stream.interrupt(at, stop, 'feed hold')
+        self.set_state('holding')
+        self.fill()
+        response.success, response.message = True, f'stopping from step {at} in {len(stop)} steps'
+        return response
+
+    def on_home(self, request, response):
+        if not self.idle_or_refuse('home'):
+            response.success, response.message = False, self.rejections.last
+            return response
+        here = self.stream.state(self.stream.next_step)
+        self.begin(moves.home(self.machine, here), 'home')
+        response.success, response.message = True, f'homing in {len(self.stream.motion.reference)} steps'
+        return response
+
+    # -- faults ----------------------------------------------------------------------------
+    def on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name != 'hw_sim':
+                continue
+            values = {kv.key: kv.value for kv in status.values}
+            if status.level == DiagnosticStatus.ERROR and self.state != 'fault':
+                self.on_fault(values.get('fault', status.message), values.get('step', ''))
+            elif status.level != DiagnosticStatus.ERROR and self.state == 'fault':
+                self.fault = ''
+                self.set_state('idle')
+
+    def on_fault(self, reason: str, step_text: str) -> None:
+        self.fault = reason
+        self.planning = None
+        if self.stream is not None and step_text.isdigit():
+            at = int(step_text) + 1                  # hw_sim stopped at the fault step
+            here = self.stream.state(at).position
+            self.stream.interrupt(at, Reference.hold(self.machine.axis_names, self.machine.control_period,
+                                                     here, 1), 'fault hold')
+            self.fill()
+        self.set_state('fault')
+
+    # -- status ----------------------------------------------------------------------------
+    def set_state(self, state: str) -> None:
+        if state != self.state:
+            self.state = state
+            self.get_logger().info(f'state: {state}')
+        self.publish_status()
+
+    def status(self) -> DiagnosticStatus:
+        motion = self.stream.motion if self.stream is not None else None
+        level = {'fault': DiagnosticStatus.ERROR}.get(self.state, DiagnosticStatus.OK)
+        values = {'state': self.state, 'step': self.step,
+                  'progress': f'{self.stream.progress(self.step):.4f}' if self.stream else '0',
+                  'motion': motion.label if motion else '',
+                  'motion_start_step': motion.start if motion else '',
+                  'motion_end_step': motion.end if motion else '',
+                  'streamed_to_step': self.stream.next_step if self.stream else '',
+                  'fault': self.fault, 'rejected_goals': self.rejections.count,
+                  'last_rejection': self.rejections.last}
+        return ros_io.diagnostics(self.clock.stamp(self.step), self.get_name(), level, self.state,
+                                  values).status[0]
+
+    def publish_status(self) -> None:
+        status = self.status()
+        self.pub_status.publish(status)
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.clock.stamp(self.step)
+        self.pub_diag.publish(array)
+
+    def destroy_node(self):
+        self.planner.shutdown(wait=False, cancel_futures=True)
+        return super().destroy_node()
+
+
+main = main_for(TrajectoryNode)
+
+if __name__ == '__main__':
+    raise SystemExit(main())
