@@ -308,3 +308,27 @@ def test_joint_goal_home_and_feed_hold(micromill, graph, client):
     assert client.call(client.home).success
     client.wait_states(n, ['running', 'idle'], graph)
     client.wait(lambda: np.abs(client.truth[:3]).max() < 2e-6, 'home', supervisor=graph)
+
+
+def test_a_fault_refuses_goals_until_hw_sim_is_reset(micromill, graph, client):
+    from std_srvs.srv import Trigger
+    n = len(client.statuses)
+    graph.stop('servo_coarse')                       # hw_sim faults on the missing commands
+    client.wait_states(n, ['fault'], graph)
+    assert 'missing command' in client.status()['fault']
+    refused = int(client.status()['rejected_goals'])
+    client.send_goal(['x_c'], [[1e-3]])
+    client.wait(lambda: int(client.status()['rejected_goals']) == refused + 1, 'refusal', supervisor=graph)
+    assert 'machine is faulted' in client.status()['last_rejection']
+
+    spec = next(s for s in default_graph(micromill, contour=None) if s.name == 'servo_coarse')
+    graph.start(spec.name, spec.argv())
+    graph.wait_for_line('servo_coarse', 'ready', timeout=60)
+    n = len(client.statuses)
+    assert client.call(client.node.create_client(Trigger, '/hw_sim/reset')).success
+    client.wait_states(n, ['idle'], graph)
+    held = client.truth.copy()
+    n = len(client.statuses)
+    client.send_goal(['x_c'], [[held[0] + 1e-3]])
+    client.wait_states(n, ['running', 'idle'], graph)
+    client.wait(lambda: abs(client.truth[0] - held[0] - 1e-3) < 2e-6, 'moving again', supervisor=graph)
