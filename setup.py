@@ -20,6 +20,8 @@ EXECUTABLES = {
     'servo_node': 'machine_ctrl.servo_node:main',
     'dual_stage_node': 'machine_ctrl.dual_stage_node:main',
     'reference_node': 'machine_ctrl.reference_node:main',
+    'recorder_node': 'machine_ctrl.recorder_node:main',
+    'replay_node': 'machine_ctrl.replay_node:main',
     'trajectory_node': 'trajectory.node:main',
 }
 

@@ -26,6 +26,19 @@ Stable outputs (scripts rely on them):
   prints traversal time, planning time, max tool-pose deviation and per-axis peak
   |v|, |a|, |j| over the limits (``--json``: one object).
 
+* ``machine-ctrl record DIR [--topics T ...] [--machine M] [--duration S]``: records the
+  graph's topics (default: all but /rosout and /parameter_events) into the rosbag2/MCAP
+  bag directory DIR until Ctrl-C / SIGTERM / S seconds; prints the messages per topic.
+* ``machine-ctrl replay BAG [--rate F] [--topics T ...] [--start-offset S] [--loop]``:
+  republishes a bag with its recorded timing (times 1/F), /clock from the recording.
+* ``machine-ctrl analyze BAG [BAG2] [--machine M] [--json] [--plots DIR]``: tracking,
+  tool-tip contour, drive-limit and fine-stroke statistics of a recorded session; two bags
+  side by side. ``--json``: one object (SI units), ``{"runs": [result, ...]}``.
+* ``experiment circle|square --record DIR`` also writes each run as a bag, DIR/smc and
+  DIR/dsfd.
+
+Bag errors (missing, empty, not MCAP, truncated, missing topics) print one line and exit 2.
+
 MACHINE is a machine name (``config/machines/<name>.yaml``) or a path to such a YAML file;
 the default is micromill_9axis. Configuration errors print one line and exit with 2.
 """
@@ -169,10 +182,31 @@ def _print_frf(machine: str, result: dict) -> None:
         f'{n}={"n/a" if b is None else f"{b:.1f}"}' for n, b in result['bandwidth_hz'].items()))
 
 
+def _error(command: str, exc: Exception) -> int:
+    print(f'machine-ctrl: {command}: {" ".join(str(exc).split())}', file=sys.stderr)
+    return 2
+
+
+def _fresh_directory(path: str) -> None:
+    """ValueError unless `path` is absent or an empty directory (a bag goes there)."""
+    import os
+    if os.path.exists(path) and (not os.path.isdir(path) or os.listdir(path)):
+        raise ValueError(f'{path}: exists and is not an empty directory')
+
+
 def cmd_experiment(args) -> int:
     from machine_ctrl import experiments
     machine = load_machine(args.machine)
     progress = None if args.quiet else _progress
+    if args.record is not None:
+        import os
+        try:
+            if args.name == 'frf':
+                raise ValueError('--record is for circle and square')
+            for label in ('smc', 'dsfd'):
+                _fresh_directory(os.path.join(args.record, label))
+        except ValueError as exc:
+            return _error('experiment', exc)
     if args.name == 'frf':
         result = experiments.frf(machine, progress=progress)
         if args.json:
@@ -181,7 +215,7 @@ def cmd_experiment(args) -> int:
         else:
             _print_frf(machine.name, result)
         return 0
-    result = experiments.contouring(machine, args.name, progress=progress)
+    result = experiments.contouring(machine, args.name, progress=progress, record_dir=args.record)
     if args.json:
         print(json.dumps(result))
     else:
@@ -220,6 +254,96 @@ def cmd_plan(args) -> int:
     return 0
 
 
+def _ros_args() -> list[str]:
+    """rclpy arguments for an in-process node of the CLI (no --ros-args from our argv)."""
+    return ['machine-ctrl']
+
+
+def cmd_record(args) -> int:
+    import rclpy
+    from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
+
+    from machine_ctrl import recorder
+    from machine_ctrl.recorder_node import RecorderNode, run
+    try:
+        recorder.wanted_topics(args.topics)
+        if args.machine:
+            load_machine(args.machine)
+        if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+            raise ValueError(f'--duration must be > 0 s, got {args.duration}')
+        _fresh_directory(args.output)
+    except (ValueError, ConfigError) as exc:
+        return _error('record', exc)
+    overrides = [Parameter('output', value=args.output), Parameter('topics', value=list(args.topics) or ['']),
+                 Parameter('machine', value=args.machine or ''), Parameter('duration', value=float(args.duration or 0.0))]
+    rclpy.init(args=_ros_args(), signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        try:
+            node = RecorderNode(parameter_overrides=overrides)
+        except SystemExit as exc:
+            return int(exc.code or 2)
+        return run(node)
+    finally:
+        rclpy.try_shutdown()
+
+
+def cmd_replay(args) -> int:
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from machine_ctrl import replay
+    from machine_ctrl.bag import Bag
+    from machine_ctrl.replay_node import ReplayNode
+    try:
+        replay.check_options(args.rate, args.start_offset)
+        with Bag(args.bag) as bag:
+            replay.select(bag, args.topics or None, args.start_offset)
+    except ValueError as exc:             # BagError is a ValueError
+        return _error('replay', exc)
+    overrides = [Parameter('bag', value=args.bag), Parameter('rate', value=float(args.rate)),
+                 Parameter('topics', value=list(args.topics) or ['']),
+                 Parameter('start_offset', value=float(args.start_offset)), Parameter('loop', value=args.loop),
+                 Parameter('wait_for_subscribers', value=args.wait_for_subscribers)]
+    rclpy.init(args=_ros_args())
+    try:
+        try:
+            node = ReplayNode(parameter_overrides=overrides)
+        except SystemExit as exc:
+            return int(exc.code or 2)
+        try:
+            return node.run()
+        finally:
+            node.destroy_node()
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        rclpy.try_shutdown()
+
+
+def cmd_analyze(args) -> int:
+    from machine_ctrl import analysis
+    try:
+        runs = [analysis.load(path, args.machine) for path in args.bags]
+        if len(runs) == 2:
+            analysis.check_comparable(*runs)
+        results = [analysis.analyse(run) for run in runs]
+    except ValueError as exc:             # BagError, AnalysisError
+        return _error('analyze', exc)
+    if args.plots:
+        from machine_ctrl import plots
+        try:
+            written = plots.write(results, runs[0].machine, args.plots)
+        except OSError as exc:
+            return _error('analyze', f'{args.plots}: cannot write plots: {exc.strerror}')
+        print(f'plots: {", ".join(str(p) for p in written)}', file=sys.stderr)
+    if args.json:
+        print(json.dumps({'runs': [analysis.public(r) for r in results]}))
+    else:
+        print(analysis.table(results, [r.machine for r in runs]))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='machine-ctrl', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -235,6 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
     experiment.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
     experiment.add_argument('--json', action='store_true', help='one JSON object on stdout')
     experiment.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    experiment.add_argument('--record', metavar='DIR', help='also write each run as a bag, DIR/smc and DIR/dsfd')
     experiment.set_defaults(run=cmd_experiment)
     plan = sub.add_parser('plan', help='plan a toolpath and write the sampled references')
     plan.add_argument('path', help='CSV file (px,py,pz,oi,oj,ok, SI) or built-in toolpath name')
@@ -243,11 +368,36 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument('--json', action='store_true', help='one JSON object on stdout')
     plan.add_argument('--feed', type=float, help='process feed limit, m/s (default: the planner\'s, 10 mm/s)')
     plan.set_defaults(run=cmd_plan)
+    record = sub.add_parser('record', help='record the graph\'s topics into a rosbag2/MCAP bag directory')
+    record.add_argument('output', help='bag directory to create')
+    record.add_argument('--topics', nargs='+', default=[], metavar='T',
+                        help='topics to record (NAME or NAME:pkg/msg/Type); default: all')
+    record.add_argument('--machine', help='machine name or YAML stored with the bag (for analyze)')
+    record.add_argument('--duration', type=float, help='stop after this many seconds (wall)')
+    record.set_defaults(run=cmd_record)
+    replay = sub.add_parser('replay', help='republish a recorded bag')
+    replay.add_argument('bag', help='bag directory or .mcap file')
+    replay.add_argument('--rate', type=float, default=1.0, help='factor on the recorded timing (default 1)')
+    replay.add_argument('--topics', nargs='+', default=[], metavar='T', help='topics to replay (default: all)')
+    replay.add_argument('--start-offset', type=float, default=0.0, metavar='S', help='start S seconds into the bag')
+    replay.add_argument('--loop', action='store_true', help='replay again and again')
+    replay.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
+                        help='start when every topic has N matched subscribers')
+    replay.set_defaults(run=cmd_replay)
+    analyze = sub.add_parser('analyze', help='tracking, contour and limit statistics of recorded bags')
+    analyze.add_argument('bags', nargs='+', metavar='BAG', help='one bag, or two to compare')
+    analyze.add_argument('--machine', help='machine name or YAML (default: the one the bag names)')
+    analyze.add_argument('--json', action='store_true', help='one JSON object on stdout (SI units)')
+    analyze.add_argument('--plots', metavar='DIR', help='write errors.png, path_xy.png, limits.png into DIR')
+    analyze.set_defaults(run=cmd_analyze)
     return parser
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == 'analyze' and len(args.bags) > 2:
+        parser.error('analyze takes one bag or two')
     try:
         return args.run(args)
     except ConfigError as exc:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -48,8 +49,10 @@ def contour_statistics(record, reference: Reference, contour: contours.Contour,
     return {k: float(v) * 1e6 for k, v in zip(STAT_KEYS, values)}
 
 
-def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | None = None) -> dict:
-    """{'smc': stats, 'dsfd': stats} for kind 'circle' or 'square'."""
+def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | None = None,
+               record_dir=None) -> dict:
+    """{'smc': stats, 'dsfd': stats} for kind 'circle' or 'square'. With `record_dir`, each
+    run is also written as a bag, <record_dir>/smc and <record_dir>/dsfd (machine_ctrl.run_bag)."""
     reference, contour = getattr(contours, kind)(machine)
     result = {}
     for label, dual in (('smc', False), ('dsfd', True)):
@@ -58,6 +61,9 @@ def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | No
         if record.fault:
             raise RuntimeError(f'{kind} {label}: the simulated machine faulted: {record.fault}')
         result[label] = contour_statistics(record, reference, contour)
+        if record_dir is not None:
+            from machine_ctrl.run_bag import write_run_bag     # imports rclpy: only when recording
+            write_run_bag(Path(record_dir) / label, machine, reference, record, f'experiment {kind} {label}')
     return result
 
 
