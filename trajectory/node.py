@@ -33,7 +33,9 @@ reset the state returns to idle.
 """
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
+import multiprocessing
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -75,8 +77,13 @@ def path_to_cl(msg: Path, frame: str) -> toolpath.CLData:
     return toolpath.from_arrays(p, toolpath.axes_from_quaternions(o))
 
 
-def plan_path(machine, kinematics, cl: toolpath.CLData, feed: float) -> Reference:
-    """The path's references, checked against the strokes."""
+_kinematics: dict = {}
+
+
+def plan_path(machine, cl: toolpath.CLData, feed: float) -> Reference:
+    """The path's references, checked against the strokes (runs in the planner process)."""
+    kinematics = _kinematics.get(machine.yaml_path) or _kinematics.setdefault(
+        machine.yaml_path, Kinematics.from_config(machine))
     reference = plan(cl, machine, feed, kinematics=kinematics).reference
     problem = moves.stroke_violation(machine, reference)
     if problem:
@@ -92,16 +99,17 @@ class TrajectoryNode(Node):
         self.feed = declare(self, 'feed', DEFAULT_FEED, 'process feed limit of tool paths, m/s')
         self.chunk_steps = max(1, declare(self, 'chunk_steps', 500, 'rows per /reference message'))
         self.lookahead = max(2 * self.chunk_steps, declare(self, 'lookahead_steps', 3000, 'rows kept ahead'))
-        if not (isinstance(self.feed, float) and np.isfinite(self.feed) and self.feed > 0):
+        if not (isinstance(self.feed, (int, float)) and np.isfinite(self.feed) and self.feed > 0):
             self.get_logger().fatal(f'parameter feed: must be a positive speed in m/s, got {self.feed!r}')
             raise SystemExit(2)
-        self.kinematics = Kinematics.from_config(self.machine)
         self.clock = ros_io.StepClock(self.machine.control_period)
         self.rejections = Rejections(self)
         self.stream: ReferenceStream | None = None
         self.state = 'idle'
         self.step = 0                                  # latest sim step seen on /clock
-        self.planner = ThreadPoolExecutor(max_workers=1)
+        # Planning takes seconds of CPU; in a process of its own (spawned once, now) it
+        # cannot hold up the streaming, as a thread would through the GIL.
+        self.planner = self.start_planner()
         self.planning: tuple[Future, str] | None = None
         self.fault = ''
 
@@ -120,6 +128,12 @@ class TrajectoryNode(Node):
         wall_timer(self, 1.0, self.publish_status)
         self.publish_status()
         self.get_logger().info(f'ready: feed {self.feed * 1e3:g} mm/s; waiting for /joint_states')
+
+    @staticmethod
+    def start_planner() -> ProcessPoolExecutor:
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'))
+        pool.submit(int).result()          # spawn and import now, not at the first goal
+        return pool
 
     # -- time and streaming ----------------------------------------------------------------
     def on_first_state(self, msg: JointState) -> None:
@@ -177,7 +191,7 @@ class TrajectoryNode(Node):
         except ValueError as exc:
             self.refuse_goal('path', str(exc))
             return
-        self.planning = (self.planner.submit(plan_path, self.machine, self.kinematics, cl, self.feed),
+        self.planning = (self.planner.submit(plan_path, self.machine, cl, self.feed),
                          f'path of {len(cl)} points')
         self.set_state('planning')
 
@@ -206,9 +220,14 @@ class TrajectoryNode(Node):
             path = future.result()
             here = self.stream.state(self.stream.next_step).position
             approach = moves.move_to(self.machine, path.position[0], moves.AxisState.at_rest(here))
-        except ValueError as exc:
+        except BrokenProcessPool:
+            self.planner = self.start_planner()
             self.set_state('idle')
-            self.refuse_goal('path', f'planning failed: {exc}')
+            self.refuse_goal('path', 'planning failed: the planner process died (restarted)')
+            return
+        except Exception as exc:  # noqa: BLE001 - any planning error refuses the goal, the node goes on
+            self.set_state('idle')
+            self.refuse_goal('path', f'planning failed: {type(exc).__name__ + ": " if not isinstance(exc, ValueError) else ""}{exc}')
             return
         self.begin(moves.concatenate([approach, moves.tail(path)]), label)
 
