@@ -226,8 +226,9 @@ class TrajectoryNode(Node):
             self.refuse_goal('path', 'planning failed: the planner process died (restarted)')
             return
         except Exception as exc:  # noqa: BLE001 - any planning error refuses the goal, the node goes on
+            reason = str(exc) if isinstance(exc, ValueError) else f'{type(exc).__name__}: {exc}'
             self.set_state('idle')
-            self.refuse_goal('path', f'planning failed: {type(exc).__name__ + ": " if not isinstance(exc, ValueError) else ""}{exc}')
+            self.refuse_goal('path', f'planning failed: {reason}')
             return
         self.begin(moves.concatenate([approach, moves.tail(path)]), label)
 
