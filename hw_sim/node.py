@@ -39,8 +39,9 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from hw_sim.lockstep import LockStep
-from hw_sim.simulator import MachineSimulator
+from hw_sim.simulator import MachineSimulator, true_geometry
 from machine_ctrl import ros_io
+from machine_ctrl.errors import ConfigError
 from machine_ctrl.kinematics import Kinematics
 from machine_ctrl.node_common import declare, machine_parameter, main_for, wall_timer
 
@@ -69,7 +70,11 @@ class HwSimNode(Node):
         self.clock = ros_io.StepClock(self.machine.control_period)
         self.sim = MachineSimulator(self.machine, initial_position=initial)
         self.lockstep = LockStep(axes)
-        self.kinematics = Kinematics.from_config(self.machine)
+        try:
+            self.true_tool_pose = true_geometry(self.machine, Kinematics.from_config(self.machine))
+        except ConfigError as exc:
+            self.get_logger().fatal(str(exc))
+            raise SystemExit(2) from None
         self.missed_deadlines = 0
         self._latest = {}                        # paced mode: last command per axis
         self._start_announced = False
@@ -209,7 +214,7 @@ class HwSimNode(Node):
             self._step_started_at = self._state_sent_at
 
     def tool_pose(self, stamp) -> PoseStamped:
-        pose = self.kinematics.tool_pose(self.sim.true_position)
+        pose = self.true_tool_pose(self.sim.true_position)
         msg = PoseStamped()
         msg.header.stamp = stamp
         msg.header.frame_id = self.machine.workpiece_frame

@@ -13,8 +13,11 @@ import math
 import random
 from dataclasses import dataclass
 
+from compensation.error_map import load_error_map
+from compensation.error_model import ErrorKinematics
 from hw_sim.plant import Sensor, make_plant
 from machine_ctrl.config import MachineConfig
+from machine_ctrl.kinematics import Kinematics
 
 
 @dataclass(frozen=True)
@@ -92,3 +95,15 @@ class MachineSimulator:
             if not lo <= plant.position <= hi:
                 self.stop(f'stroke violation on {axis.name}: {plant.position:.9g} {axis.unit} '
                           f'outside [{lo:g}, {hi:g}]')
+
+
+def true_geometry(machine: MachineConfig, kinematics: Kinematics | None = None):
+    """The simulated machine's true tool-pose function q -> 4x4 ^wT_t: the error-augmented
+    kinematics of its geometric error map (simulation.error_map), or the ideal kinematics
+    when none is configured (bit-identical to Kinematics.tool_pose). ConfigError on a bad map."""
+    kinematics = kinematics or Kinematics.from_config(machine)
+    path = machine.simulation.error_map_path(machine.yaml_path)
+    if path is None:
+        return kinematics.tool_pose
+    model = ErrorKinematics.from_config(machine, load_error_map(path, machine.axis_names), kinematics)
+    return model.tool_pose

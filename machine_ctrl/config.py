@@ -166,6 +166,11 @@ class DualStagePair:
 class SimulationConfig:
     seed: int = 0             # seeds every random source of hw_sim
     substeps: int = 1         # plant integration steps per control period (nonlinear plants)
+    error_map: str | None = None   # true geometric errors (path relative to the YAML file;
+                                   # compensation/error_map.py), None: an ideal machine
+
+    def error_map_path(self, yaml_path: Path) -> Path | None:
+        return None if self.error_map is None else (yaml_path.parent / self.error_map).resolve()
 
 
 @dataclass(frozen=True)
