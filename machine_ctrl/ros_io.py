@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -148,6 +151,47 @@ def parse_chunk(clock: StepClock, msg: JointTrajectory, wanted):
         velocities.append(rows[1])
         accelerations.append(rows[2])
     return first, positions, velocities, accelerations
+
+
+def quaternion_z_to(axis) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of the shortest rotation taking +z onto the unit vector `axis`."""
+    o = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    w = 1.0 + o[2]                           # unnormalized: (z x o, 1 + z.o)
+    if w < 1e-12:                            # o = -z: half a turn about x
+        return (1.0, 0.0, 0.0, 0.0)
+    q = np.array([-o[1], o[0], 0.0, w])
+    return tuple(float(v) for v in q / np.linalg.norm(q))
+
+
+def path_message(cl, frame: str) -> Path:
+    """nav_msgs/Path of CL data: pose position = tool tip, pose z-axis = tool axis."""
+    msg = Path()
+    msg.header.frame_id = frame
+    for p, o in zip(cl.positions, cl.axes):
+        pose = PoseStamped()
+        pose.header.frame_id = frame
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (float(v) for v in p)
+        q = pose.pose.orientation
+        q.x, q.y, q.z, q.w = quaternion_z_to(o)
+        msg.poses.append(pose)
+    return msg
+
+
+def path_to_cl(msg: Path, frame: str):
+    """CL data (trajectory.toolpath.CLData) of a nav_msgs/Path in the workpiece frame
+    `frame`; ValueError naming the first problem."""
+    from trajectory import toolpath
+    if msg.header.frame_id != frame:
+        raise ValueError(f'frame_id {msg.header.frame_id!r} is not the workpiece frame {frame!r}')
+    bad = [i for i, p in enumerate(msg.poses) if p.header.frame_id not in ('', frame)]
+    if bad:
+        raise ValueError(f'pose {bad[0]}: frame_id {msg.poses[bad[0]].header.frame_id!r} is not {frame!r}')
+    if not msg.poses:
+        raise ValueError('path has no poses')
+    p = np.array([(q.pose.position.x, q.pose.position.y, q.pose.position.z) for q in msg.poses])
+    o = np.array([(q.pose.orientation.x, q.pose.orientation.y, q.pose.orientation.z, q.pose.orientation.w)
+                  for q in msg.poses])
+    return toolpath.from_arrays(p, toolpath.axes_from_quaternions(o))
 
 
 def diagnostics(stamp: Time, name: str, level: bytes, message: str, values: dict) -> DiagnosticArray:

@@ -62,21 +62,6 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability
 GOAL_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
-def path_to_cl(msg: Path, frame: str) -> toolpath.CLData:
-    """CL data of a nav_msgs/Path (positions = tool tips, pose z-axes = tool axes)."""
-    if msg.header.frame_id != frame:
-        raise ValueError(f'frame_id {msg.header.frame_id!r} is not the workpiece frame {frame!r}')
-    bad = [i for i, p in enumerate(msg.poses) if p.header.frame_id not in ('', frame)]
-    if bad:
-        raise ValueError(f'pose {bad[0]}: frame_id {msg.poses[bad[0]].header.frame_id!r} is not {frame!r}')
-    if not msg.poses:
-        raise ValueError('path has no poses')
-    p = np.array([(q.pose.position.x, q.pose.position.y, q.pose.position.z) for q in msg.poses])
-    o = np.array([(q.pose.orientation.x, q.pose.orientation.y, q.pose.orientation.z, q.pose.orientation.w)
-                  for q in msg.poses])
-    return toolpath.from_arrays(p, toolpath.axes_from_quaternions(o))
-
-
 _kinematics: dict = {}
 
 
@@ -187,7 +172,7 @@ class TrajectoryNode(Node):
         if not self.idle_or_refuse('path'):
             return
         try:
-            cl = path_to_cl(msg, self.machine.workpiece_frame)
+            cl = ros_io.path_to_cl(msg, self.machine.workpiece_frame)
         except ValueError as exc:
             self.refuse_goal('path', str(exc))
             return
