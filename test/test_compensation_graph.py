@@ -1,0 +1,78 @@
+"""compensation_node over real DDS: reference_node (remapped to /trajectory/reference) ->
+compensation_node -> /reference, against the same core offline; a malformed chunk; the
+runtime switch /compensation/enable."""
+import sys
+import time
+
+import numpy as np
+
+from compensation.compensate import Compensator
+from compensation.error_map import load_error_map
+from compensation.stream import CompensationStream
+from machine_ctrl.graph import NodeSpec
+from trajectory.contours import contour_reference
+
+
+def _spin_until(executor, condition, timeout, supervisor):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, 'timed out'
+        supervisor.check()
+        executor.spin_once(timeout_sec=0.05)
+
+
+def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
+    from rclpy.executors import SingleThreadedExecutor
+    from rosgraph_msgs.msg import Clock
+    from std_srvs.srv import SetBool
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    from machine_ctrl import ros_io
+
+    model = str(micromill.simulation.error_map_path(micromill.yaml_path))
+    common = {'machine': str(micromill.yaml_path)}
+    reference = NodeSpec('reference', 'machine_ctrl.reference_node', 'ReferenceNode', {**common, 'contour': 'circle'})
+    compensation = NodeSpec('compensation', 'compensation.node', 'CompensationNode', {**common, 'model': model})
+    node = ros_node('probe')
+    chunks = {}
+
+    def on_chunk(msg):
+        first, p, v, a = ros_io.parse_chunk(ros_io.StepClock(micromill.control_period), msg, micromill.axis_names)
+        chunks[first] = (np.array(p), np.array(v), np.array(a))
+
+    node.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, on_chunk, ros_io.REFERENCE_QOS)
+    bad = node.create_publisher(JointTrajectory, '/trajectory/reference', ros_io.REFERENCE_QOS)
+    clock = node.create_publisher(Clock, '/clock', 10)
+    enable = node.create_client(SetBool, '/compensation/enable')
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        ros_supervisor.start('compensation', compensation.argv())
+        _spin_until(executor, lambda: enable.service_is_ready(), 30, ros_supervisor)
+        msg = JointTrajectory(joint_names=list(micromill.axis_names))
+        msg.points = [JointTrajectoryPoint(positions=[float('nan')] * 9)]
+        bad.publish(msg)                                          # refused, the node keeps running
+        ros_supervisor.start('reference', reference.argv() + ['-r', '/reference:=/trajectory/reference'])
+        _spin_until(executor, lambda: len(chunks) >= 6, 60, ros_supervisor)
+
+        ref = contour_reference(micromill, 'circle')
+        stream = CompensationStream(Compensator.from_map(micromill, load_error_map(model, micromill.axis_names)),
+                                    micromill.control_period)
+        for first in range(0, 3000, 500):
+            rows = [ref.row(k) for k in range(first, first + 500)]
+            want = stream.transform(first, *(np.array(x) for x in zip(*rows)))
+            for got, expected in zip(chunks[first], want[:3]):
+                assert (got == expected).all(), first                 # bit-identical to the core
+            assert np.abs(chunks[first][0][:, 3:] - np.array([r[0] for r in rows])[:, 3:]).max() > 1e-7
+
+        future = enable.call_async(SetBool.Request(data=False))
+        _spin_until(executor, future.done, 10, ros_supervisor)
+        assert future.result().success
+        clock.publish(Clock(clock=ros_io.StepClock(micromill.control_period).stamp(3000)))
+        _spin_until(executor, lambda: 5500 in chunks, 30, ros_supervisor)
+        for first in (4500, 5000, 5500):                           # after the 1000-step ramp: the input
+            rows = [ref.row(k) for k in range(first, first + 500)]
+            assert (chunks[first][0] == np.array([r[0] for r in rows])).all()
+        assert ros_supervisor['compensation'].running()
+    finally:
+        executor.shutdown()
