@@ -394,6 +394,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ['fit-errors'] or argv[:2] == ['experiment', 'geometric']:   # compensation/cli.py ([6/7])
+        from compensation import cli as compensation_cli
+        if argv[0] == 'fit-errors':
+            return compensation_cli.fit_errors_main(argv[1:])
+        return compensation_cli.experiment_main(argv[2:])
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == 'analyze' and len(args.bags) > 2:
