@@ -23,6 +23,7 @@ EXECUTABLES = {
     'recorder_node': 'machine_ctrl.recorder_node:main',
     'replay_node': 'machine_ctrl.replay_node:main',
     'trajectory_node': 'trajectory.node:main',
+    'contour_error_node': 'machine_ctrl.contour_error_node:main',
     'compensation_node': 'compensation.node:main',
 }
 

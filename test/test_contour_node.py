@@ -1,0 +1,124 @@
+"""contour_error_node over real DDS in a lock-step graph (hw_sim + servo_node on trt_5axis,
+this test as the reference source playing the Eq. (35) path): what it publishes for every
+step equals the same core (machine_ctrl.contour) run offline on the recorded joint states
+and the same reference."""
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from machine_ctrl.contour import ContourEstimator, ToolTrajectory
+from machine_ctrl.graph import NodeSpec
+from machine_ctrl.kinematics import Kinematics
+from trajectory.sencer_path import sencer_reference
+
+STEPS = 1200          # 0.2 s at rest, then 1 s of the path
+CHUNK = 500
+
+
+class Collector:
+    """/joint_states and the four contour-error topics by step, in a background thread."""
+
+    def __init__(self, node, period_ns):
+        from geometry_msgs.msg import Vector3Stamped
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64
+
+        from machine_ctrl import contour_error_node as cen
+        from machine_ctrl import ros_io
+        self.period_ns = period_ns
+        qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
+        self.states, self.tip, self.orientation = {}, {}, {}
+        self.tip_magnitude, self.orientation_magnitude, self.frames = [], [], set()
+        node.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, qos)
+        node.create_subscription(Vector3Stamped, cen.TOPIC_TOOL_TIP, lambda m: self.on_vector(m, self.tip), qos)
+        node.create_subscription(Vector3Stamped, cen.TOPIC_ORIENTATION,
+                                 lambda m: self.on_vector(m, self.orientation), qos)
+        node.create_subscription(Float64, cen.TOPIC_TOOL_TIP_MAGNITUDE, lambda m: self.tip_magnitude.append(m.data), qos)
+        node.create_subscription(Float64, cen.TOPIC_ORIENTATION_MAGNITUDE,
+                                 lambda m: self.orientation_magnitude.append(m.data), qos)
+        self.executor = SingleThreadedExecutor(context=node.context)
+        self.executor.add_node(node)
+        self.running = True
+        self.thread = threading.Thread(target=self.spin, daemon=True)
+        self.thread.start()
+
+    def spin(self):
+        while self.running:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def step(self, stamp):
+        return (stamp.sec * 1_000_000_000 + stamp.nanosec) // self.period_ns
+
+    def on_state(self, msg):
+        self.states[self.step(msg.header.stamp)] = msg.position.tolist()
+
+    def on_vector(self, msg, store):
+        self.frames.add(msg.header.frame_id)
+        store[self.step(msg.header.stamp)] = [msg.vector.x, msg.vector.y, msg.vector.z]
+
+    def stop(self):
+        self.running = False
+        self.thread.join(timeout=2)
+        self.executor.shutdown()
+
+
+@pytest.fixture(scope='module')
+def reference(trt):
+    return sencer_reference(trt)
+
+
+def publish_reference(node, machine, reference):
+    from trajectory_msgs.msg import JointTrajectory
+
+    from machine_ctrl import ros_io
+    clock = ros_io.StepClock(machine.control_period)
+    pub = node.create_publisher(JointTrajectory, ros_io.TOPIC_REFERENCE, ros_io.REFERENCE_QOS)
+    for first in range(0, len(reference), CHUNK):
+        rows = slice(first, first + CHUNK)
+        pub.publish(ros_io.trajectory_chunk(clock, first, machine.axis_names, reference.position[rows],
+                                            reference.velocity[rows], reference.acceleration[rows]))
+    return pub
+
+
+def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node, ros_supervisor):
+    common = {'machine': str(trt.yaml_path)}
+    node = ros_node('contour_test')
+    collector = Collector(node, int(round(trt.control_period * 1e9)))
+    publish_reference(node, trt, reference)
+    specs = [NodeSpec('hw_sim', 'hw_sim.node', 'HwSimNode',
+                      {**common, 'initial_position': [float(v) for v in reference.position[0]],
+                       'min_subscribers': 3}),         # servo, contour_error and this test
+             NodeSpec('servo', 'machine_ctrl.servo_node', 'ServoNode', common),
+             NodeSpec('contour_error', 'machine_ctrl.contour_error_node', 'ContourErrorNode',
+                      {**common, 'estimator': 'compensated'})]
+    try:
+        for spec in specs:
+            ros_supervisor.start(spec.name, spec.argv())
+        deadline = time.monotonic() + 120
+        while not all(k in collector.tip for k in range(STEPS)) or len(collector.orientation_magnitude) < STEPS:
+            assert time.monotonic() < deadline, f'got {len(collector.tip)} contour errors'
+            ros_supervisor.check()
+            time.sleep(0.1)
+        time.sleep(0.2)
+    finally:
+        ros_supervisor.stop_all()
+        collector.stop()
+
+    kinematics = Kinematics.from_config(trt)
+    trajectory = ToolTrajectory.from_reference(kinematics, reference)
+    estimator = ContourEstimator(kinematics, 'compensated')
+    offline = [estimator.update(trajectory, k, collector.states[k]) for k in range(STEPS)]
+    tip = np.array([collector.tip[k] for k in range(STEPS)])
+    orientation = np.array([collector.orientation[k] for k in range(STEPS)])
+    assert np.array_equal(tip, np.array([e.tool_tip.vector for e in offline]))
+    assert np.array_equal(orientation, np.array([e.orientation for e in offline]))
+    assert collector.tip_magnitude[:STEPS] == [math.sqrt(sum(v * v for v in e.tool_tip.vector)) for e in offline]
+    assert collector.orientation_magnitude[:STEPS] == [math.sqrt(sum(v * v for v in e.orientation))
+                                                      for e in offline]
+    assert collector.frames == {'workpiece'}
+    assert np.linalg.norm(tip, axis=1).max() > 1e-5       # the machine moved and made contour errors
