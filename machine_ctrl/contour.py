@@ -8,7 +8,8 @@ Inputs per control step k:
 * the reference tool trajectory, converted once from the axis reference q, q', q'' when it
   is streamed in (:func:`tool_reference`, :class:`ToolTrajectory`): tool tip P_ref,
   V = J_P q', A = J_P q'' + (dJ_P/dt) q', tool axis O_ref and its rate W = dO_ref/dt = J_O q'
-  (Sencer's "angular velocity" omega = [dO_i, dO_j, dO_k], section 2 and Eq. 27);
+  (Sencer's "angular velocity" omega = [dO_i, dO_j, dO_k], section 2 and Eq. 27), by
+  central differences of the kinematics along the reference's Taylor polynomial;
 * the measured axes q, through the machine's kinematics: actual P and O (one FK per step).
 
 Tool tip (Sencer section 3.2), tracking error e = P_ref - P (Eq. 15):
@@ -66,21 +67,28 @@ CURVATURE_TOL = 1e-12       # relative
 # 2 mm on the micromill helix). The node keeps this much reference history, so it computes
 # what the offline run computes.
 MAX_SHIFT = 0.05            # s
-JACOBIAN_STEP = 1e-7        # s, forward-difference step of (dJ/dt) q' = (J(q + h q') - J(q)) q' / h
+# assumed: 20 us balances truncation (h^2/6 |d3P/dt3| ~ 1e-11 m/s in V) against rounding
+# (eps |P| / h^2 ~ 3e-8 m/s^2 in A, which only enters through the tangent at a start).
+DIFFERENCE_STEP = 2e-5      # s
 
 
 def tool_reference(kinematics: Kinematics, q, qd, qdd):
     """Reference tool trajectory of axis rows q, q', q'' (m x n): P, V, A, O, W (m x 3 each,
-    workpiece frame). V = J_P q', A = J_P q'' + (dJ_P/dt) q' (Sencer Eq. 11), W = J_O q';
-    (dJ/dt) q' by a forward difference of the Jacobian along q' (error ~ h |d2J/dt2 q'|)."""
+    workpiece frame), V = J_P q', A = J_P q'' + (dJ_P/dt) q' (Sencer Eq. 11), W = J_O q'.
+
+    By central differences of the forward kinematics along the reference's own Taylor
+    polynomial q(+-h) = q +- h q' + h^2/2 q'' (h = DIFFERENCE_STEP): (P+ - P-)/2h = J q'
+    and (P+ - 2P + P-)/h^2 = J q'' + (dJ/dt) q', both to O(h^2); three FK calls per row
+    cost half of a Jacobian plus its finite difference."""
     q, qd, qdd = (np.asarray(x, float).reshape(-1, kinematics.n) for x in (q, qd, qdd))
+    h = DIFFERENCE_STEP
     out = np.empty((5, len(q), 3))
     for i, (qi, vi, ai) in enumerate(zip(q, qd, qdd)):
-        p, o, jac = kinematics.forward_and_jacobian(qi)
-        jac_ahead = kinematics.jacobian(qi + JACOBIAN_STEP * vi)
-        velocity = jac @ vi
-        acceleration = jac @ ai + (jac_ahead - jac) @ vi / JACOBIAN_STEP
-        out[:, i] = p, velocity[:3], acceleration[:3], o, velocity[3:]
+        p, o = kinematics.forward(qi)
+        p_ahead, o_ahead = kinematics.forward(qi + h * vi + 0.5 * h * h * ai)
+        p_back, o_back = kinematics.forward(qi - h * vi + 0.5 * h * h * ai)
+        out[:, i] = (p, (p_ahead - p_back) / (2 * h), (p_ahead - 2 * p + p_back) / (h * h),
+                     o, (o_ahead - o_back) / (2 * h))
     return tuple(out)
 
 
