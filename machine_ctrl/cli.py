@@ -400,6 +400,9 @@ def main(argv=None) -> int:
         if argv[0] == 'fit-errors':
             return compensation_cli.fit_errors_main(argv[1:])
         return compensation_cli.experiment_main(argv[2:])
+    if argv[:2] == ['experiment', 'contour']:            # machine_ctrl/contour_experiment.py ([5/7])
+        from machine_ctrl import contour_experiment
+        return contour_experiment.main(argv[2:])
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == 'analyze' and len(args.bags) > 2:
