@@ -1,29 +1,29 @@
-"""Feed optimization ([3/7] trajectory.feedrate.optimize_feed) against TOPP-RA (toppra) on the
-built-in spiral and helix, resolved on the 9-axis micromill. Issue [3/7] target: our
-(jerk-limited) traversal time <= 1.3 x TOPP-RA's time with velocity and acceleration limits
-only (TOPP-RA has no jerk limit: a lower bound).
+"""Planning ([3/7] trajectory.planner.plan) against TOPP-RA (toppra) on the built-in spiral and
+helix on the 9-axis micromill. Issue [3/7] target: our (jerk-limited) traversal time, of the
+final sampled reference, <= 1.3 x TOPP-RA's time with velocity and acceleration limits only
+(TOPP-RA has no jerk limit: a lower bound).
 
-Per path: builtin(name) -> ArcLengthPath.fit -> redundancy.resolve (q, q', q'', q''' on a
-uniform s grid of step --step) -> both planners on the same uniform subgrid of --nodes
-nodes (the resolved derivatives are interpolated linearly onto it):
+Per path and process feed limit F:
 
-* ours, jerk-limited: optimize_feed(s_sub, dq, ddq, dddq, FeedLimits.from_machine(m, F));
-* ours without jerk: the same with every jerk limit set to 1e12 (the jerk rows and the
-  rest-end jerk envelope become inactive);
-* TOPP-RA 0.6: ta.SplineInterpolator(s, [q, s]) through the full-resolution resolved q
-  (cubic, not-a-knot), gridpoints = the same subgrid, JointVelocityConstraint +
-  JointAccelerationConstraint (default Interpolation discretization) with the same per-axis
-  limits, parametrizer ParametrizeConstAccel, rest to rest. The process feed limit F on
-  sdot (s is arc length) is a "virtual joint" equal to s, appended to q, with velocity
-  limit F and an inactive acceleration limit.
+* ours: plan(name, machine, feed=F) - fit, redundancy resolution (Δs = 20 µm), feed
+  optimization on the planner's uniform subgrid (<= 1000 nodes), septic interpolation and
+  time sampling at the control period with the local slow-down until every reference is
+  within 1.001 x its limits by finite differences. Reported: the final sampled traversal
+  time (first to last sample), the optimizer's grid-level time (FeedProfile.duration() of
+  the optimized profile, before the sampling's slow-downs), local passes, the global
+  fallback scale (1: none), the largest finite-difference ratio to a limit, and the planning
+  time (PlanResult.planning_time: fit + resolve + feed + sampling).
+* TOPP-RA 0.6, in the same run on the same resolved path: ta.SplineInterpolator(s, [q, s])
+  through the planner's resolved q (cubic, not-a-knot), gridpoints = the planner's feed
+  nodes, JointVelocityConstraint + JointAccelerationConstraint (default Interpolation
+  discretization) with the same per-axis limits, ParametrizeConstAccel, rest to rest. The
+  process feed limit F on sdot (s is arc length) is a "virtual joint" equal to s, appended
+  to q, with velocity limit F and an inactive acceleration limit. Time: jnt_traj.duration;
+  planning time: constraints + TOPPRA(...) + compute_trajectory (spline build excluded).
 
-Times: ours = FeedProfile.duration() (sum 2 ds / (sdot_i + sdot_i+1) on the grid);
-TOPP-RA = jnt_traj.duration (the same formula on its sdot grid, constant sddot per
-segment). Planning time: best of --repeat wall-clock runs of the planner call alone
-(TOPP-RA: constraints + TOPPRA(...) + compute_trajectory; the spline build is excluded,
-as is our grid interpolation). Prints a Markdown table; no timing asserts.
+Prints a Markdown table; no timing asserts.
 
-    .venv/bin/python bench/feed_vs_toppra.py [--feed F ...] [--nodes N] [--step DS] [--repeat R]
+    .venv/bin/python bench/feed_vs_toppra.py [--paths P ...] [--feed F ...]
 """
 from __future__ import annotations
 
@@ -38,31 +38,10 @@ import toppra.constraint as constraint
 
 from machine_ctrl.config import load_machine
 from machine_ctrl.kinematics import Kinematics
-from trajectory import toolpath
-from trajectory.feedrate import FeedLimits, accelerations, jerks, optimize_feed
-from trajectory.redundancy import RedundancySettings, resolve
-from trajectory.spline import ArcLengthPath
+from trajectory.feedrate import FeedLimits
+from trajectory.planner import plan
 
 TARGET = 1.3
-NO_JERK = 1e12
-
-
-def subgrid(res, nodes):
-    """Uniform subgrid of <= nodes nodes over [0, S], derivatives interpolated linearly."""
-    m = min(nodes, len(res.s))
-    s = np.linspace(0.0, res.s[-1], m)
-    out = [np.column_stack([np.interp(s, res.s, a[:, i]) for i in range(a.shape[1])])
-           for a in (res.dq, res.ddq, res.dddq)]
-    return s, out
-
-
-def best_of(repeat, fn):
-    best, value = np.inf, None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        value = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, value
 
 
 def toppra_plan(path, gridpoints, limits: FeedLimits):
@@ -75,7 +54,7 @@ def toppra_plan(path, gridpoints, limits: FeedLimits):
     traj = instance.compute_trajectory(0.0, 0.0)
     if traj is None:
         raise RuntimeError('TOPP-RA failed')
-    return instance, traj
+    return traj
 
 
 def main():
@@ -83,75 +62,43 @@ def main():
     ap.add_argument('--paths', nargs='+', default=['spiral', 'helix'])
     ap.add_argument('--feed', type=float, nargs='+', default=[0.05, 1.0],
                     help='process feed limits F, m/s (1.0: effectively off, axis limits bind)')
-    ap.add_argument('--nodes', type=int, default=1000)
-    ap.add_argument('--step', type=float, default=20e-6, help='redundancy resolution step, m')
-    ap.add_argument('--repeat', type=int, default=3)
     args = ap.parse_args()
 
     machine = load_machine('micromill_9axis')
     kin = Kinematics.from_config(machine)
     rows = []
     for name in args.paths:
-        cl = toolpath.builtin(name)
-        fitted = ArcLengthPath.fit(cl)
-        t0 = time.perf_counter()
-        res = resolve(fitted, kin, machine, RedundancySettings(step=args.step))
-        t_res = time.perf_counter() - t0
-        print(f'{name}: {len(cl)} CL points, S = {fitted.length * 1e3:.1f} mm, resolved '
-              f'{len(res.s)} points (ds = {args.step * 1e6:g} um) in {t_res:.1f} s, max error '
-              f'{res.max_position_error:.1e} m / {res.max_orientation_error:.1e} rad', flush=True)
-        s, (dq, ddq, dddq) = subgrid(res, args.nodes)
-        ds = s[1] - s[0]
-        # TOPP-RA's path: cubic spline through the full-resolution q, plus the virtual joint s
-        path = ta.SplineInterpolator(res.s, np.column_stack((res.q, res.s)))
-        d1, d2 = path(s, 1)[:, :-1], path(s, 2)[:, :-1]
-        scale1, scale2 = np.abs(dq).max(axis=0), np.abs(ddq).max(axis=0)
-        away = (s > 1e-3) & (s < s[-1] - 1e-3)     # past the nullspace start transient
-        err = [np.max(np.abs(d - r)[mask] / np.maximum(sc, 1e-300))
-               for mask in (slice(1, -1), away) for d, r, sc in ((d1, dq, scale1), (d2, ddq, scale2))]
-        print(f'  subgrid {len(s)} nodes (ds = {ds * 1e6:.1f} um); TOPP-RA spline vs resolved '
-              f"q', q'' (rel. to axis max): {err[0]:.1e}, {err[1]:.1e} over all interior nodes, "
-              f'{err[2]:.1e}, {err[3]:.1e} over 1 mm < s < S - 1 mm', flush=True)
         for feed in args.feed:
+            r = plan(name, machine, feed=feed, kinematics=kin)
+            res = r.resolution
+            path = ta.SplineInterpolator(res.s, np.column_stack((res.q, res.s)))
             lim = FeedLimits.from_machine(machine, feed=feed)
-            free = FeedLimits(lim.velocity, lim.acceleration, np.full_like(lim.jerk, NO_JERK), feed)
-            t_ours, prof = best_of(args.repeat, lambda: optimize_feed(s, dq, ddq, dddq, lim))
-            t_free, prof_free = best_of(args.repeat, lambda: optimize_feed(s, dq, ddq, dddq, free))
-            t_tp, (inst, traj) = best_of(args.repeat, lambda: toppra_plan(path, s, lim))
-            # checks on the grid (our operators): worst ratio to the limits
-            def worst(b):
-                v = np.max(np.abs(dq) * np.sqrt(b)[:, None] / lim.velocity)
-                a = np.max(np.abs(accelerations(b, dq, ddq, ds)) / lim.acceleration)
-                j = np.max(np.abs(jerks(b, dq, ddq, dddq, ds)) / lim.jerk)
-                return v, a, j, np.sqrt(b.max()) / feed
-            sd = np.asarray(inst.problem_data.sd_vec)
-            b_tp = sd ** 2
-            row = dict(path=name, points=len(res.s), nodes=len(s), feed=feed,
-                       ours=prof.duration(), ours_plan=t_ours, it=prof.iterations,
-                       free=prof_free.duration(), free_plan=t_free,
+            t0 = time.perf_counter()
+            traj = toppra_plan(path, r.feed.s, lim)
+            t_tp = time.perf_counter() - t0
+            worst = max(max(v.values()) for v in r.peak_ratios.values())
+            row = dict(path=name, points=len(res.s), nodes=len(r.feed.s), feed=feed,
+                       final=r.traversal_time, grid=r.feed.duration(), plan=r.planning_time,
+                       passes=r.sampling.passes, scale=r.sampling.feed_scale, worst=worst,
                        tp=traj.duration, tp_plan=t_tp,
-                       tp_grid=float(np.sum(2 * np.diff(s) / (sd[:-1] + sd[1:]))),
-                       w_ours=worst(prof.b), w_free=worst(prof_free.b), w_tp=worst(b_tp))
+                       dev=(r.max_position_deviation, r.max_orientation_deviation))
             rows.append(row)
-            print(f"  F = {feed:g} m/s: ours {row['ours']:.4f} s ({t_ours:.2f} s, "
-                  f"{prof.iterations} LPs), no jerk {row['free']:.4f} s ({t_free:.2f} s), "
-                  f"TOPP-RA {row['tp']:.4f} s ({t_tp:.3f} s; grid formula {row['tp_grid']:.4f} s)",
-                  flush=True)
-            for key, label in (('w_ours', 'ours'), ('w_free', 'ours no jerk'), ('w_tp', 'TOPP-RA')):
-                v, a, j, f = row[key]
-                print(f'    {label:13s} max |v|/v_max {v:.3f}, |a|/a_max {a:.3f}, '
-                      f'|j|/j_max {j:.2f}, sdot/F {f:.3f}  (our grid operators)')
+            print(f"{name} F = {feed:g} m/s: {row['points']} resolved points, {row['nodes']} feed "
+                  f"nodes; final {row['final']:.4f} s (grid {row['grid']:.4f} s, {row['passes']} "
+                  f"passes, scale {row['scale']:.4f}, max ratio {worst:.4f}), planning "
+                  f"{row['plan']:.2f} s; TOPP-RA {row['tp']:.4f} s ({t_tp:.3f} s); FK deviation "
+                  f"{row['dev'][0]:.1e} m / {row['dev'][1]:.1e} rad", flush=True)
 
     print()
-    print('| path | points (nodes) | F (m/s) | ours, jerk-limited: time (plan) | ours, no jerk '
-          'limit: time (plan) | TOPP-RA v+a: time (plan) | ours / TOPP-RA | ours no jerk / '
-          f'TOPP-RA | <= {TARGET}x |')
-    print('|---|---:|---:|---:|---:|---:|---:|---:|---|')
+    print('| path | points (feed nodes) | F (m/s) | ours: final sampled time | ours: grid time | '
+          'passes / fallback scale | max FD ratio | planning | TOPP-RA v+a: time (plan) | '
+          f'final / TOPP-RA | <= {TARGET}x |')
+    print('|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|')
     for r in rows:
-        ratio = r['ours'] / r['tp']
-        print(f"| {r['path']} | {r['points']} ({r['nodes']}) | {r['feed']:g} | "
-              f"{r['ours']:.4f} s ({r['ours_plan']:.2f} s) | {r['free']:.4f} s ({r['free_plan']:.2f} s) | "
-              f"{r['tp']:.4f} s ({r['tp_plan']:.3f} s) | {ratio:.3f} | {r['free'] / r['tp']:.3f} | "
+        ratio = r['final'] / r['tp']
+        print(f"| {r['path']} | {r['points']} ({r['nodes']}) | {r['feed']:g} | {r['final']:.4f} s | "
+              f"{r['grid']:.4f} s | {r['passes']} / {r['scale']:.3f} | {r['worst']:.4f} | "
+              f"{r['plan']:.2f} s | {r['tp']:.4f} s ({r['tp_plan']:.3f} s) | {ratio:.3f} | "
               f"{'yes' if ratio <= TARGET else 'NO'} |")
 
 

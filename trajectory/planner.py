@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -16,7 +16,7 @@ from machine_ctrl.reference import Reference
 from trajectory import toolpath
 from trajectory.feedrate import FeedLimits, FeedProfile, optimize_feed
 from trajectory.redundancy import RedundancySettings, Resolution, resolve
-from trajectory.sampling import SepticInterpolant, Sampling, sample
+from trajectory.sampling import SepticInterpolant, Sampling, local_slowdown, sample, sample_profile
 from trajectory.spline import ArcLengthPath
 
 # assumed: process feed limit 10 mm/s. The thesis sets the process limit of its finishing
@@ -26,6 +26,11 @@ DEFAULT_FEED = 10e-3
 # assumed: <= 1000 feed nodes (optimize_feed takes ~2 s for 9 axes at this size; its grid
 # error is a few %, which the sampler's verification absorbs).
 MAX_FEED_NODES = 1000
+# Issue [3/7]: every sampled reference within 1.001 x its velocity, acceleration and jerk limit.
+TOLERANCE = 1.001
+# assumed: at most 8 local slow-down passes (each one LP re-solve, warm-started, and one
+# sampling); what is left after them is removed by a global time stretch.
+LOCAL_PASSES = 8
 
 
 @dataclass(frozen=True)
@@ -72,6 +77,27 @@ def feed_subgrid(n_intervals: int, max_nodes: int = MAX_FEED_NODES) -> int | Non
     return None
 
 
+def feed_and_sample(interp: SepticInterpolant, fs, derivatives, limits: FeedLimits, period: float,
+                    axis_names, tolerance: float = TOLERANCE, passes: int = LOCAL_PASSES):
+    """Optimized feed profile on the nodes fs (path derivatives q', q'', q''' there) and its
+    time sampling within `tolerance` x every limit by finite differences at `period`.
+    Where the sampled references exceed a limit (the grid is coarser than some feature of
+    q(s), e.g. the nullspace start-up transient), b is capped at the nearby nodes
+    (sampling.local_caps) and re-optimized, at most `passes` times; a global time stretch
+    (sampling.sample) is the fallback. Returns (FeedProfile, Sampling); Sampling.passes
+    counts the local passes."""
+    profile = optimize_feed(fs, *derivatives, limits)
+    with np.errstate(divide='ignore'):
+        tangential = np.min(limits.jerk / np.abs(derivatives[0]), axis=1)
+    b = profile.b
+    for done in range(1, passes + 1):
+        result = sample_profile(interp, profile.s, b, limits, period, axis_names)
+        if np.max(result.peak_ratios) <= tolerance:
+            return profile, replace(result, passes=done)
+        b = b * local_slowdown(result, profile.s, b, tangential)
+    return profile, sample(interp, profile.s, b, limits, period, axis_names, tolerance)
+
+
 def pose_deviations(kinematics: Kinematics, q, p_path, o_path) -> tuple[float, float]:
     """Largest |FK position(q[k]) - p_path[k]| (m) and angle between the FK tool axis and
     o_path[k] (rad) over the rows k of q."""
@@ -106,8 +132,8 @@ def plan(cl_or_name, machine, feed: float = DEFAULT_FEED, settings: RedundancySe
     else:   # no uniform subgrid of the right size: derivatives of the septic interpolant
         fs = np.linspace(res.s[0], res.s[-1], max_feed_nodes)
         d1, d2, d3 = (interp.evaluate(fs, k) for k in (1, 2, 3))
-    profile = optimize_feed(fs, d1, d2, d3, limits)
-    sampling = sample(interp, profile.s, profile.b, limits, machine.control_period, machine.axis_names)
+    profile, sampling = feed_and_sample(interp, fs, (d1, d2, d3), limits, machine.control_period,
+                                        machine.axis_names)
     planning_time = time.perf_counter() - start
 
     ref = sampling.reference

@@ -40,10 +40,10 @@ differenced at the control period (velocity, acceleration, jerk); if any axis ex
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import BSpline
 
 from machine_ctrl.reference import Reference
 
@@ -60,6 +60,10 @@ _EQ_340 = np.array([
     [210, 120, 60, 24, 6, 0, 0, 0]], dtype=float)
 _EQ_340_INV = np.linalg.inv(_EQ_340)
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(10)
+# assumed: the local slow-down (local_slowdown) aims 1 % below the limit, and its tapers may
+# add at most a quarter of the tangential jerk limit; tuned on circle_xy, helix and spiral.
+SLOWDOWN_MARGIN = 0.99
+SLOWDOWN_JERK_SHARE = 0.25
 
 
 class SepticInterpolant:
@@ -112,7 +116,7 @@ class SepticInterpolant:
 class TimeLaw:
     """s(t) of a feed profile (module docstring): b(s) = scale * E(s) g(s)."""
     length: float
-    g: CubicSpline
+    g: BSpline
     floor: float
     u_nodes: np.ndarray          # u-images of the feed nodes
     t_nodes: np.ndarray          # t(u_nodes) at scale 1
@@ -130,7 +134,7 @@ class TimeLaw:
         g[0], g[-1] = g[1], g[-2]              # the rest ends: continue the neighbour's ratio
         if not np.max(g) > 0:
             raise ValueError('the feed profile is zero everywhere')
-        spline = CubicSpline(d, g)
+        spline = _control_point_spline(d, g)
         floor = 1e-9 * float(np.max(g))        # keeps f > 0: the path never stalls inside
         u_nodes = _inverse_smoothstep(d / length)
         law = cls(length, spline, floor, u_nodes, np.zeros(len(d)))
@@ -183,6 +187,21 @@ class TimeLaw:
         return np.sqrt(e * g), 0.5 * (de * g + e * dg)
 
 
+def _control_point_spline(d, c) -> BSpline:
+    """Uniform cubic B-spline on the nodes d (uniform, d[0] = 0) with control point c[n]
+    centred on node n, and ghost points 2 c[0] - c[1], 2 c[-1] - c[-2] (clipped >= 0) past
+    the ends, so its value at either end is c there. At node n its second derivative is
+    (c[n-1] - 2 c[n] + c[n+1]) / h², its first (c[n+1] - c[n-1]) / (2 h): the LP's central
+    differences; its value (c[n-1] + 4 c[n] + c[n+1]) / 6 lies within the control points."""
+    h = (d[-1] - d[0]) / (len(d) - 1)
+    if not np.allclose(np.diff(d), h, rtol=1e-9, atol=0.0):
+        raise ValueError('the feed profile needs uniformly spaced nodes')
+    ghosts = np.maximum([2.0 * c[0] - c[1], 2.0 * c[-1] - c[-2]], 0.0)
+    coefficients = np.concatenate(([ghosts[0]], c, [ghosts[1]]))
+    knots = d[0] + h * np.arange(-3, len(d) + 3)
+    return BSpline(knots, coefficients, 3, extrapolate=False)
+
+
 def _shape(d, length):
     """E(s) = (s (L - s) / L)^(4/3)."""
     x = np.clip(d * (length - d) / length, 0.0, None)
@@ -210,22 +229,6 @@ def _inverse_smoothstep(y) -> np.ndarray:
     return u
 
 
-def finite_difference_peaks(position, period: float, velocity, acceleration, jerk) -> np.ndarray:
-    """(axes, 3) peak |v|, |a|, |j| over their limits from differences of the positions
-    (steps, axes) at the period, padded with three rest samples on either side."""
-    p = np.asarray(position, float)
-    p = np.vstack([np.repeat(p[:1], 3, axis=0), p, np.repeat(p[-1:], 3, axis=0)])
-    peaks = [np.max(np.abs(np.diff(p, k, axis=0)), axis=0) / period**k for k in (1, 2, 3)]
-    return np.column_stack([peaks[0] / np.asarray(velocity, float),
-                            peaks[1] / np.asarray(acceleration, float),
-                            peaks[2] / np.asarray(jerk, float)])
-
-
-def _smooth(x):
-    """C3 smoothstep 0 -> 1 on [0, 1]."""
-    return x**4 * (35.0 - 84.0 * x + 70.0 * x * x - 20.0 * x**3)
-
-
 def _ratios(position, period, velocity, acceleration, jerk):
     """Peak ratios (axes, 3) and, per sample, the worst limit ratio expressed as the factor
     on b that a time stretch would need (v ~ b^1/2, a ~ b, j ~ b^3/2)."""
@@ -246,61 +249,104 @@ def _ratios(position, period, velocity, acceleration, jerk):
 
 @dataclass(frozen=True)
 class Sampling:
-    """Result of :func:`sample`."""
+    """Result of :func:`sample_profile` and :func:`sample`."""
     reference: Reference
     s: np.ndarray                # (K+1,) path displacement of every sample, m
     sdot: np.ndarray             # (K+1,) m/s
-    feed_scale: float            # final global factor on b (1: the optimizer's profile)
+    feed_scale: float            # final global factor on b (1: the profile as given)
     passes: int                  # sampling passes made (1 + rescalings)
     peak_ratios: np.ndarray      # (axes, 3) finite-difference peak |v|, |a|, |j| / limit
+    need: np.ndarray             # (K+1,) per sample: factor on b a time stretch would need
 
     @property
     def duration(self) -> float:
         return (len(self.s) - 1) * self.reference.period
 
 
-def sample(interpolant: SepticInterpolant, feed_s, feed_b, limits, period: float,
-           axis_names, tolerance: float = 1.001, max_passes: int = 6) -> Sampling:
-    """References at the control period `period` (s) along the interpolated path, following
-    the feed profile b (= sdot², nodes feed_s, feed_b) within the axis limits (`limits`:
-    velocity, acceleration, jerk arrays, e.g. a feedrate.FeedLimits). Eq. 3.38 (module
-    docstring); raises ValueError when no scaling within `max_passes` meets `tolerance`."""
+def _limit_arrays(limits):
+    return tuple(np.asarray(getattr(limits, k), float) for k in ('velocity', 'acceleration', 'jerk'))
+
+
+def sample_profile(interpolant: SepticInterpolant, feed_s, feed_b, limits, period: float,
+                   axis_names, scale: float = 1.0) -> Sampling:
+    """One pass of Eq. 3.38 (module docstring): references at the control period `period` (s)
+    along the interpolated path following the feed profile scale * b (= sdot², nodes
+    feed_s, feed_b), with their finite-difference peak ratios to `limits` (velocity,
+    acceleration, jerk arrays, e.g. a feedrate.FeedLimits); no check against them."""
     if not (period > 0 and math.isfinite(period)):
         raise ValueError(f'control period must be > 0 s, got {period!r}')
     feed_s = np.asarray(feed_s, float)
     if abs(feed_s[0] - interpolant.s[0]) > 1e-12 or abs(feed_s[-1] - interpolant.s[-1]) > 1e-9:
         raise ValueError('the feed profile must span the interpolated path')
-    axis_names = tuple(axis_names)
-    vel, acc, jer = (np.asarray(getattr(limits, k), float)
-                     for k in ('velocity', 'acceleration', 'jerk'))
-    d_nodes = feed_s - feed_s[0]
     b = np.maximum(np.asarray(feed_b, float), 0.0)
+    law = TimeLaw.from_profile(feed_s - feed_s[0], scale * b)
+    duration = law.duration
+    steps = max(3, math.ceil(duration / period - 1e-9))
+    stretch = steps * period / duration                 # >= 1: whole number of periods
+    u = law.u_at(np.arange(steps + 1) * (duration / steps))
+    u[0], u[-1] = 0.0, 1.0
+    d = law.length * _h(u)
+    d[-1] = law.length
+    sdot, sddot = law.feed(d)
+    sdot, sddot = sdot / stretch, sddot / stretch**2
+    sdot[0] = sdot[-1] = sddot[0] = sddot[-1] = 0.0
+    s = d + interpolant.s[0]
+    q = interpolant.evaluate(s, 0)
+    dq = interpolant.evaluate(s, 1)
+    ddq = interpolant.evaluate(s, 2)
+    ratios, need = _ratios(q, period, *_limit_arrays(limits))
+    reference = Reference(tuple(axis_names), period, q, dq * sdot[:, None],
+                          ddq * sdot[:, None] ** 2 + dq * sddot[:, None])
+    return Sampling(reference, s, sdot, scale / stretch**2, 1, ratios, need)
+
+
+def sample(interpolant: SepticInterpolant, feed_s, feed_b, limits, period: float,
+           axis_names, tolerance: float = 1.001, max_passes: int = 6) -> Sampling:
+    """:func:`sample_profile` with b scaled down globally until every finite-difference
+    peak is within `tolerance` x its limit (module docstring, "Verification"); raises
+    ValueError when no scaling within `max_passes` meets `tolerance`."""
     scale = 1.0
     for passes in range(1, max_passes + 1):
-        law = TimeLaw.from_profile(d_nodes, scale * b)
-        duration = law.duration
-        steps = max(3, math.ceil(duration / period - 1e-9))
-        stretch = steps * period / duration                 # >= 1: whole number of periods
-        u = law.u_at(np.arange(steps + 1) * (duration / steps))
-        u[0], u[-1] = 0.0, 1.0
-        d = law.length * _h(u)
-        d[-1] = law.length
-        sdot, sddot = law.feed(d)
-        sdot, sddot = sdot / stretch, sddot / stretch**2
-        sdot[0] = sdot[-1] = sddot[0] = sddot[-1] = 0.0
-        s = d + interpolant.s[0]
-        q = interpolant.evaluate(s, 0)
-        dq = interpolant.evaluate(s, 1)
-        ddq = interpolant.evaluate(s, 2)
-        ratios, local = _ratios(q, period, vel, acc, jer)
-        if np.max(ratios) <= tolerance:
-            reference = Reference(axis_names, period, q, dq * sdot[:, None],
-                                  ddq * sdot[:, None] ** 2 + dq * sddot[:, None])
-            return Sampling(reference, s, sdot, scale / stretch**2, passes, ratios)
+        result = sample_profile(interpolant, feed_s, feed_b, limits, period, axis_names, scale)
+        if np.max(result.peak_ratios) <= tolerance:
+            return replace(result, passes=passes)
         # assumed: aim 0.1 % below the limit so the next pass lands inside the tolerance
-        # assumed: aim 0.1 % below the limit so the next pass lands inside the tolerance.
-        # Global, not local: rescaling feed nodes locally steepens b' and b'' at the edges of
-        # the window and raised the jerk (tried: the rest ends got worse pass after pass).
-        scale = scale * 0.999 / float(np.max(local))
-    raise ValueError(f'sampled references exceed the limits by {np.max(ratios):.4g}x after '
-                     f'{max_passes} passes')
+        scale = scale * 0.999 / float(np.max(result.need))
+    raise ValueError(f'sampled references exceed the limits by {np.max(result.peak_ratios):.4g}x '
+                     f'after {max_passes} passes')
+
+
+def local_slowdown(result: Sampling, feed_s, feed_b, tangential_jerk,
+                   margin: float = SLOWDOWN_MARGIN, share: float = SLOWDOWN_JERK_SHARE) -> np.ndarray:
+    """Per feed node factor (<= 1) on b that slows the profile down only around the samples
+    of `result` that exceed a limit. The two nodes bracketing such a sample ask for the
+    factor margin / need (need: the sample's factor on b of a time stretch, v ~ b^1/2,
+    a ~ b, j ~ b^3/2). Deepest first, each node m not yet slowed enough gets the missing
+    dip delta as a raised cosine 1 - delta (1 + cos(pi x)) / 2, x = (s - s_m) / L_m in
+    [-1, 1], multiplied into the factor (a product of smooth dips stays smooth; a maximum
+    would have kinks, i.e. jerk spikes). L_m = pi sqrt(b_m^(3/2) delta / (4 share j_t,m)) keeps
+    the dip's own jerk below `share` x the tangential jerk limit j_t (`tangential_jerk`,
+    min_i j_max,i / |q'_i| per node): the axis jerk of b'' is q' sqrt(b) b'' / 2 and the
+    dip has |b''| <= b delta pi² / (2 L²)."""
+    feed_s, feed_b = np.asarray(feed_s, float), np.maximum(np.asarray(feed_b, float), 0.0)
+    n = len(feed_s)
+    bad = np.flatnonzero(result.need > 1.0)
+    interval = np.clip(np.searchsorted(feed_s, result.s[bad], side='right') - 1, 0, n - 2)
+    wanted = np.ones(n)
+    for offset in (0, 1):
+        np.minimum.at(wanted, interval + offset, margin / result.need[bad])
+    slope = np.abs(np.gradient(feed_b, feed_s))             # |b'| at the nodes
+    factor = np.ones(n)
+    for m in np.flatnonzero(wanted < 1.0)[np.argsort(wanted[wanted < 1.0], kind='stable')]:
+        if factor[m] <= wanted[m]:
+            continue
+        delta = 1.0 - wanted[m] / factor[m]
+        # |q'| sqrt(b) / 2 (2 |b'| delta pi / (2 L) + b delta pi² / (2 L²)) <= share j_t |q'|, in 1/L
+        quad, lin = feed_b[m] * delta * math.pi**2 / 2.0, slope[m] * delta * math.pi
+        const = 2.0 * share * tangential_jerk[m] / max(math.sqrt(feed_b[m]), 1e-300)
+        half = 2.0 * quad / (math.sqrt(lin * lin + 4.0 * quad * const) - lin) if quad > 0 else 0.0
+        lo, hi = np.searchsorted(feed_s, [feed_s[m] - half, feed_s[m] + half])
+        lo, hi = min(lo, m), max(hi, m + 1)
+        x = np.clip((feed_s[lo:hi] - feed_s[m]) / max(half, 1e-300), -1.0, 1.0)
+        factor[lo:hi] *= 1.0 - delta * 0.5 * (1.0 + np.cos(np.pi * x))
+    return factor
