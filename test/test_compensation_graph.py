@@ -13,11 +13,16 @@ from machine_ctrl.graph import NodeSpec
 from trajectory.contours import contour_reference
 
 
-def _spin_until(executor, condition, timeout, supervisor):
+def _spin_until(executor, condition, timeout, supervisor, action=None):
+    """Spin until condition(); `action` (if any) is repeated every 0.5 s meanwhile."""
     deadline = time.monotonic() + timeout
+    last = 0.0
     while not condition():
         assert time.monotonic() < deadline, 'timed out'
         supervisor.check()
+        if action is not None and time.monotonic() - last > 0.5:
+            action()
+            last = time.monotonic()
         executor.spin_once(timeout_sec=0.05)
 
 
@@ -68,8 +73,8 @@ def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
         future = enable.call_async(SetBool.Request(data=False))
         _spin_until(executor, future.done, 10, ros_supervisor)
         assert future.result().success
-        clock.publish(Clock(clock=ros_io.StepClock(micromill.control_period).stamp(3000)))
-        _spin_until(executor, lambda: 5500 in chunks, 30, ros_supervisor)
+        tick = Clock(clock=ros_io.StepClock(micromill.control_period).stamp(3000))
+        _spin_until(executor, lambda: 5500 in chunks, 60, ros_supervisor, lambda: clock.publish(tick))
         for first in (4500, 5000, 5500):                           # after the 1000-step ramp: the input
             rows = [ref.row(k) for k in range(first, first + 500)]
             assert (chunks[first][0] == np.array([r[0] for r in rows])).all()
