@@ -86,3 +86,48 @@ def test_no_faster_than_the_process_feed_limit(quarter_helix):
     path, _, result = quarter_helix
     assert result.duration >= path.length / 0.01
     assert result.sdot.max() <= 0.01 * 1.001
+
+
+def test_time_law_spline_has_the_lp_differences_at_the_nodes():
+    from trajectory.sampling import _control_point_spline
+    rng = np.random.default_rng(5)
+    d = np.linspace(0.0, 2e-3, 21)
+    h = d[1] - d[0]
+    c = rng.random(21)
+    spline = _control_point_spline(d, c)
+    inner = slice(1, -1)
+    assert np.allclose(spline(d[inner], 2), (c[:-2] - 2 * c[1:-1] + c[2:]) / h**2, rtol=1e-9)
+    assert np.allclose(spline(d[inner], 1), (c[2:] - c[:-2]) / (2 * h), rtol=1e-9)
+    assert spline(d[0]) == pytest.approx(c[0]) and spline(d[-1]) == pytest.approx(c[-1])
+    assert spline(np.linspace(0.0, 2e-3, 401)).min() >= 0.0        # control points >= 0
+
+
+def fake_sampling(s, need):
+    from machine_ctrl.reference import Reference
+    from trajectory.sampling import Sampling
+    ref = Reference(('x',), 1e-4, np.zeros((len(s), 1)), np.zeros((len(s), 1)), np.zeros((len(s), 1)))
+    return Sampling(ref, np.asarray(s, float), np.zeros(len(s)), 1.0, 1, np.zeros((1, 3)),
+                    np.asarray(need, float))
+
+
+def test_local_slowdown_dips_only_around_the_violations():
+    from trajectory.sampling import local_slowdown
+    feed_s = np.linspace(0.0, 20e-3, 201)                # 100 µm nodes
+    feed_b = np.full(201, 0.01 ** 2)                     # 10 mm/s
+    s = np.linspace(0.0, 20e-3, 4001)
+    need = np.full(4001, 0.5)
+    need[(s > 5.02e-3) & (s < 5.08e-3)] = 2.0            # between nodes 50 and 51
+    need[(s > 15.03e-3) & (s < 15.04e-3)] = 1.1          # between nodes 150 and 151
+    factor = local_slowdown(fake_sampling(s, need), feed_s, feed_b, np.full(201, 200.0))
+    assert factor[50] <= 0.99 / 2.0 + 1e-12 and factor[51] <= 0.99 / 2.0 + 1e-12
+    assert factor[150] <= 0.99 / 1.1 + 1e-12 and factor[151] <= 0.99 / 1.1 + 1e-12
+    # neighbouring dips multiply where they overlap, but only by the share still missing
+    assert factor.min() >= 0.9 * 0.99 / 2.0
+    far = (np.abs(feed_s - 5.05e-3) > 2e-3) & (np.abs(feed_s - 15.035e-3) > 2e-3)
+    assert np.all(factor[far] == 1.0)
+    # the dips' own jerk, sqrt(b) b c'' / 2 (b constant here), stays near share x j_t =
+    # 0.25 x 200 m/s³ (the second differences of the nodes see the raised cosine's c'')
+    h = feed_s[1] - feed_s[0]
+    assert 0.01 * 1e-4 * np.abs(np.diff(factor, 2)).max() / h**2 / 2 <= 1.5 * 0.25 * 200.0
+    assert np.all(local_slowdown(fake_sampling(s, np.full(4001, 0.9)), feed_s, feed_b,
+                                 np.full(201, 200.0)) == 1.0)

@@ -324,10 +324,12 @@ def local_slowdown(result: Sampling, feed_s, feed_b, tangential_jerk,
     a ~ b, j ~ b^3/2). Deepest first, each node m not yet slowed enough gets the missing
     dip delta as a raised cosine 1 - delta (1 + cos(pi x)) / 2, x = (s - s_m) / L_m in
     [-1, 1], multiplied into the factor (a product of smooth dips stays smooth; a maximum
-    would have kinks, i.e. jerk spikes). L_m = pi sqrt(b_m^(3/2) delta / (4 share j_t,m)) keeps
-    the dip's own jerk below `share` x the tangential jerk limit j_t (`tangential_jerk`,
-    min_i j_max,i / |q'_i| per node): the axis jerk of b'' is q' sqrt(b) b'' / 2 and the
-    dip has |b''| <= b delta pi² / (2 L²)."""
+    would have kinks, i.e. jerk spikes; where dips overlap the product may go ~10 % below
+    the deepest ask). The half-width L_m keeps the dip's own jerk below `share` x the
+    tangential jerk limit j_t (`tangential_jerk`, min_i j_max,i / |q'_i| per node): the
+    axis jerk of b'' is q' sqrt(b) b'' / 2, and (b c)'' gains 2 b' c' + b c'' from a dip c
+    with |c'| <= delta pi / (2 L), |c''| <= delta pi² / (2 L²), so L_m solves
+    sqrt(b) / 2 (|b'| delta pi / L + b delta pi² / (2 L²)) = share j_t at node m."""
     feed_s, feed_b = np.asarray(feed_s, float), np.maximum(np.asarray(feed_b, float), 0.0)
     n = len(feed_s)
     bad = np.flatnonzero(result.need > 1.0)
