@@ -6,7 +6,9 @@ Default layout for a machine with dual-stage pairs: hw_sim, one servo node per s
 (fine stage: every axis with the drive type of the pairs' fine axes — the whole maglev
 table; coarse stage: the other controlled axes), dual_stage, and the reference source:
 the trajectory node (contour None; the machine starts at home, or where `hw_sim` says),
-or the reference node playing a test contour (the machine starts where it starts).
+or the reference node playing a test contour (the machine starts where it starts). With a
+geometric error model, the compensation node sits between the trajectory node (publishing
+on /trajectory/reference) and the servos (reading /reference).
 """
 from __future__ import annotations
 
@@ -52,17 +54,24 @@ def _param_text(value) -> str:
 
 
 def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_stage: bool = True,
-                  hw_sim: dict | None = None) -> list[NodeSpec]:
+                  hw_sim: dict | None = None, compensation_model: str | None = None) -> list[NodeSpec]:
     fine_types = {machine.axis(p.fine).drive.type for p in machine.dual_stage}
     controlled = [a for a in machine.axes if a.control is not None]
     fine = [a.name for a in controlled if a.drive.type in fine_types]
     coarse = [a.name for a in controlled if a.drive.type not in fine_types]
     common = {'machine': str(machine.yaml_path)}
+    sources = []
+    if compensation_model is not None:
+        sources.append(NodeSpec('compensation', 'compensation.node', 'CompensationNode',
+                                {**common, 'model': str(compensation_model)}))
     if contour is None:
-        source = NodeSpec('trajectory', 'trajectory.node', 'TrajectoryNode', common)
+        output = '/trajectory/reference' if compensation_model is not None else '/reference'
+        sources.append(NodeSpec('trajectory', 'trajectory.node', 'TrajectoryNode', {**common, 'output_topic': output}))
         hw = {**common, **(hw_sim or {})}
     else:   # a contour has no approach move: the machine starts where the contour starts
-        source = NodeSpec('reference', 'machine_ctrl.reference_node', 'ReferenceNode', {**common, 'contour': contour})
+        if compensation_model is not None:
+            raise ValueError('compensation needs the trajectory node (contour None)')
+        sources.append(NodeSpec('reference', 'machine_ctrl.reference_node', 'ReferenceNode', {**common, 'contour': contour})
         start = [float(v) for v in contour_reference(machine, contour).position[0]]
         hw = {**common, 'initial_position': start, **(hw_sim or {})}
     specs = [NodeSpec('hw_sim', 'hw_sim.node', 'HwSimNode', hw),
@@ -71,8 +80,7 @@ def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_s
         specs.append(NodeSpec('servo_fine', 'machine_ctrl.servo_node', 'ServoNode', {**common, 'axes': fine}))
         specs.append(NodeSpec('dual_stage', 'machine_ctrl.dual_stage_node', 'DualStageNode',
                               {**common, 'enabled': dual_stage}))
-    specs.append(source)
-    return specs
+    return specs + sources
 
 
 def create_nodes(specs: list[NodeSpec]) -> list:

@@ -18,8 +18,8 @@ Inputs (every one validated; a refused goal moves nothing and its reason is publ
 Goals are accepted only while idle: one motion at a time, a goal during planning, a
 motion or a fault is refused. After a motion the last position is held.
 
-Outputs: `/reference` chunks (trajectory_msgs/JointTrajectory on the control grid, as the
-servos read them), `/trajectory/status` (diagnostic_msgs/DiagnosticStatus, latched:
+Outputs: `/reference` chunks (parameter `output_topic`; trajectory_msgs/JointTrajectory on
+the control grid, as the servos read them), `/trajectory/status` (diagnostic_msgs/DiagnosticStatus, latched:
 message = state idle | planning | running | holding | fault; values: progress, motion,
 last_rejection, ...), `/diagnostics`.
 
@@ -84,6 +84,8 @@ class TrajectoryNode(Node):
         self.feed = declare(self, 'feed', DEFAULT_FEED, 'process feed limit of tool paths, m/s')
         self.chunk_steps = max(1, declare(self, 'chunk_steps', 500, 'rows per /reference message'))
         self.lookahead = max(2 * self.chunk_steps, declare(self, 'lookahead_steps', 3000, 'rows kept ahead'))
+        output_topic = declare(self, 'output_topic', ros_io.TOPIC_REFERENCE,
+                               'reference chunks (/trajectory/reference when compensation sits between)')
         if not (isinstance(self.feed, (int, float)) and np.isfinite(self.feed) and self.feed > 0):
             self.get_logger().fatal(f'parameter feed: must be a positive speed in m/s, got {self.feed!r}')
             raise SystemExit(2)
@@ -98,7 +100,7 @@ class TrajectoryNode(Node):
         self.planning: tuple[Future, str] | None = None
         self.fault = ''
 
-        self.pub_reference = self.create_publisher(JointTrajectory, ros_io.TOPIC_REFERENCE, ros_io.REFERENCE_QOS)
+        self.pub_reference = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
         self.pub_status = self.create_publisher(DiagnosticStatus, TOPIC_STATUS, LATCHED)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
         self.sub_state = self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_first_state,
