@@ -147,6 +147,7 @@ class _Resolver:
             raise ValueError(f'active_axes: unknown axis names {unknown}' if unknown
                              else 'active_axes is empty')
         self.active = np.array([names.index(a) for a in names if a in active])
+        self.every_axis = len(self.active) == len(names)
         centre, half, scale, limited = [], [], [], []
         for k, i in enumerate(self.active):
             stroke = machine.axes[i].stroke
@@ -167,13 +168,24 @@ class _Resolver:
         """P, O, B and the task Jacobian J_t restricted to the active axes."""
         p, o, jac = self.kin.forward_and_jacobian(q)
         b = _basis(o)
-        jt = np.empty((5, len(self.active)))
-        jt[:3] = jac[:3, self.active]
-        jt[3:] = b.T @ jac[3:, self.active]
+        if not self.every_axis:
+            jac = jac[:, self.active]
+        jt = np.empty((5, jac.shape[1]))
+        jt[:3] = jac[:3]
+        np.dot(b.T, jac[3:], out=jt[3:])
         return p, o, b, jt
 
     def damped_inverse(self, jt):
-        """J_t^# of Eq. 3.21 with mu of Eq. 3.22 over the r reachable task directions."""
+        """J_t^# of Eq. 3.21 with mu of Eq. 3.22 over the r reachable task directions. For
+        r = 5 (every task direction) this is J_t^T (J_t J_t^T + mu I)^-1 with
+        w = sqrt(det(J_t J_t^T)) as printed (a 5 x 5 inverse: cheaper than the SVD)."""
+        if self.rank == 5:
+            a = jt @ jt.T
+            w = math.sqrt(max(np.linalg.det(a), 0.0))
+            w0 = self.settings.manipulability_threshold
+            if w < w0:
+                a[np.diag_indices(5)] += self.settings.damping_max * (1.0 - w / w0) ** 2
+            return jt.T @ np.linalg.inv(a)
         u, sig, vt = np.linalg.svd(jt, full_matrices=False)
         r = self.rank
         sig = sig[:r]
