@@ -71,7 +71,8 @@ def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_s
     else:   # a contour has no approach move: the machine starts where the contour starts
         if compensation_model is not None:
             raise ValueError('compensation needs the trajectory node (contour None)')
-        sources.append(NodeSpec('reference', 'machine_ctrl.reference_node', 'ReferenceNode', {**common, 'contour': contour})
+        sources.append(NodeSpec('reference', 'machine_ctrl.reference_node', 'ReferenceNode',
+                                {**common, 'contour': contour}))
         start = [float(v) for v in contour_reference(machine, contour).position[0]]
         hw = {**common, 'initial_position': start, **(hw_sim or {})}
     specs = [NodeSpec('hw_sim', 'hw_sim.node', 'HwSimNode', hw),
