@@ -82,10 +82,12 @@ def feed_and_sample(interp: SepticInterpolant, fs, derivatives, limits: FeedLimi
     """Optimized feed profile on the nodes fs (path derivatives q', q'', q''' there) and its
     time sampling within `tolerance` x every limit by finite differences at `period`.
     Where the sampled references exceed a limit (the grid is coarser than some feature of
-    q(s), e.g. the nullspace start-up transient), b is capped at the nearby nodes
-    (sampling.local_caps) and re-optimized, at most `passes` times; a global time stretch
-    (sampling.sample) is the fallback. Returns (FeedProfile, Sampling); Sampling.passes
-    counts the local passes."""
+    q(s), e.g. the nullspace start-up transient, or the grid-level jerk is optimistic between
+    nodes), b is lowered there only (sampling.local_slowdown) and resampled, at most
+    `passes` times; then a global time stretch (sampling.sample) is the fallback. Returns
+    (the optimizer's FeedProfile, Sampling); Sampling.passes counts every sampling pass
+    (local ones, then the fallback's) and Sampling.feed_scale is the fallback's global
+    factor (1 without it)."""
     profile = optimize_feed(fs, *derivatives, limits)
     with np.errstate(divide='ignore'):
         tangential = np.min(limits.jerk / np.abs(derivatives[0]), axis=1)
@@ -95,7 +97,8 @@ def feed_and_sample(interp: SepticInterpolant, fs, derivatives, limits: FeedLimi
         if np.max(result.peak_ratios) <= tolerance:
             return profile, replace(result, passes=done)
         b = b * local_slowdown(result, profile.s, b, tangential)
-    return profile, sample(interp, profile.s, b, limits, period, axis_names, tolerance)
+    fallback = sample(interp, profile.s, b, limits, period, axis_names, tolerance)
+    return profile, replace(fallback, passes=passes + fallback.passes)
 
 
 def pose_deviations(kinematics: Kinematics, q, p_path, o_path) -> tuple[float, float]:

@@ -199,7 +199,8 @@ def _control_point_spline(d, c) -> BSpline:
     ghosts = np.maximum([2.0 * c[0] - c[1], 2.0 * c[-1] - c[-2]], 0.0)
     coefficients = np.concatenate(([ghosts[0]], c, [ghosts[1]]))
     knots = d[0] + h * np.arange(-3, len(d) + 3)
-    return BSpline(knots, coefficients, 3, extrapolate=False)
+    knots[3], knots[-4] = d[0], d[-1]                  # the ends exactly (no rounding gap)
+    return BSpline(knots, coefficients, 3)
 
 
 def _shape(d, length):
