@@ -16,9 +16,12 @@ sdot(s) = sqrt(b(s)), b the feed profile:
 
 * b between the feed nodes: b(s) = E(s) g(s), E(s) = (s (L - s) / L)^(4/3) the shape of a
   constant-jerk start from rest at s = 0 and stop at s = L (sdot ~ d^(2/3), which is the
-  rest envelope feedrate.py bounds b with), g a C2 cubic spline through b[n] / E(s[n])
-  (clipped >= 0). So b is C2 inside the path and the ends are reached at rest with finite
-  jerk.
+  rest envelope feedrate.py bounds b with), g the uniform cubic B-spline whose control
+  points are b[n] / E(s[n]) (>= 0) on the feed nodes. Not the interpolating spline: its b''
+  at node n is (c[n-1] - 2 c[n] + c[n+1]) / Δs², the second difference the optimizer's jerk
+  rows constrain, whereas an interpolating cubic through a profile whose second differences
+  alternate in sign (the LP where the jerk rows are active) has up to 3x that at the nodes.
+  So b is C2 inside the path and the ends are reached at rest with finite jerk.
 * ds/dt = sqrt(E g) is singular at the rest ends (1/sdot is not integrable by plain
   quadrature and the ODE does not leave s = 0). With s = L h(u), h(u) = u³(10 - 15u + 6u²)
   (h' = 30 u² (1 - u)² vanishes to second order at both ends, like sdot), the ODE becomes
@@ -33,9 +36,11 @@ sdot(s) = sqrt(b(s)), b the feed profile:
 
 **Verification.** The feed optimizer only checks its grid. The sampled positions, padded
 with three rest samples on either side (the machine holds before and after), are
-differenced at the control period (velocity, acceleration, jerk); if any axis exceeds
-`tolerance` x its limit, b is scaled down globally by the exact factor of a time stretch
-(v ~ c^(1/2), a ~ c, j ~ c^(3/2)) and the path is resampled, at most `max_passes` times.
+differenced at the control period (velocity, acceleration, jerk) by `sample_profile`.
+Where a sample exceeds its limit, :func:`local_slowdown` lowers b around it only (the
+planner iterates: planner.feed_and_sample); :func:`sample` is the global fallback, which
+scales b by the exact factor of a time stretch (v ~ c^(1/2), a ~ c, j ~ c^(3/2)) and
+resamples until every axis is within `tolerance` x its limit, at most `max_passes` times.
 """
 from __future__ import annotations
 
