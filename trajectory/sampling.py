@@ -17,9 +17,11 @@ sdot(s) = sqrt(b(s)), b the feed profile:
 * b between the feed nodes: b(s) = E(s) g(s), E(s) = (s (L - s) / L)^(4/3) the shape of a
   constant-jerk start from rest at s = 0 and stop at s = L (sdot ~ d^(2/3), which is the
   rest envelope feedrate.py bounds b with), g the uniform cubic B-spline whose control
-  points are b[n] / E(s[n]) (>= 0) on the feed nodes. Not the interpolating spline: its b''
+  points c[n] = b[n] / E(s[n]) (>= 0) on the feed nodes. Not the interpolating spline: g''
   at node n is (c[n-1] - 2 c[n] + c[n+1]) / Δs², the second difference the optimizer's jerk
-  rows constrain, whereas an interpolating cubic through a profile whose second differences
+  rows constrain (for b; E varies slowly away from the ends), and g there is
+  (c[n-1] + 4 c[n] + c[n+1]) / 6, within the control points; an interpolating cubic through
+  a profile whose second differences
   alternate in sign (the LP where the jerk rows are active) has up to 3x that at the nodes.
   So b is C2 inside the path and the ends are reached at rest with finite jerk.
 * ds/dt = sqrt(E g) is singular at the rest ends (1/sdot is not integrable by plain
