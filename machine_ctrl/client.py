@@ -13,6 +13,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from nav_msgs.msg import Path
+from std_msgs.msg import Float64
 
 from machine_ctrl import ros_io
 from machine_ctrl.config import MachineConfig
@@ -33,6 +34,7 @@ class MachineClient:
         node.create_subscription(DiagnosticStatus, '/trajectory/status', self.statuses.append, LATCHED_READER)
         self.pub_path = node.create_publisher(Path, '/trajectory/path', 10)
         self.pub_goal = node.create_publisher(JointTrajectory, '/trajectory/joint_goal', 10)
+        self.pub_override = node.create_publisher(Float64, '/trajectory/feed_override', 10)
         self._services = {}
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)
@@ -90,6 +92,10 @@ class MachineClient:
                 point.time_from_start = self.clock.duration(round(times[i] / self.machine.control_period))
             msg.points.append(point)
         self.pub_goal.publish(msg)
+
+    def set_feed_override(self, fraction: float) -> None:
+        """Feed override, a fraction 0..1 of the planned feed (the node refuses others)."""
+        self.pub_override.publish(Float64(data=float(fraction)))
 
     def call(self, service: str, request=None, timeout: float = 30.0):
         """Call a std_srvs Trigger (request None) or SetBool (request bool) service;

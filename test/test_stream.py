@@ -1,53 +1,149 @@
-"""The trajectory node's reference stream (trajectory/stream.py) and the joint-goal
-waypoint moves (trajectory/moves.py): hold, play, re-send after an interrupt, refusals."""
+"""The trajectory node's reference stream (trajectory/stream.py): hold, play, feed
+override as a time warp (exact rows at 100 %, on the path and within the limits while
+ramping), feed hold / resume / stop, abort; and the joint-goal waypoint moves."""
+import math
+
 import numpy as np
 import pytest
+from scipy.optimize import minimize_scalar
 
-from trajectory.moves import AxisState, move_to, smooth_stop, through_waypoints
-from trajectory.stream import ReferenceStream
+from machine_ctrl.kinematics import Kinematics
+from trajectory import toolpath
+from trajectory.moves import AxisState, move_to, through_waypoints
+from trajectory.planner import plan
+from trajectory.stream import ReferenceStream, smoothstep
+
+
+def limits(machine):
+    return [a.limits for a in machine.axes]
 
 
 def stream_of(machine, position, first=0):
     return ReferenceStream(machine.axis_names, machine.control_period, position, first)
 
 
-def test_stream_holds_plays_and_holds_the_end(micromill):
+def play(stream, steps, chunk=500):
+    """Hand out `steps` rows; (positions, velocities) as arrays."""
+    first, p, v, _ = stream.take(steps)
+    return np.array(p), np.array(v)
+
+
+def assert_within_limits(machine, positions, tolerance=1.001):
+    t = machine.control_period
+    for order, name in ((1, 'velocity'), (2, 'acceleration'), (3, 'jerk')):
+        limit = np.array([getattr(a.limits, name) for a in machine.axes])
+        peak = np.abs(np.diff(positions, order, axis=0)).max(axis=0) / t**order
+        assert (peak <= tolerance * limit).all(), f'{name}: {peak / limit}'
+
+
+@pytest.fixture(scope='module')
+def arc_plan(micromill):
+    """A planned 3 mm half circle at 10 mm/s (tool tips around the home tip)."""
+    th = np.linspace(0.0, math.pi, 24)
+    p = np.column_stack([1e-3 * (np.cos(th) - 1), 0.002 + 1e-3 * np.sin(th), np.full_like(th, 0.010)])
+    return plan(toolpath.from_arrays(p, np.tile([0.0, 0.0, 1.0], (24, 1))), micromill, 0.01)
+
+
+def test_smoothstep_ends_flat():
+    assert smoothstep(0.0) == (0.0, 0.0, 0.0) and smoothstep(1.0) == (1.0, 0.0, 0.0)
+    u = np.linspace(0, 1, 1001)
+    s = np.array([smoothstep(x)[0] for x in u])
+    assert np.all(np.diff(s) >= 0)
+
+
+def test_full_feed_plays_the_planned_rows_exactly_then_holds(micromill):
     here = [1e-3] + [0.0] * 8
     stream = stream_of(micromill, here, first=7)
     first, p, v, a = stream.take(5)
     assert first == 7 and all(row == tuple(here) for row in p) and not np.any(v) and not np.any(a)
     move = move_to(micromill, [2e-3] + [0.0] * 8, AxisState.at_rest(here))
-    motion = stream.start(move, 'move')
-    assert motion.start == 12 and motion.end == 12 + len(move) - 1
-    first, p, _, _ = stream.take(len(move) + 3)
+    motion = stream.start(move, 'move', limits(micromill))
+    assert motion.start == 12
+    first, p, v, a = stream.take(len(move) + 3)
     np.testing.assert_array_equal(np.array(p[:len(move)]), move.position)
-    assert p[-1] == tuple(move.position[-1])
-    assert stream.progress(motion.start) == 0.0 and stream.progress(motion.end + 5) == 1.0
+    np.testing.assert_array_equal(np.array(v[:len(move) - 1]), move.velocity[:-1])
+    np.testing.assert_array_equal(np.array(a[:len(move) - 1]), move.acceleration[:-1])
+    assert p[-1] == tuple(move.position[-1]) and not np.any(v[-1])
+    assert not stream.busy(first + len(p)) and stream.progress(first + len(p)) == 1.0
 
 
-def test_stream_refuses_a_motion_that_would_jump_or_overlap(micromill):
+def test_a_motion_that_would_jump_or_overlap_is_refused(micromill):
     stream = stream_of(micromill, [0.0] * 9)
     elsewhere = move_to(micromill, [2e-3] + [0.0] * 8, AxisState.at_rest([1e-3] + [0.0] * 8))
     with pytest.raises(ValueError, match='away from the stream position'):
-        stream.start(elsewhere, 'jump')
-    stream.start(move_to(micromill, [2e-3] + [0.0] * 8), 'first')
+        stream.start(elsewhere, 'jump', limits(micromill))
+    stream.start(move_to(micromill, [2e-3] + [0.0] * 8), 'first', limits(micromill))
     with pytest.raises(ValueError, match='under way'):
-        stream.start(move_to(micromill, [0.0] * 9), 'second')
+        stream.start(move_to(micromill, [0.0] * 9), 'second', limits(micromill))
 
 
-def test_interrupt_resends_from_its_step_without_a_jump(micromill):
+def distance_to_path(result, kin, q):
+    """Tool-tip distance (m) of configuration q from the planned path R(s)."""
+    tip, _ = kin.forward(q)
+    s_grid = result.sampling.s
+    p_grid, _ = result.path.evaluate(s_grid)
+    j = int(np.argmin(np.linalg.norm(p_grid - tip, axis=1)))
+    lo, hi = s_grid[max(j - 1, 0)], s_grid[min(j + 1, len(s_grid) - 1)]
+    best = minimize_scalar(lambda s: np.linalg.norm(result.path.evaluate(np.array([s]))[0][0] - tip),
+                           bounds=(lo, hi), method='bounded', options={'xatol': 1e-15})
+    return best.fun
+
+
+def test_feed_hold_stops_on_the_path_within_the_limits_and_resume_finishes(micromill, arc_plan):
+    ref = arc_plan.reference
+    stream = stream_of(micromill, ref.position[0])
+    stream.start(ref, 'arc', limits(micromill))
+    before, _ = play(stream, len(ref) // 3)
+    begin = stream.set_override(0.0, at=len(ref) // 4)           # rows from there are re-sent
+    assert begin == len(ref) // 4 and stream.next_step == begin + 1
+    held, v_held = play(stream, len(ref))
+    positions = np.vstack([before[:begin + 1], held])
+    assert_within_limits(micromill, positions)
+    assert not np.any(v_held[-10:]) and stream.busy(len(positions))        # at rest, program kept
+    kin = Kinematics.from_config(micromill)
+    assert max(distance_to_path(arc_plan, kin, q) for q in positions[begin::97]) < 1e-9
+    stopped_at = stream.progress(len(positions))
+    assert 0.25 < stopped_at < 0.9
+
+    stream.set_override(1.0, at=len(positions))
+    rest, _ = play(stream, 2 * len(ref))
+    positions = np.vstack([positions, rest])
+    assert_within_limits(micromill, positions)
+    np.testing.assert_array_equal(positions[-1], ref.position[-1])
+    assert not stream.busy(len(positions))
+
+
+def test_half_feed_takes_twice_as_long_and_stop_ends_the_motion(micromill, arc_plan):
+    ref = arc_plan.reference
+    stream = stream_of(micromill, ref.position[0])
+    stream.start(ref, 'arc', limits(micromill), override=0.5)
+    half, _ = play(stream, 3 * len(ref))
+    assert_within_limits(micromill, half)
+    end = stream.motion.end
+    assert abs(end - 2 * (len(ref) - 1)) <= 2                    # tau advances by 0.5 per step
+
+    stream = stream_of(micromill, ref.position[0])
+    stream.start(ref, 'arc', limits(micromill))
+    first, _ = play(stream, len(ref) // 2)
+    stream.set_override(0.0, at=len(ref) // 3, stop=True)
+    rest, v = play(stream, len(ref))
+    assert_within_limits(micromill, np.vstack([first[:len(ref) // 3 + 1], rest]))
+    assert not stream.busy(stream.next_step) and not np.any(v[-1])
+    with pytest.raises(ValueError, match='no motion under way'):
+        stream.set_override(1.0, at=stream.next_step)
+
+
+def test_override_outside_a_fraction_is_refused_and_abort_holds(micromill):
     stream = stream_of(micromill, [0.0] * 9)
     move = move_to(micromill, [40e-3] + [0.0] * 8)
-    stream.start(move, 'long')
-    stream.take(len(move))                                 # everything handed out
-    at = len(move) // 3
-    stop = smooth_stop(micromill, stream.state(at))
-    stream.interrupt(at, stop, 'hold')
-    first, p, _, _ = stream.take(len(stop) + 2)
-    assert first == at
-    joined = np.vstack([move.position[:at], np.array(p)])
-    assert np.abs(np.diff(joined[:, 0])).max() <= 1.001 * micromill.axes[0].limits.velocity * micromill.control_period
-    assert 0 < joined[-1, 0] < 40e-3 and not stream.busy(first + len(p))
+    stream.start(move, 'long', limits(micromill))
+    with pytest.raises(ValueError, match='within'):
+        stream.set_override(1.5, at=10)
+    positions, _ = play(stream, len(move) // 2)
+    stream.abort(100)
+    assert stream.next_step == 100 and not stream.busy(100)
+    first, p, v, _ = stream.take(3)
+    assert first == 100 and p[0] == tuple(positions[100]) and not np.any(v)
 
 
 def test_waypoints_keep_unnamed_axes_and_stop_at_each_point(micromill):

@@ -13,7 +13,7 @@ from machine_ctrl.client import MachineClient
 from machine_ctrl.graph import default_graph
 from machine_ctrl.kinematics import Kinematics
 from machine_ctrl.processes import Supervisor
-from trajectory import toolpath
+from trajectory import moves, toolpath
 
 START = [1e-3, -0.5e-3, 0.2e-3, 0, 0, 0, 0, 0, 0]      # hw_sim's initial position, away from home
 
@@ -202,25 +202,65 @@ def test_joint_goal_home_and_feed_hold(micromill, graph, client):
                 check=graph.check)
     assert abs(client.truth[0] - 4e-3) < 2e-6
 
-    # a long move, held while under way: a smooth stop short of the goal
+    # a long move, held while under way: it stops short of the goal and stays held; the
+    # goal is reached after resume
     n = len(client.statuses)
     client.send_goal(['x_c'], [[-40e-3]])
     client.wait_states(n, ['running'], check=graph.check)
     status = client.status()
-    start, end = int(status['motion_start_step']), int(status['motion_end_step'])
-    client.wait(lambda: int(client.status()['step']) > start + (end - start) // 4, 'motion under way',
-                check=graph.check)
+    start = int(status['motion_start_step'])
+    client.wait(lambda: int(client.status()['step']) > start + 1500, 'motion under way', check=graph.check)
     refused = int(client.status()['rejected_goals'])
     client.send_goal(['y_c'], [[0.0]])                          # one motion at a time
     client.wait(lambda: int(client.status()['rejected_goals']) == refused + 1, 'refusal', check=graph.check)
     assert 'busy (running)' in client.status()['last_rejection']
     success, message = client.call('/trajectory/hold')
     assert success, message
+    client.wait(lambda: client.status()['feed_override'] == '0.0000', 'standstill', check=graph.check)
+    held_at = int(client.status()['step'])
+    client.wait(lambda: int(client.status()['step']) > held_at + 2000, 'time passing', check=graph.check)
+    assert client.status()['state'] == 'holding'
+    first, reference = client.reference()
+    assert_within_limits(micromill, reference)
+    still = reference[-1]
+    assert -40e-3 + 1e-3 < still[0] < 4e-3 - 1e-3 and (reference[-1000:] == still).all()   # stopped on the way
+    n = len(client.statuses)
+    assert client.call('/trajectory/resume')[0]
+    client.wait_states(n, ['running', 'idle'], check=graph.check)
+    first, reference = client.reference()
+    assert_within_limits(micromill, reference)
+    client.wait(lambda: abs(client.truth[0] + 40e-3) < 2e-6, 'the goal after resume', check=graph.check)
+
+    # feed override: fractions only; at 50 % the next move takes about twice as long
+    for bad in (1.5, -0.1, float('nan')):
+        refused = int(client.status()['rejected_goals'])
+        client.set_feed_override(bad)
+        client.wait(lambda: int(client.status()['rejected_goals']) == refused + 1, 'refusal', check=graph.check)
+        assert 'not a fraction' in client.status()['last_rejection']
+    client.set_feed_override(0.5)
+    client.wait(lambda: client.status()['feed_override_setting'] == '0.5', 'setting', check=graph.check)
+    n = len(client.statuses)
+    client.send_goal(['x_c'], [[-30e-3]])
+    client.wait_states(n, ['running', 'idle'], check=graph.check)
+    half = client.statuses[-1]
+    planned = len(moves.move_to(micromill, [-30e-3] + list(client.reference()[1][-1][1:]),
+                                moves.AxisState.at_rest([-40e-3] + list(client.reference()[1][-1][1:]))))
+    values = {kv.key: kv.value for kv in half.values}
+    took = int(values['motion_end_step']) - int(values['motion_start_step'])
+    assert 1.9 * planned < took < 2.1 * planned
+    client.set_feed_override(1.0)
+
+    # stop: the motion ends at rest short of its goal, the state is idle
+    n = len(client.statuses)
+    client.send_goal(['x_c'], [[40e-3]])
+    client.wait_states(n, ['running'], check=graph.check)
+    start = int(client.status()['motion_start_step'])
+    client.wait(lambda: int(client.status()['step']) > start + 1500, 'motion under way', check=graph.check)
+    assert client.call('/trajectory/stop')[0]
     client.wait_states(n, ['holding', 'idle'], check=graph.check)
     first, reference = client.reference()
     assert_within_limits(micromill, reference)
-    stop_at = reference[int(client.status()['motion_end_step']) - first]
-    assert -40e-3 + 1e-3 < stop_at[0] < 4e-3 - 1e-3            # stopped on the way
+    assert -30e-3 < reference[-1][0] < 40e-3 - 1e-3
 
     assert not client.call('/trajectory/hold')[0]               # nothing to hold now
     n = len(client.statuses)

@@ -11,12 +11,18 @@ Inputs (every one validated; a refused goal moves nothing and its reason is publ
 * `/trajectory/joint_goal` (trajectory_msgs/JointTrajectory): axis goals (m, rad) for any
   subset of the axes (the others stay); several points are waypoints, each reached at
   rest; time_from_start all zero (time-optimal) or strictly increasing (earliest arrival).
-* `/trajectory/hold` (std_srvs/Trigger): feed hold, a smooth stop (Ruckig) from the
-  reference's state a little ahead of the machine; the rest of the motion is dropped.
+* `/trajectory/feed_override` (std_msgs/Float64): fraction 0..1 of the planned feed, for
+  the motion under way and the next ones; a change is a smooth ramp (trajectory/stream.py)
+  that keeps the motion on its path. Outside [0, 1] or not finite: refused.
+* `/trajectory/hold` (std_srvs/Trigger): feed hold, the override ramps to 0 and the motion
+  stops on its path (state holding, the program is kept); `/trajectory/resume` ramps back
+  to the override setting (running); `/trajectory/stop` ramps to 0 and drops the rest of
+  the motion (idle once at rest). Each acts `chunk_steps` after the newest /clock step
+  (beyond any row the servos may have taken) and re-sends the stream from there.
 * `/trajectory/home` (std_srvs/Trigger): move to the machine's home at rest.
 
 Goals are accepted only while idle: one motion at a time, a goal during planning, a
-motion or a fault is refused. After a motion the last position is held.
+motion, a hold or a fault is refused. After a motion the last position is held.
 
 Outputs: `/reference` chunks (parameter `output_topic`; trajectory_msgs/JointTrajectory on
 the control grid, as the servos read them), `/trajectory/status` (diagnostic_msgs/DiagnosticStatus, latched:
@@ -44,6 +50,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
@@ -99,6 +106,8 @@ class TrajectoryNode(Node):
         self.planner = self.start_planner()
         self.planning: tuple[Future, str] | None = None
         self.fault = ''
+        self.override_setting = 1.0
+        self.limits = [a.limits for a in self.machine.axes]
 
         self.pub_reference = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
         self.pub_status = self.create_publisher(DiagnosticStatus, TOPIC_STATUS, LATCHED)
@@ -109,7 +118,10 @@ class TrajectoryNode(Node):
         self.create_subscription(Path, TOPIC_PATH, self.on_path, GOAL_QOS)
         self.create_subscription(JointTrajectory, TOPIC_JOINT_GOAL, self.on_joint_goal, GOAL_QOS)
         self.create_subscription(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, self.on_diagnostics, 50)
+        self.create_subscription(Float64, '/trajectory/feed_override', self.on_feed_override, GOAL_QOS)
         self.create_service(Trigger, '/trajectory/hold', self.on_hold)
+        self.create_service(Trigger, '/trajectory/resume', self.on_resume)
+        self.create_service(Trigger, '/trajectory/stop', self.on_stop)
         self.create_service(Trigger, '/trajectory/home', self.on_home)
         wall_timer(self, 0.05, self.check_planning)
         wall_timer(self, 1.0, self.publish_status)
@@ -185,7 +197,7 @@ class TrajectoryNode(Node):
     def on_joint_goal(self, msg: JointTrajectory) -> None:
         if not self.idle_or_refuse('joint goal'):
             return
-        here = self.stream.state(self.stream.next_step).position
+        here = self.stream.position(self.stream.next_step)
         times = [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in msg.points]
         try:
             reference = moves.through_waypoints(self.machine, here, msg.joint_names,
@@ -205,7 +217,7 @@ class TrajectoryNode(Node):
             return
         try:
             path = future.result()
-            here = self.stream.state(self.stream.next_step).position
+            here = self.stream.position(self.stream.next_step)
             approach = moves.move_to(self.machine, path.position[0], moves.AxisState.at_rest(here))
         except BrokenProcessPool:
             self.planner = self.start_planner()
@@ -220,35 +232,56 @@ class TrajectoryNode(Node):
         self.begin(moves.concatenate([approach, moves.tail(path)]), label)
 
     def begin(self, reference: Reference, label: str) -> None:
-        self.stream.start(reference, label)
+        self.stream.start(reference, label, self.limits, self.override_setting)
         self.get_logger().info(f'{label}: {len(reference)} steps from step {self.stream.motion.start}')
         self.set_state('running')
         self.fill()
 
+    def change_feed(self, value: float, state: str, stop: bool = False) -> str:
+        """Ramp the override of the motion under way, from beyond what the servos may have
+        taken; re-send the stream from there."""
+        begin = self.stream.set_override(value, self.step + self.chunk_steps, stop)
+        self.set_state(state)
+        self.fill()
+        return f'feed {value:g} from step {begin}'
+
+    def on_feed_override(self, msg: Float64) -> None:
+        value = msg.data
+        if not (np.isfinite(value) and 0.0 <= value <= 1.0):
+            self.refuse_goal('feed override', f'{value!r} is not a fraction within [0, 1]')
+            return
+        self.override_setting = float(value)
+        if self.state == 'running':
+            self.change_feed(self.override_setting, 'running')
+        self.publish_status()
+
     def on_hold(self, request, response):
-        if self.state != 'running' or self.stream is None:
-            response.success, response.message = False, f'nothing to hold ({self.state})'
-            return response
-        at = self.step + self.chunk_steps          # beyond any step the servos may have taken
-        if not self.stream.busy(at):
-            response.success, response.message = True, 'motion ends before a stop could'
+        return self.answer(response, self.state == 'running', lambda: self.change_feed(0.0, 'holding'))
+
+    def on_resume(self, request, response):
+        return self.answer(response, self.state == 'holding' and not self.stream.motion.stop_when_still,
+                           lambda: self.change_feed(self.override_setting, 'running'))
+
+    def on_stop(self, request, response):
+        return self.answer(response, self.state in ('running', 'holding'),
+                           lambda: self.change_feed(0.0, 'holding', stop=True))
+
+    def answer(self, response, allowed: bool, action):
+        """Service answer: the action's message, or why it does not apply now."""
+        if not allowed:
+            response.success, response.message = False, f'not applicable while {self.state}'
             return response
         try:
-            stop = moves.smooth_stop(self.machine, self.stream.state(at))
+            response.success, response.message = True, action()
         except ValueError as exc:
-            response.success, response.message = False, f'cannot stop smoothly: {exc}'
-            return response
-        self.stream.interrupt(at, stop, 'feed hold')
-        self.set_state('holding')
-        self.fill()
-        response.success, response.message = True, f'stopping from step {at} in {len(stop)} steps'
+            response.success, response.message = False, str(exc)
         return response
 
     def on_home(self, request, response):
         if not self.idle_or_refuse('home'):
             response.success, response.message = False, self.rejections.last
             return response
-        here = self.stream.state(self.stream.next_step)
+        here = moves.AxisState.at_rest(self.stream.position(self.stream.next_step))
         self.begin(moves.home(self.machine, here), 'home')
         response.success, response.message = True, f'homing in {len(self.stream.motion.reference)} steps'
         return response
@@ -269,10 +302,7 @@ class TrajectoryNode(Node):
         self.fault = reason
         self.planning = None
         if self.stream is not None and step_text.isdigit():
-            at = int(step_text) + 1                  # hw_sim stopped at the fault step
-            here = self.stream.state(at).position
-            self.stream.interrupt(at, Reference.hold(self.machine.axis_names, self.machine.control_period,
-                                                     here, 1), 'fault hold')
+            self.stream.abort(int(step_text) + 1)   # hw_sim stopped at the fault step
             self.fill()
         self.set_state('fault')
 
@@ -290,8 +320,10 @@ class TrajectoryNode(Node):
                   'progress': f'{self.stream.progress(self.step):.4f}' if self.stream else '0',
                   'motion': motion.label if motion else '',
                   'motion_start_step': motion.start if motion else '',
-                  'motion_end_step': motion.end if motion else '',
+                  'motion_end_step': motion.end if motion and motion.end is not None else '',
                   'streamed_to_step': self.stream.next_step if self.stream else '',
+                  'feed_override': f'{self.stream.override(self.step):.4f}' if self.stream else '1',
+                  'feed_override_setting': self.override_setting,
                   'fault': self.fault, 'rejected_goals': self.rejections.count,
                   'last_rejection': self.rejections.last}
         return ros_io.diagnostics(self.clock.stamp(self.step), self.get_name(), level, self.state,
