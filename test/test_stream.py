@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from limit_checks import assert_within_limits
 from scipy.optimize import minimize_scalar
 
 from machine_ctrl.kinematics import Kinematics
@@ -26,14 +27,6 @@ def play(stream, steps, chunk=500):
     """Hand out `steps` rows; (positions, velocities) as arrays."""
     first, p, v, _ = stream.take(steps)
     return np.array(p), np.array(v)
-
-
-def assert_within_limits(machine, positions, tolerance=1.001):
-    t = machine.control_period
-    for order, name in ((1, 'velocity'), (2, 'acceleration'), (3, 'jerk')):
-        limit = np.array([getattr(a.limits, name) for a in machine.axes])
-        peak = np.abs(np.diff(positions, order, axis=0)).max(axis=0) / t**order
-        assert (peak <= tolerance * limit).all(), f'{name}: {peak / limit}'
 
 
 @pytest.fixture(scope='module')

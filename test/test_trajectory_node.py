@@ -7,6 +7,7 @@ import threading
 
 import numpy as np
 import pytest
+from limit_checks import assert_within_limits
 
 from machine_ctrl import ros_io
 from machine_ctrl.client import MachineClient
@@ -106,14 +107,6 @@ def client(micromill, graph, ros_env):
         c.close()
         node.destroy_node()
         context.try_shutdown()
-
-
-def assert_within_limits(machine, positions, tolerance=1.001):
-    t = machine.control_period
-    for order, name in ((1, 'velocity'), (2, 'acceleration'), (3, 'jerk')):
-        limit = np.array([getattr(a.limits, name) for a in machine.axes])
-        peak = np.abs(np.diff(positions, order, axis=0)).max(axis=0) / t**order
-        assert (peak <= tolerance * limit).all(), f'{name}: {peak / limit}'
 
 
 BAD_GOALS = [
