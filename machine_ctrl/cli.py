@@ -50,6 +50,7 @@ import math
 import sys
 
 from machine_ctrl.config import DEFAULT_MACHINE, MachineConfig, load_machine
+from machine_ctrl.demo import DEFAULT_TURNS as DEMO_TURNS
 from machine_ctrl.errors import ConfigError
 from machine_ctrl.kinematics import Kinematics
 
@@ -344,6 +345,147 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+def cmd_bringup(args) -> int:
+    from machine_ctrl import bringup
+    machine = load_machine(args.machine)
+    try:
+        if args.record is not None:
+            _fresh_directory(args.record)
+        if args.compensation is not None:
+            _readable_model(args.compensation, machine)
+    except (ValueError, ConfigError) as exc:
+        return _error('bringup', exc)
+    return bringup.run(args, machine)
+
+
+def _readable_model(path: str, machine: MachineConfig) -> None:
+    """ConfigError (one line) unless `path` is a geometric error model for `machine`."""
+    from compensation.error_map import load_error_map
+    load_error_map(path, machine.axis_names)
+
+
+def parse_joint_goal(items) -> tuple[list[str], list[float]]:
+    """``name=value`` words -> names, values; ValueError names the bad word."""
+    names, values = [], []
+    for item in items:
+        name, sep, text = item.partition('=')
+        if not sep or not name:
+            raise ValueError(f'{item!r}: expected AXIS=VALUE (m or rad), e.g. x_c=0.01')
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f'{item!r}: {text!r} is not a number') from None
+        if not math.isfinite(value):
+            raise ValueError(f'{item!r}: the value is not finite')
+        names.append(name)
+        values.append(value)
+    return names, values
+
+
+def _connected_client(machine: MachineConfig, timeout: float):
+    """(context, node, client) once the trajectory node's status and our publishers are
+    matched; client.Timeout otherwise."""
+    from machine_ctrl.bringup import client_node, listening
+    from machine_ctrl.client import MachineClient
+    context, node = client_node('machine_ctrl_cli')
+    client = MachineClient(node, machine)
+    try:
+        client.wait(lambda: client.statuses and listening(client, client.pub_path)
+                    and listening(client, client.pub_goal),
+                    'the trajectory node (is the graph up? machine-ctrl bringup)', timeout)
+    except BaseException:
+        _close_client(context, node, client)
+        raise
+    return context, node, client
+
+
+def _close_client(context, node, client) -> None:
+    client.close()
+    node.destroy_node()
+    context.try_shutdown()
+
+
+def goal_outcome(client, after: int, refused: int) -> str | None:
+    """'refused', 'fault', 'done' or None (not yet) for a goal sent when `after` statuses
+    and `refused` refusals had been seen."""
+    status = client.status()
+    if int(status.get('rejected_goals', 0)) > refused:
+        return 'refused'
+    if any(s.message == 'fault' for s in client.statuses[after:]):
+        return 'fault'
+    return 'done' if client.states_seen(after, ['running', 'idle']) else None
+
+
+def follow_goal(client, publish, timeout: float, out=sys.stdout) -> int:
+    """Send with `publish()`, show the progress until the motion ends; 0 when it ran to
+    its end, 1 when refused, faulted, stopped early or timed out (reason on stderr)."""
+    import time
+    from machine_ctrl.bringup import StateReporter
+    after, refused = len(client.statuses), int(client.status().get('rejected_goals', 0))
+    publish()
+    reporter = StateReporter(client, out)
+    reporter.seen = after
+    deadline = time.monotonic() + timeout
+    while (outcome := goal_outcome(client, after, refused)) is None:
+        if time.monotonic() > deadline:
+            print(f'machine-ctrl: timed out after {timeout:g} s; status {client.status()}', file=sys.stderr)
+            return 1
+        reporter.poll()
+        time.sleep(0.05)
+    reporter.poll()
+    status = client.status()
+    if outcome == 'refused':
+        print(f'machine-ctrl: refused: {status["last_rejection"]}', file=sys.stderr)
+        return 1
+    if outcome == 'fault':
+        print(f'machine-ctrl: machine faulted: {status.get("fault", "")}', file=sys.stderr)
+        return 1
+    progress = float(status.get('progress', 0))
+    if progress < 1.0:
+        print(f'machine-ctrl: the motion ended at {progress * 100:.1f} % (stopped)', file=sys.stderr)
+        return 1
+    print(f'done: {status.get("motion", "")}', file=out)
+    return 0
+
+
+def _run_goal(command: str, machine: MachineConfig, timeout: float, send) -> int:
+    from machine_ctrl.client import Timeout
+    if not (math.isfinite(timeout) and timeout > 0):
+        return _error(command, ValueError(f'--timeout must be > 0 s, got {timeout}'))
+    try:
+        connection = _connected_client(machine, min(timeout, 30.0))
+    except Timeout as exc:
+        return _error(command, exc)
+    try:
+        return follow_goal(connection[2], lambda: send(connection[2]), timeout)
+    finally:
+        _close_client(*connection)
+
+
+def cmd_send(args) -> int:
+    from trajectory import toolpath
+    machine = load_machine(args.machine)
+    try:
+        cl = toolpath.builtin(args.path) if args.path in toolpath.BUILTIN else toolpath.read_csv(args.path)
+    except (ValueError, OSError) as exc:
+        return _error('send', exc)
+    return _run_goal('send', machine, args.timeout, lambda client: client.send_path(cl))
+
+
+def cmd_move(args) -> int:
+    machine = load_machine(args.machine)
+    try:
+        names, values = parse_joint_goal(args.goal)
+    except ValueError as exc:
+        return _error('move', exc)
+    return _run_goal('move', machine, args.timeout, lambda client: client.send_goal(names, [values]))
+
+
+def cmd_demo(args) -> int:
+    from machine_ctrl import demo
+    return demo.run(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='machine-ctrl', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -390,6 +532,27 @@ def build_parser() -> argparse.ArgumentParser:
     analyze.add_argument('--json', action='store_true', help='one JSON object on stdout (SI units)')
     analyze.add_argument('--plots', metavar='DIR', help='write errors.png, path_xy.png, limits.png into DIR')
     analyze.set_defaults(run=cmd_analyze)
+    bring = sub.add_parser('bringup', help='start the whole node graph and wait for commands')
+    bring.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
+    bring.add_argument('--single-process', action='store_true', help='every node in one process')
+    bring.add_argument('--record', metavar='DIR', help='record the session into this bag directory')
+    bring.add_argument('--no-dual-stage', action='store_true', help='start with the dual-stage coupling off')
+    bring.add_argument('--compensation', metavar='MODEL', help='geometric error model: compensation on')
+    bring.set_defaults(run=cmd_bringup)
+    send = sub.add_parser('send', help='send a tool path to the running graph and follow it')
+    send.add_argument('path', help='CSV file (px,py,pz,oi,oj,ok, SI) or built-in toolpath name')
+    send.add_argument('--machine', default=DEFAULT_MACHINE)
+    send.add_argument('--timeout', type=float, default=3600.0, metavar='S', help='give up after S s (wall)')
+    send.set_defaults(run=cmd_send)
+    move = sub.add_parser('move', help='send a joint goal (AXIS=VALUE ..., m / rad) and follow it')
+    move.add_argument('goal', nargs='+', metavar='AXIS=VALUE')
+    move.add_argument('--machine', default=DEFAULT_MACHINE)
+    move.add_argument('--timeout', type=float, default=600.0, metavar='S', help='give up after S s (wall)')
+    move.set_defaults(run=cmd_move)
+    demo = sub.add_parser('demo', help='the main job: helix on the 9-axis machine, recorded and analysed')
+    demo.add_argument('--out', metavar='DIR', help='output directory (default: a new temporary directory)')
+    demo.add_argument('--turns', type=float, default=DEMO_TURNS, help=f'helix turns (default {DEMO_TURNS:g})')
+    demo.set_defaults(run=cmd_demo)
     return parser
 
 

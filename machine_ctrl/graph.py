@@ -54,7 +54,8 @@ def _param_text(value) -> str:
 
 
 def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_stage: bool = True,
-                  hw_sim: dict | None = None, compensation_model: str | None = None) -> list[NodeSpec]:
+                  hw_sim: dict | None = None, compensation_model: str | None = None,
+                  contour_error: bool = False) -> list[NodeSpec]:
     fine_types = {machine.axis(p.fine).drive.type for p in machine.dual_stage}
     controlled = [a for a in machine.axes if a.control is not None]
     fine = [a.name for a in controlled if a.drive.type in fine_types]
@@ -81,6 +82,8 @@ def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_s
         specs.append(NodeSpec('servo_fine', 'machine_ctrl.servo_node', 'ServoNode', {**common, 'axes': fine}))
         specs.append(NodeSpec('dual_stage', 'machine_ctrl.dual_stage_node', 'DualStageNode',
                               {**common, 'enabled': dual_stage}))
+    if contour_error:
+        sources.append(NodeSpec('contour_error', 'machine_ctrl.contour_error_node', 'ContourErrorNode', common))
     return specs + sources
 
 
@@ -104,11 +107,14 @@ def main(argv=None) -> int:
     parser.add_argument('--no-dual-stage', action='store_true')
     parser.add_argument('--hw-sim', action='append', default=[], metavar='KEY=VALUE',
                         help='hw_sim parameter (value as YAML), e.g. min_subscribers=4')
+    parser.add_argument('--compensation', metavar='MODEL', help='geometric error model: add the compensation node')
+    parser.add_argument('--contour-error', action='store_true', help='add the contour error node')
     args = parser.parse_args(argv)
     import yaml
     hw = {k: yaml.safe_load(v) for k, v in (item.split('=', 1) for item in args.hw_sim)}
     contour = None if args.contour == 'none' else args.contour
-    specs = default_graph(load_machine(args.machine), contour, not args.no_dual_stage, hw)
+    specs = default_graph(load_machine(args.machine), contour, not args.no_dual_stage, hw, args.compensation,
+                          args.contour_error)
     rclpy.init()
     spin(create_nodes(specs))
     return 0
