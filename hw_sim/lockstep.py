@@ -69,3 +69,36 @@ class LockStep:
     def restart(self, step: int = 0) -> None:
         self._commands.clear()
         self.step = step
+
+
+def progress_step(period_ns: int, sec: int, nanosec: int, current: int) -> int:
+    """The step of a recorder progress stamp (the /joint_states stamp it wrote last); ValueError
+    with the reason if it is not a stamp of a state hw_sim has published (steps 0..current)."""
+    if not 0 <= nanosec < 1_000_000_000:
+        raise ValueError(f'progress stamp nanosec {nanosec} is not in [0, 1e9)')
+    step, rest = divmod(sec * 1_000_000_000 + nanosec, period_ns)
+    if rest:
+        raise ValueError(f'progress stamp {sec}.{nanosec:09d} s is not on the {period_ns} ns control grid')
+    if not 0 <= step <= current:
+        raise ValueError(f'progress for step {step}, but the published steps are 0..{current}')
+    return step
+
+
+@dataclass
+class RecorderGate:
+    """Flow control for a recorder (lock-step only): with ``window`` W > 0 steps, hw_sim does
+    not advance from step k to k+1 while k - r > W, r = the step of the newest state the
+    recorder reports written. Holding only delays a lock-step run, it never changes it.
+    ``recorded`` is None until a recorder reports (then nothing is held) and again once it
+    has left the graph."""
+    window: int = 0
+    recorded: int | None = None
+    refused: int = 0
+    last_refusal: str = ''
+
+    def holds(self, step: int) -> bool:
+        return self.window > 0 and self.recorded is not None and step - self.recorded > self.window
+
+    def refuse(self, reason: str) -> None:
+        self.refused += 1
+        self.last_refusal = reason

@@ -14,16 +14,22 @@ Modes (parameter `mode`):
   the current state is re-sent every `republish_period` s (wall) so nodes that joined late
   still answer; nodes answer a repeated stamp with the command they already computed.
   `min_subscribers` > 0 holds the machine at step 0 until that many /joint_states
-  subscribers are matched (a recorder that must see every step).
+  subscribers are matched (a recorder that must see every step). `recorder_window` W > 0
+  (steps) is flow control for a recorder: once a recorder reports progress on
+  /recorder/progress (builtin_interfaces/Time: stamp of the newest state it has written),
+  hw_sim does not advance from step k while k minus that step exceeds W, so the recorder's
+  backlog stays bounded and nothing is dropped; a recorder that leaves the graph releases
+  the hold. Holding delays a run, it never changes it.
 * paced: steps on the wall clock at `real_time_factor`, applying the latest command of
   each axis (zero-order hold) and counting missed deadlines (axes without a command for
   the step being taken) — the contract a driver for real hardware implements.
 
 Faults (machine stopped: drives off, axes held; the node keeps running and reporting): a
 non-finite command, a stroke violation, a command missing for `command_timeout` s (wall,
-lock-step, from step 1 on: at step 0 hw_sim waits for the graph to come up). Malformed
-commands (unknown or duplicate axes, length mismatch, off-grid or future stamps) are refused
-with the reason on /diagnostics and change nothing.
+lock-step, from step 1 on: at step 0 hw_sim waits for the graph to come up; never while
+every command is in hand and hw_sim holds for the recorder). Malformed commands (unknown or
+duplicate axes, length mismatch, off-grid or future stamps) and progress reports (off-grid,
+not a published step) are refused with the reason on /diagnostics and change nothing.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ import math
 import time
 
 import pinocchio as pin
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
@@ -38,12 +45,14 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from hw_sim.lockstep import LockStep
+from hw_sim.lockstep import LockStep, RecorderGate, progress_step
 from hw_sim.simulator import MachineSimulator, true_geometry
 from machine_ctrl import ros_io
 from machine_ctrl.errors import ConfigError
 from machine_ctrl.kinematics import Kinematics
 from machine_ctrl.node_common import declare, machine_parameter, main_for, wall_timer
+from machine_ctrl.recorder import PROGRESS_TOPIC
+from machine_ctrl.recorder_node import PROGRESS_QOS
 
 
 class HwSimNode(Node):
@@ -65,6 +74,8 @@ class HwSimNode(Node):
                                        'hold at step 0 until /joint_states has this many subscribers')
         self.truth_decimation = declare(self, 'ground_truth_decimation', 10,
                                         'publish ground truth every N steps (0: never)')
+        self.gate = RecorderGate(declare(self, 'recorder_window', 0,
+                                         'lock-step: steps hw_sim may run ahead of a recorder (0: off)'))
 
         self.check_parameters(initial)
         self.clock = ros_io.StepClock(self.machine.control_period)
@@ -79,13 +90,19 @@ class HwSimNode(Node):
         self._latest = {}                        # paced mode: last command per axis
         self._start_announced = False
         self._state_sent_at = self._step_started_at = time.monotonic()
+        self._hold_started = None                # wall time hw_sim began holding for the recorder
+        self.recorder_holds, self.recorder_hold_time = 0, 0.0
 
-        self.pub_clock = self.create_publisher(Clock, '/clock', 10)
+        # per-step traffic when clock_decimation is 1; deep like the states, so a recorder
+        # that hw_sim lets fall recorder_window steps behind loses no /clock either
+        self.pub_clock = self.create_publisher(Clock, '/clock', ros_io.STEP_QOS)
         self.pub_state = self.create_publisher(JointState, ros_io.TOPIC_JOINT_STATES, ros_io.STEP_QOS)
         self.pub_true = self.create_publisher(JointState, ros_io.TOPIC_TRUE_JOINT_STATES, ros_io.STEP_QOS)
         self.pub_pose = self.create_publisher(PoseStamped, ros_io.TOPIC_TRUE_TOOL_POSE, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
         self.create_subscription(JointState, ros_io.TOPIC_COMMANDS, self.on_command, ros_io.STEP_QOS)
+        self.sub_progress = (self.create_subscription(Time, PROGRESS_TOPIC, self.on_progress, PROGRESS_QOS)
+                             if self.gate.window > 0 else None)
         self.create_service(Trigger, '/hw_sim/reset', self.on_reset)
         wall_timer(self, 1.0, self.publish_diagnostics)
         if self.mode == 'lockstep':
@@ -101,6 +118,8 @@ class HwSimNode(Node):
             problems.append(f'real_time_factor must be in (0, 1], got {self.real_time_factor}')
         if self.command_timeout <= 0.0 or self.republish_period <= 0.0:
             problems.append('command_timeout and republish_period must be > 0')
+        if self.gate.window < 0 or (self.gate.window > 0 and self.mode != 'lockstep'):
+            problems.append(f'recorder_window must be >= 0 and needs mode lockstep, got {self.gate.window}')
         if len(initial) != len(self.machine.axes) or not ros_io.all_finite(initial):
             problems.append(f'initial_position needs {len(self.machine.axes)} finite values, got {list(initial)}')
         else:
@@ -141,7 +160,40 @@ class HwSimNode(Node):
                 return                       # hold at step 0 until e.g. a recorder is matched
             self._start_announced = True
             self.publish_state(resend=True)  # step 0 again, now that every subscriber is there
+        if self.holding_for_recorder():
+            return
         self.advance(self.lockstep.take())
+
+    def holding_for_recorder(self) -> bool:
+        """Whether the recorder is more than recorder_window steps behind (and still there);
+        keeps the hold count and time."""
+        holds = self.gate.holds(self.lockstep.step)
+        if not holds and self._hold_started is None:
+            return False                         # the usual case, every step
+        if holds and self.sub_progress.get_publisher_count() == 0:
+            self.get_logger().info('recorder left the graph: no longer holding for it')
+            self.gate.recorded = None
+            holds = False
+        now = time.monotonic()
+        if holds and self._hold_started is None:
+            self._hold_started = now
+            self.recorder_holds += 1
+        elif not holds and self._hold_started is not None:
+            self.recorder_hold_time += now - self._hold_started
+            self._hold_started = None
+        return holds
+
+    def on_progress(self, msg: Time) -> None:
+        try:
+            step = progress_step(self.clock.period_ns, msg.sec, msg.nanosec, self.lockstep.step)
+        except ValueError as exc:
+            self.gate.refuse(str(exc))
+            self.get_logger().warning(f'refused recorder progress: {exc}', throttle_duration_sec=1.0)
+            return
+        if self.gate.recorded is None:
+            self.get_logger().info(f'recorder reports progress: holding at most {self.gate.window} steps ahead')
+        self.gate.recorded = step
+        self.advance_if_ready()
 
     def advance(self, commands) -> None:
         was_ok = self.sim.fault is None
@@ -152,7 +204,7 @@ class HwSimNode(Node):
 
     def on_watchdog(self) -> None:
         now = time.monotonic()
-        if (self.sim.fault is None and self.lockstep.step > 0
+        if (self.sim.fault is None and self.lockstep.step > 0 and not self.lockstep.complete()
                 and now - self._step_started_at > self.command_timeout):
             self.fault(f'missing command for {" ".join(self.lockstep.missing)} '
                        f'(no answer to step {self.lockstep.step} within {self.command_timeout:g} s)')
@@ -233,6 +285,13 @@ class HwSimNode(Node):
                   'waiting_for': ' '.join(self.lockstep.missing) if self.mode == 'lockstep' else '',
                   'stale_commands': stats.stale, 'refused_commands': stats.refused,
                   'last_refusal': stats.last_refusal, 'missed_deadlines': self.missed_deadlines}
+        if self.gate.window > 0:
+            held = self.recorder_hold_time + (time.monotonic() - self._hold_started if self._hold_started else 0.0)
+            values.update({'recorder_window': self.gate.window,
+                           'recorder_step': '' if self.gate.recorded is None else self.gate.recorded,
+                           'holding_for_recorder': self._hold_started is not None,
+                           'recorder_holds': self.recorder_holds, 'recorder_hold_time': f'{held:.3f}',
+                           'refused_progress': self.gate.refused, 'last_progress_refusal': self.gate.last_refusal})
         message = f'FAULT: {fault}' if fault else f'running, step {self.lockstep.step}'
         self.pub_diag.publish(ros_io.diagnostics(self.clock.stamp(self.lockstep.step), 'hw_sim', level,
                                                  message, values))

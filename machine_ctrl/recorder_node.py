@@ -7,6 +7,16 @@ Parameters: ``output`` (bag directory, must not exist or be empty), ``topics`` (
 custom_data for ``machine-ctrl analyze``), ``discovery_period`` (s, wall), ``duration``
 (s, wall; 0: until stopped).
 
+Progress: when it records /joint_states, the node publishes on /recorder/progress
+(builtin_interfaces/Time, reliable, transient local, depth 1) a stamp up to which every
+per-step publisher's messages are written (:class:`machine_ctrl.recorder.Progress`; 0 at
+start), after every ``recorder.PROGRESS_EVERY``-th state and every
+``recorder.PROGRESS_PERIOD`` s when newer. hw_sim's ``recorder_window`` uses it to hold the
+lock-step graph so no publisher gets further ahead of this node than DDS keeps. Time is the
+standard type of a point in ROS time and exactly what is reported (a stamp of the graph's
+headers): no header or frame around it that would mean nothing, and not rosgraph_msgs/Clock,
+which would read as a clock source.
+
 Stopping (SIGINT, SIGTERM, ``duration``): discovery stops, messages already received by
 DDS are drained (until none arrives for ``DRAIN_QUIET`` s), the bag is closed (summary,
 footer, metadata.yaml) and the per-topic counts are printed on stdout.
@@ -19,6 +29,7 @@ import sys
 import time
 
 import rclpy
+from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -33,6 +44,10 @@ from machine_ctrl.node_common import DefaultExecutor, declare, wall_timer
 
 DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
 DRAIN_LIMIT = 30.0     # s: the drain never takes longer
+# the latest progress only matters; transient local so that an hw_sim that starts later
+# learns at once that a recorder is there and how far it is
+PROGRESS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def message_class(type_name: str):
@@ -70,13 +85,20 @@ class RecorderNode(Node):
             self.wanted = recorder.wanted_topics([t for t in topics if t]) or None
             if self.duration < 0 or self.discovery_period <= 0:
                 raise ValueError('parameters: duration must be >= 0 and discovery_period > 0')
-            self.recording = recorder.Recording(output, self._machine_data(machine))
+            config = load_machine(machine) if machine else None
+            self.recording = recorder.Recording(output, self._machine_data(config),
+                                                round(config.control_period * 1e9) if config else None)
         except (ValueError, ConfigError) as exc:      # BagError is a ValueError
             self.get_logger().fatal(str(exc))
             raise SystemExit(2) from None
         self.subscribed: dict[str, object] = {}
         self.last_message = time.monotonic()
         self.started = time.monotonic()
+        self.pub_progress = None
+        if self.wanted is None or recorder.STATES_TOPIC in self.wanted:
+            self.pub_progress = self.create_publisher(Time, recorder.PROGRESS_TOPIC, PROGRESS_QOS)
+            self.publish_progress()                  # 0: a recorder is here, nothing written yet
+            wall_timer(self, recorder.PROGRESS_PERIOD, self.publish_progress)
         for topic, type_name in (self.wanted or {}).items():
             if type_name is not None:
                 self.subscribe(topic, type_name, [])
@@ -85,11 +107,15 @@ class RecorderNode(Node):
         self.get_logger().info(f'recording to {output}')
 
     @staticmethod
-    def _machine_data(machine: str) -> dict:
-        if not machine:
+    def _machine_data(config) -> dict:
+        if config is None:
             return {}
-        config = load_machine(machine)
         return {recorder.MACHINE_KEY: config.name, recorder.MACHINE_FILE_KEY: str(config.yaml_path)}
+
+    def publish_progress(self) -> None:
+        stamp = self.recording.progress.take(time.monotonic())
+        if stamp is not None:
+            self.pub_progress.publish(Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000))
 
     def discover(self) -> None:
         available = {name: list(types) for name, types in self.get_topic_names_and_types()}
@@ -114,8 +140,9 @@ class RecorderNode(Node):
                          durability=DurabilityPolicy[want['durability'].upper()])
 
         def on_message(data: bytes, topic=topic) -> None:
-            self.last_message = time.monotonic()
-            self.recording.write(topic, data, time.time_ns())
+            now = self.last_message = time.monotonic()
+            if self.recording.write(topic, data, time.time_ns(), now) and self.pub_progress is not None:
+                self.publish_progress()
 
         self.subscribed[topic] = self.create_subscription(cls, topic, on_message, qos, raw=True)
         self.get_logger().info(f'subscribed {topic} ({type_name})')

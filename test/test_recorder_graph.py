@@ -7,23 +7,25 @@ message kept), so "count published" is what the publishers sent, not what some o
 subscriber happened to receive. The recorder subscribes every graph topic by type before
 the graph's nodes exist, and the test waits until this process's DDS participant has
 matched those readers, so even the messages hw_sim sends from its constructor are
-delivered to it (reliable: the writer already counts the reader as matched)."""
+delivered to it (reliable: the writer already counts the reader as matched).
+
+Flow control: hw_sim runs with recorder_window, and mid-run the recorder's whole process is
+stopped (SIGSTOP: its DDS threads too, the worst case of CPU starvation) for longer than
+hw_sim's command timeout. Without flow control that loses messages (the publishers keep
+200, Fast DDS ~5000 per reader); with it hw_sim holds, no watchdog fires, nothing is lost."""
 import collections
 import os
+import signal
 import sys
 import time
 
 import numpy as np
 import pytest
 
-# Opt-in until the recorder cannot lose messages under CPU starvation: on the shared 2-core
-# machine its Python side falls more than the ~5000 samples Fast DDS keeps per reader
-# behind the graph in some runs and loses a block of messages mid-run (README, "Loss under
-# CPU starvation"); then the count tests below fail, as they should.
-pytestmark = pytest.mark.skipif(os.environ.get('MACHINE_CTRL_RECORDER_GRAPH_TEST') != '1',
-                                reason='opt-in (MACHINE_CTRL_RECORDER_GRAPH_TEST=1): recorder loss under load')
-
 STEPS = 20_000          # 2.0 s at the micromill's 10 kHz
+WINDOW = 100            # hw_sim's recorder_window, steps (README: the recommended value)
+PAUSE_AT = 5_000        # step at which the recorder process is stopped ...
+PAUSE = 2.5             # ... for this long (s, wall; hw_sim's command_timeout is 2 s)
 TOPICS = {
     '/joint_states': 'sensor_msgs/msg/JointState',
     '/servo_commands': 'sensor_msgs/msg/JointState',
@@ -62,24 +64,27 @@ def _wait_matched(node, topics, timeout=30.0):
 
 
 class PublishLog:
-    """Counts and keeps every message published in this process, per topic; `done` completes
-    when hw_sim publishes the state of step STEPS."""
+    """Counts and keeps every message published in this process, per topic; `newest` is the
+    newest step hw_sim published a state of, and `reached[k]` completes when it reaches k."""
 
-    def __init__(self, period_ns):
+    def __init__(self, period_ns, steps):
         from rclpy.publisher import Publisher
         from rclpy.task import Future
         self.cls = Publisher
         self.original = Publisher.publish
         self.messages = collections.defaultdict(list)
-        self.done = Future()
+        self.reached = {k: Future() for k in steps}
+        self.newest = -1
         log = self
 
         def publish(publisher, msg):
             topic = publisher.topic_name
             log.messages[topic].append((id(publisher), msg))
-            if topic == '/joint_states' and not log.done.done():
-                if msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec >= STEPS * period_ns:
-                    log.done.set_result(True)
+            if topic == '/joint_states':
+                log.newest = max(log.newest, (msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec) // period_ns)
+                for k, future in log.reached.items():
+                    if log.newest >= k and not future.done():
+                        future.set_result(True)
             return log.original(publisher, msg)
         Publisher.publish = publish
 
@@ -87,12 +92,41 @@ class PublishLog:
         self.cls.publish = self.original
 
 
+def _spin_until(executor, future, supervisor, log, timeout=300):
+    """Spin the in-process graph (it only runs while this thread spins it) until `future`."""
+    from rclpy.executors import ExternalShutdownException
+    deadline = time.monotonic() + timeout
+    while not future.done():
+        assert time.monotonic() < deadline, f'graph reached step {log.newest} only'
+        supervisor.check()
+        try:
+            executor.spin_until_future_complete(future, timeout_sec=0.2)
+        except ExternalShutdownException:
+            raise AssertionError('rclpy was shut down during the run') from None
+
+
+def _pause_recorder(executor, supervisor, log, hw_sim):
+    """Stop the recorder's process for PAUSE s while the graph is spun; the steps hw_sim took
+    meanwhile, and its hold count and fault after it."""
+    from rclpy.task import Future
+    first = log.newest
+    supervisor['recorder'].signal_group(signal.SIGSTOP)
+    try:
+        end = time.monotonic() + PAUSE
+        while time.monotonic() < end:
+            executor.spin_until_future_complete(Future(), timeout_sec=min(0.2, end - time.monotonic()))
+        taken = log.newest - first
+    finally:
+        supervisor['recorder'].signal_group(signal.SIGCONT)
+    return {'steps': taken, 'holds': hw_sim.recorder_holds, 'fault': hw_sim.sim.fault}
+
+
 @pytest.fixture(scope='module')
 def live(micromill, ros_env, tmp_path_factory):
-    """Record the live run; returns (bag path, {topic: [published msgs]}, recorder output)."""
+    """Record the live run; returns (bag path, {topic: [published msgs]}, recorder output,
+    what happened during the recorder's pause)."""
     import rclpy
     from rclpy.duration import Duration
-    from rclpy.executors import ExternalShutdownException
     from rclpy.node import Node
 
     from machine_ctrl.graph import create_nodes, default_graph
@@ -111,20 +145,18 @@ def live(micromill, ros_env, tmp_path_factory):
             probe = Node('probe')
             _wait_matched(probe, {t: v for t, v in TOPICS.items() if t != '/reference'})
             probe.destroy_node()
-            log = PublishLog(int(round(micromill.control_period * 1e9)))
-            # hw_sim holds step 0 until servo_coarse, servo_fine, dual_stage and the recorder subscribe
-            nodes = create_nodes(default_graph(micromill, hw_sim={'min_subscribers': 4}))
+            log = PublishLog(int(round(micromill.control_period * 1e9)), (PAUSE_AT, STEPS))
+            # hw_sim holds step 0 until servo_coarse, servo_fine, dual_stage and the recorder
+            # subscribe, and later whenever the recorder is more than WINDOW steps behind
+            nodes = create_nodes(default_graph(micromill, hw_sim={'min_subscribers': 4, 'recorder_window': WINDOW}))
             executor = DefaultExecutor()
             for node in nodes:
                 executor.add_node(node)
-            deadline = time.monotonic() + 300
-            while not log.done.done():       # the graph only runs while this thread spins it
-                assert time.monotonic() < deadline, f'graph reached {len(log.messages["/joint_states"])} states only'
-                supervisor.check()
-                try:
-                    executor.spin_until_future_complete(log.done, timeout_sec=0.2)
-                except ExternalShutdownException:
-                    raise AssertionError('rclpy was shut down during the run') from None
+            _spin_until(executor, log.reached[PAUSE_AT], supervisor, log)
+            pause = _pause_recorder(executor, supervisor, log, nodes[0])
+            _spin_until(executor, log.reached[STEPS], supervisor, log)
+            pause['total_holds'] = nodes[0].recorder_holds
+            pause['hold_time'] = nodes[0].recorder_hold_time
             for node in nodes:
                 for publisher in node.publishers:
                     publisher.wait_for_all_acked(Duration(seconds=10))
@@ -140,7 +172,8 @@ def live(micromill, ros_env, tmp_path_factory):
                 node.destroy_node()
             rclpy.try_shutdown()
     published = {topic: msgs for topic, msgs in log.messages.items() if topic in TOPICS}
-    return bag, published, output
+    print(f'recorder pause: {pause}')
+    return bag, published, output, pause
 
 
 def _expected(published, recorded_reprs):
@@ -208,7 +241,7 @@ def _same(decoded, msg, where=''):
 @pytest.fixture(scope='module')
 def readback(live):
     """(mcap summary, [(topic, data, decoded)], metadata records, {topic: expected msgs})."""
-    bag, published, _ = live
+    bag, published, _, _ = live
     header, summary, messages, metadata = _mcap_messages(bag)
     recorded = collections.defaultdict(list)
     for topic, data, _ in messages:
@@ -218,7 +251,7 @@ def readback(live):
 
 
 def test_run_is_at_least_two_seconds_and_every_message_is_recorded(live, readback):
-    bag, published, output = live
+    bag, published, output, _ = live
     header, summary, messages, metadata, recorded, reprs, expected = readback
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in expected['/joint_states']]
     assert max(stamps) >= 2 * 10**9                              # >= 2 s of sim time
@@ -234,6 +267,41 @@ def test_run_is_at_least_two_seconds_and_every_message_is_recorded(live, readbac
     report = '\n'.join(output)
     for topic, msgs in expected.items():
         assert f'  {topic} ({TOPICS[topic]}): {len(msgs)}' in report
+    assert 'lost (skipped stamps): /joint_states 0, /clock 0\n' in report + '\n'
+
+
+def test_flow_control_held_the_graph_while_the_recorder_was_stopped(live):
+    """The recorder reported at most the step hw_sim was at when it was stopped, so hw_sim
+    may take WINDOW + 1 more steps and then holds, with every command in hand: no 'missing
+    command' fault although the hold outlasts command_timeout."""
+    pause = live[3]
+    assert 0 <= pause['steps'] <= WINDOW + 1, pause
+    assert pause['holds'] >= 1 and pause['fault'] is None, pause
+
+
+def test_no_publisher_got_more_than_the_window_ahead_of_the_recorder(readback):
+    """DDS delivers each publisher's messages in order: one that awaits a repair (a sample
+    lost in transport, re-sent at the writer's next heartbeat) holds back that publisher's
+    later messages while the others flow on; without a bound the publisher's 200-deep
+    history overflows and the sample is gone. The recorder's progress is the minimum over
+    the per-step publishers, so hw_sim stops WINDOW + 1 steps beyond the slowest one: in the
+    bag's write order no per-step message is written more than WINDOW + 10 steps (the
+    decimated topics: + their 10-step grid) behind the newest state written before it."""
+    per_step = ('/servo_commands', '/dual_stage/offsets', '/clock', '/hw_sim/ground_truth/joint_states',
+                '/hw_sim/ground_truth/tool_pose')
+    newest, lags = -1, dict.fromkeys(per_step, 0)
+    for topic, _, decoded in readback[2]:                # in write (log time) order
+        if topic == '/joint_states':
+            newest = max(newest, _step(decoded.header.stamp))
+        elif topic in lags:
+            step = _step(decoded.clock if topic == '/clock' else decoded.header.stamp)
+            lags[topic] = max(lags[topic], newest - step)
+    print(f'largest lag behind the newest state written, steps: {lags}')
+    assert all(lag <= WINDOW + 10 for lag in lags.values()), lags
+
+
+def _step(stamp):
+    return (stamp.sec * 10**9 + stamp.nanosec) // 100_000
 
 
 def test_decoded_values_equal_what_was_published(readback):
@@ -248,7 +316,7 @@ def test_decoded_values_equal_what_was_published(readback):
 
 def test_bag_layout_is_rosbag2_mcap(live, readback, ros_node):
     import yaml
-    bag, _, _ = live
+    bag, _, _, _ = live
     header, summary, _, metadata, _, _, expected = readback
     assert header.profile == 'ros2'
     assert all(s.encoding == 'ros2msg' for s in summary.schemas.values())
@@ -260,6 +328,8 @@ def test_bag_layout_is_rosbag2_mcap(live, readback, ros_node):
     assert any(m.name == 'rosbag2' and 'serialized_metadata' in m.metadata for m in metadata)
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert info['version'] == 9 and info['storage_identifier'] == 'mcap'
+    assert {k: v for k, v in info['custom_data'].items() if k.startswith('machine_ctrl.lost')} == \
+        {'machine_ctrl.lost/joint_states': '0', 'machine_ctrl.lost/clock': '0'}
     counts = {t['topic_metadata']['name']: t['message_count'] for t in info['topics_with_message_count']}
     assert counts == {topic: len(msgs) for topic, msgs in expected.items()}
     for channel in summary.channels.values():
@@ -281,7 +351,7 @@ def test_rosbags_reads_the_same_topics_counts_and_messages(live, readback):
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
-    bag, _, _ = live
+    bag, _, _, _ = live
     published = readback[-1]
     decoded = collections.Counter()
     with AnyReader([Path(bag)]) as reader:
@@ -300,7 +370,7 @@ def test_analysis_of_the_recording_matches_the_offline_run(live, micromill):
     from machine_ctrl import analysis
     from machine_ctrl.offline import run
     from trajectory.contours import circle
-    bag, _, _ = live
+    bag, _, _, _ = live
     result = analysis.analyse(analysis.load(bag))
     assert result['first_step'] == 0 and result['steps'] == result['last_step'] + 1 >= STEPS
     reference, _ = circle(micromill)
@@ -316,7 +386,7 @@ def test_replay_into_a_fresh_recording_gives_the_same_analysis(live, micromill, 
     from machine_ctrl import analysis
     from machine_ctrl.bag import Bag
     from machine_ctrl.replay import clock_ns
-    bag, _, _ = live
+    bag, _, _, _ = live
     copy = tmp_path / 'replayed'
     topics = {t: TOPICS[t] for t in ('/joint_states', '/reference', '/clock')}
     ros_supervisor.start('recorder2', _recorder_argv(copy, topics, micromill.yaml_path))
