@@ -181,6 +181,8 @@ def test_paced_mode_steps_on_the_wall_clock_and_counts_missed_deadlines(paced_co
     (['-p', 'initial_position:=[0.0,0.0]'], 'initial_position needs 9 finite values'),
     (['-p', 'initial_position:=[0.9,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0]'], 'outside the stroke of x_c'),
     (['-p', 'machine:=nosuch'], 'nosuch: unknown machine'),
+    (['-p', 'recorder_window:=-1'], 'recorder_window must be >= 0 and needs mode lockstep'),
+    (['-p', 'mode:=paced', '-p', 'recorder_window:=100'], 'recorder_window must be >= 0 and needs mode lockstep'),
 ])
 def test_bad_parameters_stop_start_up_with_one_line(ros_env, args, message):
     import subprocess
@@ -189,3 +191,53 @@ def test_bad_parameters_stop_start_up_with_one_line(ros_env, args, message):
     assert result.returncode == 2
     fatal = [line for line in result.stderr.splitlines() + result.stdout.splitlines() if 'FATAL' in line]
     assert len(fatal) == 1 and message in fatal[0], result.stderr
+
+
+@pytest.fixture
+def gated_commander(micromill, ros_node, ros_supervisor):
+    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'hw_sim.node', '--ros-args', '-p', 'recorder_window:=50',
+                                    '-p', 'command_timeout:=0.5', '-p', 'republish_period:=0.1'])
+    ros_supervisor.wait_for_line('hw_sim', 'ready', 60)
+    c = Commander(ros_node('servos'), list(micromill.axis_names), micromill)
+    yield c
+    c.stop()
+    assert ros_supervisor.alive() == ['hw_sim'], 'hw_sim died'
+
+
+def _settled(c, quiet=0.6):
+    """The newest step once it has not changed for `quiet` s."""
+    last, since = None, time.monotonic()
+    while time.monotonic() - since < quiet:
+        now = max(c.steps)
+        if now != last:
+            last, since = now, time.monotonic()
+        time.sleep(0.05)
+    return last
+
+
+def test_recorder_window_holds_the_machine_without_a_fault_until_the_recorder_catches_up(gated_commander, ros_node):
+    from builtin_interfaces.msg import Time
+
+    from machine_ctrl.recorder import PROGRESS_TOPIC
+    from machine_ctrl.recorder_node import PROGRESS_QOS
+    from machine_ctrl.ros_io import StepClock
+    c, clock = gated_commander, StepClock(1e-4)
+    c.wait(lambda: c.steps and max(c.steps) > 100, what='running without a recorder')
+    progress = ros_node('recorder').create_publisher(Time, PROGRESS_TOPIC, PROGRESS_QOS)
+    progress.publish(Time())                                   # a recorder: nothing written yet
+    held = _settled(c, quiet=1.0)                              # longer than command_timeout
+    assert not c.fault() and c.steps.count(held) > 3, c.hw_diag     # held, state re-sent, no fault
+    c.wait(lambda: c.hw_diag[2].get('holding_for_recorder') == 'True', what='hold reported')
+    progress.publish(clock.stamp(held - 40))                   # may run to held - 40 + 51
+    assert _settled(c) == held + 11 and not c.fault()
+    reasons = ('not on the 100000 ns control grid', f'progress for step {held + 500}, but the published steps are',
+               'nanosec 1500000000 is not in [0, 1e9)')
+    for i, (bad, reason) in enumerate(zip((Time(sec=0, nanosec=1), clock.stamp(held + 500),
+                                           Time(sec=0, nanosec=1_500_000_000)), reasons)):
+        progress.publish(bad)                                  # depth 1: one at a time
+        c.wait(lambda: int(c.hw_diag[2]['refused_progress']) == i + 1, what=f'refused progress {i}')
+        assert reason in c.hw_diag[2]['last_progress_refusal']
+    assert max(c.steps) == held + 11 and c.hw_diag[2]['recorder_step'] == str(held - 40)
+    progress.destroy()                                         # the recorder leaves: no more holding
+    c.wait(lambda: max(c.steps) > held + 200, what='running again once the recorder left')
+    assert not c.fault()
