@@ -1,0 +1,101 @@
+"""`machine-ctrl bringup` as a user runs it (its own process, the session's ROS domain),
+driven by `machine-ctrl move` / `send` as another program would; Ctrl-C stops everything:
+no process left, the bag closed, valid and analysable. Plus: a node executable takes its
+parameters from `--params-file`."""
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from machine_ctrl import analysis
+
+EXE = str(Path(sys.executable).with_name('machine-ctrl'))
+
+
+def graph_processes(domain_id: str) -> list[int]:
+    """pids of our node processes (python -m <node module>) in this ROS domain."""
+    found = []
+    for entry in Path('/proc').iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            cmdline = (entry / 'cmdline').read_bytes().split(b'\0')
+            environ = (entry / 'environ').read_bytes().split(b'\0')
+        except OSError:
+            continue
+        if b'-m' in cmdline and f'ROS_DOMAIN_ID={domain_id}'.encode() in environ:
+            found.append(int(entry.name))
+    return found
+
+
+def client(ros_env, *args, timeout=300):
+    return subprocess.run([EXE, *args], env=ros_env, capture_output=True, text=True, timeout=timeout)
+
+
+def test_bringup_runs_commands_and_stops_cleanly_on_ctrl_c(ros_supervisor, ros_env, tmp_path, micromill):
+    bag = tmp_path / 'bag'
+    child = ros_supervisor.start('bringup', [EXE, 'bringup', '--record', str(bag)])
+    ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
+    ros_supervisor.wait_for_line('bringup', '/trajectory/feed_override', timeout=10)   # the API table
+    assert len(graph_processes(ros_env['ROS_DOMAIN_ID'])) == 7       # 6 nodes + the recorder
+
+    done = client(ros_env, 'move', 'x_c=0.001', 'y_c=-0.0005')
+    assert done.returncode == 0, done.stderr
+    assert 'done: joint goal' in done.stdout
+    refused = client(ros_env, 'move', 'x_f=0.001')
+    assert refused.returncode == 1
+    assert 'refused: joint goal' in refused.stderr and 'outside its stroke' in refused.stderr
+    csv = tmp_path / 'far.csv'
+    csv.write_text('px,py,pz,oi,oj,ok\n' + ''.join(f'{0.3 + i * 1e-3},0,0,0,0,1\n' for i in range(10)))
+    refused = client(ros_env, 'send', str(csv))
+    assert refused.returncode == 1 and 'planning failed' in refused.stderr, refused.stderr
+    ros_supervisor.wait_for_line('bringup', 'state running: joint goal', timeout=10)   # state changes shown
+
+    child.signal_group(signal.SIGINT)              # what Ctrl-C in the terminal does
+    assert ros_supervisor.wait('bringup', timeout=120) == 0
+    output = '\n'.join(child.tail(200))
+    assert 'recorded ' in output and '/joint_states (sensor_msgs/msg/JointState)' in output
+    assert graph_processes(ros_env['ROS_DOMAIN_ID']) == []           # no orphans
+    run = analysis.load(bag)                                        # closed, valid, names its machine
+    moved = run.reference[-1] - run.reference[0]
+    np.testing.assert_allclose(moved[:2], [0.001, -0.0005], atol=1e-9)
+
+
+def test_send_and_move_refuse_bad_arguments_with_one_line(ros_env):
+    for args, text in ((['move', 'x_c'], "expected AXIS=VALUE"), (['move', 'x_c=abc'], 'is not a number'),
+                       (['move', 'x_c=nan'], 'not finite'), (['send', 'no_such.csv'], 'no_such.csv'),
+                       (['send', 'circle_xy', '--timeout', '0'], '--timeout must be > 0')):
+        result = client(ros_env, *args, timeout=60)
+        assert result.returncode == 2, (args, result.stderr)
+        assert result.stderr.count('\n') == 1 and text in result.stderr, (args, result.stderr)
+
+
+def test_no_graph_is_reported_not_waited_for_forever(ros_env):
+    result = client(ros_env, 'move', 'x_c=0.001', '--timeout', '3', timeout=60)
+    assert result.returncode == 2 and 'is the graph up' in result.stderr
+
+
+def test_a_node_takes_its_parameters_from_a_params_file(ros_supervisor, ros_node, tmp_path, micromill):
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.executors import SingleThreadedExecutor
+    params = tmp_path / 'params.yaml'
+    params.write_text('contour_error:\n  ros__parameters:\n    estimator: basic\n')
+    exe = str(Path(sys.executable).with_name('contour_error_node'))
+    ros_supervisor.start('contour_error', [exe, '--ros-args', '--params-file', str(params),
+                                           '-p', f'machine:={micromill.yaml_path}'])
+    node = ros_node('params_probe')
+    service = node.create_client(GetParameters, '/contour_error/get_parameters')
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        assert service.wait_for_service(timeout_sec=60)
+        future = service.call_async(GetParameters.Request(names=['estimator', 'machine']))
+        executor.spin_until_future_complete(future, timeout_sec=30)
+        values = future.result().values
+        assert values[0].string_value == 'basic'                   # from the file (default: compensated)
+        assert values[1].string_value == str(micromill.yaml_path)  # from -p
+    finally:
+        executor.shutdown()
