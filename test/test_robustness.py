@@ -101,6 +101,8 @@ def client(micromill, graph, ros_env):
         c.wait(lambda: c.status().get('streamed_to_step', '') != '' and c.truth is not None
                and all(n in c.diagnostics for n in ('servo_coarse', 'servo_fine', 'dual_stage', 'compensation',
                                                      'contour_error', 'hw_sim')), 'the graph running', 120, graph.check)
+        # the table settles on the compensated hold position first (a few um): start from there
+        c.wait(lambda: int(c.diag('hw_sim', 'step')) > 3000, 'the machine settled', 120, graph.check)
         yield c
     finally:
         c.close()
