@@ -13,6 +13,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from machine_ctrl.config import DEFAULT_MACHINE, MachineConfig, load_machine
+from machine_ctrl.ros_io import InvalidMessage
 from machine_ctrl.errors import ConfigError
 
 # Events executor: several times faster than SingleThreadedExecutor here (bench/RESULTS.md).
@@ -117,7 +118,10 @@ class StepResponder:
     how fast the graph came up.
     `compute(step, state)` returns the answer message, or None to give no answer. A repeated
     stamp (hw_sim re-sends while waiting) gets the cached answer again; older stamps are
-    ignored.
+    ignored. A stamp more than one step ahead of the newest step seen is refused
+    (InvalidMessage) unless it comes twice in a row: hw_sim never skips a step and re-sends a
+    state it waits on, so a stray message with a future stamp cannot make the node skip the
+    real steps (and stop the machine on missing commands).
     """
 
     def __init__(self, node: Node, publisher, ready, compute, timeout: float, streaming):
@@ -126,6 +130,8 @@ class StepResponder:
         self.pending = None
         self.pending_since = 0.0
         self.answered = None
+        self.newest = None                   # newest step taken
+        self.skip_candidate = None           # a step ahead of newest + 1, seen once
         wall_timer(node, min(0.02, timeout / 5), self._on_timer)
 
     @property
@@ -137,6 +143,12 @@ class StepResponder:
             if step == self.answered[0]:
                 self.publisher.publish(self.answered[1])
             return
+        if self.newest is not None and step > self.newest + 1 and step != self.skip_candidate:
+            self.skip_candidate = step
+            raise InvalidMessage(f'state of step {step} skips ahead of step {self.newest + 1} '
+                                 '(taken only if it comes again)')
+        self.newest = step if self.newest is None else max(self.newest, step)
+        self.skip_candidate = None
         if self.pending is None or self.pending[0] != step:     # a re-send keeps its first arrival
             self.pending_since = time.monotonic()
         self.pending = (step, msg)

@@ -55,3 +55,35 @@ def test_no_timeout_before_the_stream_ever_started(responder):
     inputs['ready'].add(3)
     r.poke()
     assert inputs['computed'] == [3]
+
+
+def test_a_stray_future_stamp_is_refused_once_and_the_real_steps_go_on(responder):
+    from machine_ctrl.ros_io import InvalidMessage
+    r, pub, inputs = responder
+    inputs['ready'].update(range(10))
+    r.on_state(0, 'state 0')
+    with pytest.raises(InvalidMessage, match='skips ahead'):
+        r.on_state(500, 'stray')
+    r.on_state(1, 'state 1')
+    r.on_state(2, 'state 2')
+    assert inputs['computed'] == [0, 1, 2]
+
+
+def test_a_real_jump_is_taken_when_re_sent(responder):
+    r, pub, inputs = responder
+    inputs['ready'].update([0, 7])
+    r.on_state(0, 'state 0')
+    with pytest.raises(Exception, match='skips ahead'):
+        r.on_state(7, 'state 7')
+    r.on_state(7, 'state 7 again')              # hw_sim re-sends what it waits on
+    assert inputs['computed'] == [0, 7]
+
+
+def test_states_arriving_while_one_waits_are_not_skips(responder):
+    r, pub, inputs = responder
+    r.on_state(0, 'state 0')                    # inputs of 0 missing: pending
+    r.on_state(1, 'state 1')                    # paced mode: hw_sim went on
+    r.on_state(2, 'state 2')
+    inputs['ready'].add(2)
+    r.poke()
+    assert inputs['computed'] == [2]
