@@ -250,6 +250,9 @@ ROGUE_CASES = [
      'control grid'),
     (ros_io.TOPIC_JOINT_STATES, joint_state(AXES, OFF_GRID, position=HOME), 'contour_error', 'rejected_messages',
      'control grid'),
+    # a well-formed state from the future: taken, the servos would skip the real steps
+    (ros_io.TOPIC_JOINT_STATES, joint_state(AXES, FAR * GRID, position=HOME),
+     'servo_fine', 'rejected_messages', 'skips ahead'),
 ]
 
 
