@@ -148,24 +148,34 @@ class StampGaps:
         return self.span // grid - self.increments if grid else 0
 
 
-def joint_names_key(data: bytes) -> bytes:
-    """The bytes of a CDR sensor_msgs/JointState's joint names (header.frame_id and name
-    sequence): what tells one publisher's states from another's on a shared topic. b'' if
-    they cannot be read."""
+def joint_names_key(data: bytes) -> tuple[bytes, ...]:
+    """A CDR sensor_msgs/JointState's header.frame_id and joint names: what tells one
+    publisher's states from another's on a shared topic. Only the strings' contents count,
+    never the alignment padding between them (rclpy leaves it uninitialised). () if they
+    cannot be read."""
     try:
-        big = data[1] == 0
-        end = 12
-        for _ in range(2):                       # frame_id, then the name count
-            end += -(end - 4) % 4                # CDR alignment is relative to the payload
-            (length,) = struct.unpack_from('>I' if big else '<I', data, end)
-            end += 4 + (length if _ == 0 else 0)
-        for _ in range(length):
-            end += -(end - 4) % 4
-            (size,) = struct.unpack_from('>I' if big else '<I', data, end)
-            end += 4 + size
-        return bytes(data[12:end]) if end <= len(data) else b''
+        fmt = '>I' if data[1] == 0 else '<I'
+        frame, offset = _cdr_string(data, 12, fmt)
+        offset += -(offset - 4) % 4
+        (count,) = struct.unpack_from(fmt, data, offset)
+        offset += 4
+        strings = [frame]
+        for _ in range(count):                 # each string takes >= 4 bytes: bounded by len(data)
+            name, offset = _cdr_string(data, offset, fmt)
+            strings.append(name)
+        return tuple(strings)
     except (struct.error, IndexError):
-        return b''
+        return ()
+
+
+def _cdr_string(data: bytes, offset: int, fmt: str) -> tuple[bytes, int]:
+    """The CDR string at `offset` (aligned to 4 relative to the payload) and the offset after it."""
+    offset += -(offset - 4) % 4
+    (size,) = struct.unpack_from(fmt, data, offset)
+    end = offset + 4 + size
+    if end > len(data):
+        raise IndexError('string beyond the message')
+    return bytes(data[offset + 4:end]), end
 
 
 class Stream:
@@ -200,7 +210,7 @@ class Progress:
         self.topics = frozenset(PROGRESS_STREAM_TOPICS if topics is None else topics) | {STATES_TOPIC}
         self.every = PROGRESS_EVERY if every is None else every
         self.silence = STREAM_SILENCE if silence is None else silence
-        self.streams: dict[tuple[str, bytes], Stream] = {}
+        self.streams: dict[tuple, Stream] = {}
         self.sent: int | None = None
         self._since_sent = 0
 
@@ -210,7 +220,7 @@ class Progress:
             return False
         stamp = cdr_stamp_ns(data)
         if stamp is not None:
-            key = (topic, joint_names_key(data) if joint_state else b'')
+            key = (topic, joint_names_key(data) if joint_state else ())
             stream = self.streams.get(key)
             if stream is None:
                 self.streams[key] = Stream(stamp, now)
