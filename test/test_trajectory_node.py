@@ -195,8 +195,11 @@ def test_joint_goal_home_and_feed_hold(micromill, graph, client):
                 check=graph.check)
     assert abs(client.truth[0] - 4e-3) < 2e-6
 
-    # a long move, held while under way: it stops short of the goal and stays held; the
-    # goal is reached after resume
+    # a long move (at a quarter of the feed, so that it lasts ~1.3 s of machine time whatever
+    # the lag of the node's view of the sim time), held while under way: it stops short of
+    # the goal and stays held; the goal is reached after resume
+    client.set_feed_override(0.25)
+    client.wait(lambda: client.status()['feed_override_setting'] == '0.25', 'setting', check=graph.check)
     n = len(client.statuses)
     client.send_goal(['x_c'], [[-40e-3]])
     client.wait_states(n, ['running'], check=graph.check)
