@@ -267,7 +267,9 @@ def assert_nothing_moved(machine, client, graph, before):
     assert (rows == rows[0]).all(), 'the reference stream moved'
     rotary = np.array([a.unit == 'rad' for a in machine.axes])
     moved = np.abs(client.truth - before)
-    assert moved[~rotary].max() < 1e-6 and moved[rotary].max() < 20e-6      # servo jitter only
+    # the reference never changed (above, exact); the table's noise-driven tilt jitter reaches
+    # ~20 urad peak to peak (force noise, seed-notes), a bad goal would move far more
+    assert moved[~rotary].max() < 1e-6 and moved[rotary].max() < 100e-6
     graph.check()
     assert set(graph.alive()) == {spec.name for spec in graph_specs(machine)}
     assert client.status()['state'] == 'idle'
