@@ -268,7 +268,7 @@ def assert_nothing_moved(machine, client, graph, before):
     rotary = np.array([a.unit == 'rad' for a in machine.axes])
     moved = np.abs(client.truth - before)
     # the reference never changed (above, exact); the table's noise-driven tilt jitter reaches
-    # ~20 urad peak to peak (force noise, seed-notes), a bad goal would move far more
+    # ~20 urad peak to peak (assumed table force noise, machine YAML); a bad goal would move far more
     assert moved[~rotary].max() < 1e-6 and moved[rotary].max() < 100e-6
     graph.check()
     assert set(graph.alive()) == {spec.name for spec in graph_specs(machine)}
