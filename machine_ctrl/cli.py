@@ -290,12 +290,10 @@ def cmd_record(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    import rclpy
     from rclpy.parameter import Parameter
 
-    from machine_ctrl import replay
+    from machine_ctrl import replay, replay_node
     from machine_ctrl.bag import Bag
-    from machine_ctrl.replay_node import ReplayNode
     try:
         replay.check_options(args.rate, args.start_offset)
         with Bag(args.bag) as bag:
@@ -306,20 +304,7 @@ def cmd_replay(args) -> int:
                  Parameter('topics', value=list(args.topics) or ['']),
                  Parameter('start_offset', value=float(args.start_offset)), Parameter('loop', value=args.loop),
                  Parameter('wait_for_subscribers', value=args.wait_for_subscribers)]
-    rclpy.init(args=_ros_args())
-    try:
-        try:
-            node = ReplayNode(parameter_overrides=overrides)
-        except SystemExit as exc:
-            return int(exc.code or 2)
-        try:
-            return node.run()
-        finally:
-            node.destroy_node()
-    except KeyboardInterrupt:
-        return 130
-    finally:
-        rclpy.try_shutdown()
+    return replay_node.main(_ros_args(), overrides)
 
 
 def cmd_analyze(args) -> int:

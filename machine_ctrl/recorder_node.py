@@ -36,7 +36,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from machine_ctrl import recorder
-from machine_ctrl.bag import BagError, qos_profile
+from machine_ctrl.bag import qos_profile
 from machine_ctrl.config import load_machine
 from machine_ctrl.errors import ConfigError
 from machine_ctrl.msgdefs import DefinitionNotFound, split_type

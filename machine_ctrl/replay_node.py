@@ -18,7 +18,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from machine_ctrl import replay
-from machine_ctrl.bag import Bag, BagError
+from machine_ctrl.bag import Bag
 from machine_ctrl.node_common import declare
 from machine_ctrl.recorder_node import message_class
 
@@ -122,11 +122,12 @@ class ReplayNode(Node):
         return 0
 
 
-def main(args=None) -> int:
+def main(args=None, overrides=()) -> int:
+    """`replay_node` (ROS arguments from argv) and `machine-ctrl replay` (parameter overrides)."""
     rclpy.init(args=sys.argv if args is None else args)
     try:
         try:
-            node = ReplayNode()
+            node = ReplayNode(parameter_overrides=list(overrides))
         except SystemExit as exc:
             return int(exc.code or 1)
         try:

@@ -76,7 +76,6 @@ def test_velocities_and_accelerations_are_consistent(compensator, circle):
     correction = out.position - circle.position
     assert np.abs(correction[:, 3:]).max() > 1e-7
     fd_v = (out.position[2:] - out.position[:-2]) / (2 * t)
-    fd_a = (out.position[2:] - 2 * out.position[1:-1] + out.position[:-2]) / t ** 2
     np.testing.assert_allclose(out.velocity[1:-1], fd_v, rtol=0, atol=1e-9)
     # reference accelerations carry their own finite-difference error; compare the correction's
     fd_ca = (correction[2:] - 2 * correction[1:-1] + correction[:-2]) / t ** 2

@@ -1,7 +1,6 @@
 """compensation_node over real DDS: reference_node (remapped to /trajectory/reference) ->
 compensation_node -> /reference, against the same core offline; a malformed chunk; the
 runtime switch /compensation/enable."""
-import sys
 import time
 
 import numpy as np

@@ -14,7 +14,6 @@ stopped (SIGSTOP: its DDS threads too, the worst case of CPU starvation) for lon
 hw_sim's command timeout. Without flow control that loses messages (the publishers keep
 200, Fast DDS ~5000 per reader); with it hw_sim holds, no watchdog fires, nothing is lost."""
 import collections
-import os
 import signal
 import sys
 import time
