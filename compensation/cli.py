@@ -21,8 +21,8 @@ from compensation import experiment as exp
 from compensation.compensate import Compensator
 from compensation.error_map import dump_error_map, load_error_map
 from compensation.error_model import ErrorKinematics
-from compensation.fitting import fit_map
-from compensation.measurement import MeasurementError, campaign, read_csv, write_csv
+from compensation.fitting import fit_map, measure_and_fit
+from compensation.measurement import MeasurementError, read_csv
 from machine_ctrl.config import DEFAULT_MACHINE, load_machine
 from machine_ctrl.errors import ConfigError
 
@@ -92,11 +92,8 @@ def experiment_main(argv) -> int:
 def run_experiment(machine, true_map, out: Path, progress, reference=None) -> dict:
     """Measure, fit, Table 6.3, Table 6.4 (the planned spiral unless `reference` is given)."""
     truth = ErrorKinematics.from_config(machine, true_map)
-    csv_path, model_path = out / 'measurement.csv', out / 'model.yaml'
-    write_csv(csv_path, campaign(truth, true_map, machine.simulation.seed),
-              f'simulated laser campaign on {machine.name} (machine-ctrl experiment geometric)')
-    model, residuals = fit_map(read_csv(csv_path, machine.axis_names))
-    model_path.write_text(dump_error_map(model, f'fitted from {csv_path}'))
+    csv_path, model_path, model, residuals = measure_and_fit(
+        truth, true_map, machine.simulation.seed, out, f'{machine.name}, machine-ctrl experiment geometric')
     fitted = Compensator.from_map(machine, model)
     singles = exp.single_axis(machine, truth, fitted, true_map)
     if reference is None:

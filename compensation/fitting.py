@@ -58,3 +58,20 @@ def fit_map(measurements: list[Series]) -> tuple[ErrorMap, list[FitResidual]]:
         residuals.append(residual)
     axes = {axis: AxisErrors(spans[axis], coefficients[axis]) for axis in spans}
     return ErrorMap(axes), residuals
+
+
+def measure_and_fit(truth, true_map: ErrorMap, seed: int, out, by: str):
+    """A simulated laser campaign on the machine `truth` (its true map) written to
+    OUT/measurement.csv, read back and fitted (Eqs. 5.9-5.13), the model written to
+    OUT/model.yaml: (csv path, model path, fitted map, residuals). Reading the CSV back makes
+    the fit go through the same path as a real measurement file."""
+    from pathlib import Path
+
+    from compensation.error_map import dump_error_map
+    from compensation.measurement import campaign, read_csv, write_csv
+    out = Path(out)
+    csv_path, model_path = out / 'measurement.csv', out / 'model.yaml'
+    write_csv(csv_path, campaign(truth, true_map, seed), f'simulated laser campaign ({by})')
+    model, residuals = fit_map(read_csv(csv_path, truth.axis_names))
+    model_path.write_text(dump_error_map(model, f'fitted from {csv_path} ({by})'))
+    return csv_path, model_path, model, residuals

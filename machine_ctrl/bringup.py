@@ -222,6 +222,33 @@ def stop_on_signals() -> dict:
 
 
 @contextlib.contextmanager
+def client_session(machine: MachineConfig, name: str, domain_id: int | None = None):
+    """A command-line client of the graph: MachineClient on a context of its own, closed,
+    destroyed and shut down on leaving."""
+    from machine_ctrl.client import MachineClient
+    context, node = client_node(name, domain_id)
+    client = MachineClient(node, machine)
+    try:
+        yield client
+    finally:
+        client.close()
+        node.destroy_node()
+        context.try_shutdown()
+
+
+@contextlib.contextmanager
+def monitor(machine: MachineConfig, name: str, domain_id: int | None = None):
+    """client_session with SIGINT / SIGTERM raising Stopped meanwhile."""
+    previous = stop_on_signals()
+    try:
+        with client_session(machine, name, domain_id) as client:
+            yield client
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
 def signals_ignored():
     """While shutting down: a second Ctrl-C must not cut the bag's closing short."""
     previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -234,22 +261,20 @@ def signals_ignored():
 
 def run(args, machine: MachineConfig) -> int:
     """The bringup command: start, wait until ready, report states until asked to stop."""
-    from machine_ctrl.client import MachineClient, Timeout
+    from machine_ctrl.client import Timeout
     from machine_ctrl.processes import ChildExited
-    previous = stop_on_signals()
-    context, node = client_node('bringup_monitor')
-    client = MachineClient(node, machine)
     status = 0
     try:
-        with Bringup(machine, single_process=args.single_process, record=args.record,
-                     dual_stage=not args.no_dual_stage, compensation=args.compensation) as bringup:
+        with monitor(machine, 'bringup_monitor') as client, \
+                Bringup(machine, single_process=args.single_process, record=args.record,
+                        dual_stage=not args.no_dual_stage, compensation=args.compensation) as bringup:
             try:
                 print(f'starting {len(bringup.specs)} nodes ({"one process" if args.single_process else "one process each"})'
                       f'{", recording to " + args.record if args.record else ""}; logs in {bringup.log_dir}', flush=True)
                 bringup.start()
                 waited = bringup.wait_ready(client)
                 print(f'all nodes ready after {waited:.1f} s: {" ".join(sorted(bringup.node_names))}')
-                print(f'commands (ROS_DOMAIN_ID={node.context.get_domain_id()}):\n{api_table()}', flush=True)
+                print(f'commands (ROS_DOMAIN_ID={client.node.context.get_domain_id()}):\n{api_table()}', flush=True)
                 reporter = StateReporter(client)
                 while True:
                     bringup.check()
@@ -266,10 +291,4 @@ def run(args, machine: MachineConfig) -> int:
                         print(line, flush=True)
     except Stopped:
         status = 130
-    finally:
-        client.close()
-        node.destroy_node()
-        context.try_shutdown()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     return status

@@ -367,29 +367,6 @@ def parse_joint_goal(items) -> tuple[list[str], list[float]]:
     return names, values
 
 
-def _connected_client(machine: MachineConfig, timeout: float):
-    """(context, node, client) once the trajectory node's status and our publishers are
-    matched; client.Timeout otherwise."""
-    from machine_ctrl.bringup import client_node, listening
-    from machine_ctrl.client import MachineClient
-    context, node = client_node('machine_ctrl_cli')
-    client = MachineClient(node, machine)
-    try:
-        client.wait(lambda: client.statuses and listening(client, client.pub_path)
-                    and listening(client, client.pub_goal),
-                    'the trajectory node (is the graph up? machine-ctrl bringup)', timeout)
-    except BaseException:
-        _close_client(context, node, client)
-        raise
-    return context, node, client
-
-
-def _close_client(context, node, client) -> None:
-    client.close()
-    node.destroy_node()
-    context.try_shutdown()
-
-
 def goal_outcome(client, after: int, refused: int) -> str | None:
     """'refused', 'fault', 'done' or None (not yet) for a goal sent when `after` statuses
     and `refused` refusals had been seen."""
@@ -437,14 +414,15 @@ def _run_goal(command: str, machine: MachineConfig, timeout: float, send) -> int
     from machine_ctrl.client import Timeout
     if not (math.isfinite(timeout) and timeout > 0):
         return _error(command, ValueError(f'--timeout must be > 0 s, got {timeout}'))
-    try:
-        connection = _connected_client(machine, min(timeout, 30.0))
-    except Timeout as exc:
-        return _error(command, exc)
-    try:
-        return follow_goal(connection[2], lambda: send(connection[2]), timeout)
-    finally:
-        _close_client(*connection)
+    from machine_ctrl.bringup import client_session, listening
+    with client_session(machine, 'machine_ctrl_cli') as client:
+        try:
+            client.wait(lambda: client.statuses and listening(client, client.pub_path)
+                        and listening(client, client.pub_goal),
+                        'the trajectory node (is the graph up? machine-ctrl bringup)', min(timeout, 30.0))
+        except Timeout as exc:
+            return _error(command, exc)
+        return follow_goal(client, lambda: send(client), timeout)
 
 
 def cmd_send(args) -> int:

@@ -13,7 +13,6 @@
 """
 from __future__ import annotations
 
-import signal
 import sys
 import tempfile
 import time
@@ -25,17 +24,13 @@ DEFAULT_TURNS = 1.0     # of the 5 mm-radius helix: ~3.2 s of machine time at 10
 def fit_model(machine, out: Path) -> tuple[Path, float]:
     """Campaign on the simulated machine (its true map) -> OUT/measurement.csv -> fitted
     quintics -> OUT/model.yaml; returns the model path and the largest fit residual (m)."""
-    from compensation.error_map import dump_error_map, load_error_map
+    from compensation.error_map import load_error_map
     from compensation.error_model import ErrorKinematics
-    from compensation.fitting import fit_map
-    from compensation.measurement import campaign, read_csv, write_csv
+    from compensation.fitting import measure_and_fit
     true_map = load_error_map(machine.simulation.error_map_path(machine.yaml_path), machine.axis_names)
     truth = ErrorKinematics.from_config(machine, true_map)
-    csv_path, model_path = out / 'measurement.csv', out / 'model.yaml'
-    write_csv(csv_path, campaign(truth, true_map, machine.simulation.seed),
-              f'simulated laser campaign on {machine.name} (machine-ctrl demo)')
-    model, residuals = fit_map(read_csv(csv_path, machine.axis_names))
-    model_path.write_text(dump_error_map(model, f'fitted from {csv_path} (machine-ctrl demo)'))
+    _, model_path, _, residuals = measure_and_fit(truth, true_map, machine.simulation.seed, out,
+                                                  f'{machine.name}, machine-ctrl demo')
     return model_path, max(r.max for r in residuals if r.error.startswith('d'))
 
 
@@ -90,16 +85,13 @@ def run(args) -> int:
 
 def run_graph(machine, path, out: Path, model: Path, clock: Clock) -> int:
     """Bring up, send the path, follow it, stop; the exit status."""
-    from machine_ctrl.bringup import Bringup, Stopped, client_node, listening, signals_ignored, stop_on_signals
+    from machine_ctrl.bringup import Bringup, Stopped, listening, monitor, signals_ignored
     from machine_ctrl.cli import follow_goal
-    from machine_ctrl.client import MachineClient, Timeout
+    from machine_ctrl.client import Timeout
     from machine_ctrl.processes import ChildExited, isolated_ros_env, reserve_ros_domain
-    previous = stop_on_signals()
     with reserve_ros_domain() as lease:
         env = isolated_ros_env(lease.domain_id)
-        context, node = client_node('demo_client', lease.domain_id)
-        client = MachineClient(node, machine)
-        try:
+        with monitor(machine, 'demo_client', lease.domain_id) as client:
             with Bringup(machine, record=str(out / 'bag'), compensation=str(model), env=env,
                          log_dir=str(out / 'logs')) as bringup:
                 try:
@@ -125,12 +117,6 @@ def run_graph(machine, path, out: Path, model: Path, clock: Clock) -> int:
                         for line in bringup.stop():
                             print(line, flush=True)
                     clock.lap('shutdown')
-        finally:
-            client.close()
-            node.destroy_node()
-            context.try_shutdown()
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
     return status
 
 
