@@ -97,6 +97,19 @@ def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node,
              NodeSpec('contour_error', 'machine_ctrl.contour_error_node', 'ContourErrorNode',
                       {**common, 'estimator': 'compensated'})]
     try:
+        # the contour node first, and its four publishers discovered by this test, before the
+        # machine starts: nothing it publishes can go out before this test listens
+        contour_spec = specs.pop()
+        ros_supervisor.start(contour_spec.name, contour_spec.argv())
+        from machine_ctrl import contour_error_node as cen
+        topics = (cen.TOPIC_TOOL_TIP, cen.TOPIC_TOOL_TIP_MAGNITUDE, cen.TOPIC_ORIENTATION,
+                  cen.TOPIC_ORIENTATION_MAGNITUDE)
+        deadline = time.monotonic() + 120
+        while not all(node.count_publishers(t) for t in topics):
+            assert time.monotonic() < deadline, 'contour_error publishers not discovered'
+            ros_supervisor.check()
+            time.sleep(0.1)
+        time.sleep(0.5)                    # discovery seen; let the reader-writer match settle
         for spec in specs:
             ros_supervisor.start(spec.name, spec.argv())
         deadline = time.monotonic() + 120
