@@ -1,10 +1,16 @@
 """Lock-step rates ([2/7]): the offline runner against real time, and the node graph
 (hw_sim, servo_coarse, servo_fine, dual_stage, reference; circle reference) in separate
-processes and in one process, each beside a bare rclpy lock-step ring with the same number
-of hops on its critical path (3: hw_sim -> dual_stage -> servo_fine -> hw_sim) measured in
-the same run (bench/ros_chain.py, EventsExecutor like our nodes).
+processes and in one process, each beside bare rclpy lock-step rings (bench/ros_chain.py,
+EventsExecutor like our nodes) measured in the same run, with two hop counts:
 
-    .venv/bin/python bench/graph_rate.py [--seconds 8]
+* 3 hops, the graph's critical path (hw_sim -> dual_stage -> servo_fine -> hw_sim): what
+  bounds a step when the nodes run in parallel, i.e. a process per node;
+* 6 hops, every message delivery of a step (the state to servo_coarse, servo_fine and
+  dual_stage, the offsets to servo_fine, the two commands to hw_sim): what a step costs
+  when one thread does everything, i.e. all nodes in one process (the ring also publishes
+  6 times where the graph publishes 4).
+
+    .venv/bin/python bench/graph_rate.py [--seconds 6] [--repeats 3]
 """
 from __future__ import annotations
 
@@ -22,7 +28,8 @@ from machine_ctrl.offline import run
 from machine_ctrl.processes import Supervisor, isolated_ros_env, reserve_ros_domain
 from trajectory.contours import circle
 
-HOPS = 3
+CRITICAL_PATH_HOPS = 3
+DELIVERIES_PER_STEP = 6
 
 
 def offline_rate(machine, steps: int = 30000) -> float:
@@ -82,17 +89,19 @@ def main(argv=None) -> None:
     rate = offline_rate(machine)
     print(f'offline runner, {machine.name} circle, dual stage: {rate:8.0f} steps/s = {rate / real_time:.2f}x real time '
           f'({real_time:.0f} steps/s)')
-    print(f'{"graph (median of %d)" % args.repeats:28s} {"ours steps/s":>12s} {"bare ring":>10s} '
-          f'{"ratio":>6s}  ratios of the pairs')
+    hops = (CRITICAL_PATH_HOPS, DELIVERIES_PER_STEP)
+    print(f'graph (median of {args.repeats})'.ljust(22) + 'ours steps/s'.rjust(13)
+          + ''.join(f'{f"ring {h} hops":>13s}{"ratio":>7s}' for h in hops) + '  ratios of the runs (3 hops; 6 hops)')
     for single in (False, True):
-        pairs = []
-        for _ in range(args.repeats):         # interleaved: both see the same machine load
+        runs = []
+        for _ in range(args.repeats):         # interleaved: all see the same machine load
             ours = graph_rate(machine, single, args.seconds)
-            pairs.append((ours, bare_chain_rate(HOPS, multiprocess=not single, executor='events')))
-        ours, bare = (statistics.median(p[i] for p in pairs) for i in (0, 1))
-        ratios = ' '.join(f'{o / b:.2f}' for o, b in pairs)
+            runs.append([ours] + [bare_chain_rate(h, multiprocess=not single, executor='events') for h in hops])
+        medians = [statistics.median(run[i] for run in runs) for i in range(3)]
+        pairs = '; '.join(' '.join(f'{run[0] / run[i]:.2f}' for run in runs) for i in (1, 2))
         label = 'one process' if single else 'one process per node'
-        print(f'{label:28s} {ours:12.0f} {bare:10.0f} {ours / bare:6.2f}  {ratios}', flush=True)
+        print(label.ljust(22) + f'{medians[0]:13.0f}'
+              + ''.join(f'{medians[i]:13.0f}{medians[0] / medians[i]:7.2f}' for i in (1, 2)) + f'  {pairs}', flush=True)
 
 
 if __name__ == '__main__':

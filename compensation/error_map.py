@@ -50,12 +50,24 @@ class AxisErrors:
 
     def evaluate(self, q) -> np.ndarray:
         """(N, 6) errors [dx dy dz ex ey ez] at positions q (N,), Horner in u."""
-        u = self.normalized(np.asarray(q, float))
+        q = np.asarray(q, float)
+        if q.shape == (1,):                 # the simulator's one state per step: the same
+            return self._evaluate_one(float(q[0]))   # arithmetic in floats, ~10x faster
+        u = self.normalized(q)
         out = np.zeros((u.shape[0], 6))
         for i, name in enumerate(ERROR_NAMES):
             for c in self.coefficients.get(name, ()):
                 out[:, i] = out[:, i] * u + c
         return out
+
+    def _evaluate_one(self, q: float) -> np.ndarray:
+        lo, hi = self.range
+        u = (2.0 * min(max(q, lo), hi) - lo - hi) / (hi - lo)
+        out = [0.0] * 6
+        for i, name in enumerate(ERROR_NAMES):
+            for c in self.coefficients.get(name, ()):
+                out[i] = out[i] * u + c
+        return np.array([out])
 
 
 @dataclass(frozen=True)

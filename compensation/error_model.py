@@ -43,6 +43,13 @@ class _Joint:
         self.errors = None                      # AxisErrors or None
         self.squareness = np.zeros(3)           # sum of gamma * (e_about x axis)
 
+    def freeze(self) -> None:
+        """Precompute what every walk uses, once errors and squareness are set."""
+        self.turns = bool((self.rotation != np.eye(3)).any())
+        self.translation_terms = _terms(self.translation)
+        self.axis_terms = _terms(self.axis)
+        self.motion_terms = _terms(self.axis + self.squareness)
+
 
 def _joint_kind(shortname: str, model_name: str) -> tuple[bool, np.ndarray]:
     """(prismatic?, unit axis) of an axis-aligned Pinocchio joint model."""
@@ -84,11 +91,16 @@ def _rotate(rot: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return out
 
 
-def _apply(rot: np.ndarray, vector: np.ndarray) -> np.ndarray:
-    """rot @ vector for a constant vector, summing only its non-zero components."""
+def _terms(vector: np.ndarray) -> tuple[tuple[int, float], ...]:
+    """The non-zero components (index, value) of a constant vector."""
+    return tuple((int(k), float(vector[k])) for k in np.flatnonzero(vector))
+
+
+def _apply(rot: np.ndarray, terms) -> np.ndarray:
+    """rot @ vector for a constant vector given by its _terms, summing only those."""
     out = np.zeros(rot.shape[:2])
-    for k in np.flatnonzero(vector):
-        out += rot[:, :, k] * vector[k]
+    for k, value in terms:
+        out += rot[:, :, k] * value
     return out
 
 
@@ -110,8 +122,10 @@ class ErrorKinematics:
                  error_map: ErrorMap | None = None):
         self.axis_names = kinematics.axis_names
         self.error_map = error_map or ErrorMap()
-        self._workpiece, self._workpiece_frame = _chain(kinematics, workpiece_frame)
-        self._tool, self._tool_frame = _chain(kinematics, tool_frame)
+        self._workpiece, workpiece_end = _chain(kinematics, workpiece_frame)
+        self._tool, tool_end = _chain(kinematics, tool_frame)
+        self._workpiece_frame = (workpiece_end.rotation.copy(), _terms(workpiece_end.translation))
+        self._tool_frame = (tool_end.rotation.copy(), _terms(tool_end.translation))
         by_name = {j.name: j for j in self._workpiece + self._tool}
         for name, errors in self.error_map.axes.items():
             by_name[name].errors = errors
@@ -123,6 +137,8 @@ class ErrorKinematics:
                 raise ConfigError(f'{self.error_map.source}: squareness of {sq.axis}: '
                                   'only linear axes have a squareness error')
             joint.squareness = joint.squareness + sq.angle * np.cross(about, joint.axis)
+        for joint in by_name.values():
+            joint.freeze()
 
     @classmethod
     def from_config(cls, machine: MachineConfig, error_map: ErrorMap | None = None,
@@ -157,21 +173,22 @@ class ErrorKinematics:
         pos = np.zeros((n, 3))
         axes = {}
         for j in joints:
-            pos = pos + _apply(rot, j.translation)
-            if (j.rotation != np.eye(3)).any():
+            pos = pos + _apply(rot, j.translation_terms)
+            if j.turns:
                 rot = rot @ j.rotation
             qj = q[:, j.index]
             if j.name in want:
-                axes[j.name] = (_apply(rot, j.axis), pos)
+                axes[j.name] = (_apply(rot, j.axis_terms), pos)
             if j.prismatic:
-                pos = pos + _apply(rot, j.axis + j.squareness) * qj[:, None]
+                pos = pos + _apply(rot, j.motion_terms) * qj[:, None]
             else:
                 rot = _rotate(rot, j.axis, qj)
             if j.errors is not None:
                 e_rot, e_pos = _error_matrix(j.errors.evaluate(qj))
                 pos = pos + np.einsum('nij,nj->ni', rot, e_pos)
                 rot = rot @ e_rot
-        return rot @ frame.rotation, pos + _apply(rot, frame.translation), axes
+        frame_rotation, frame_terms = frame
+        return rot @ frame_rotation, pos + _apply(rot, frame_terms), axes
 
     def tool_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """Rotation (N, 3, 3) and tool-tip position P_a (N, 3) of ^wT_t,a (Eqs. 5.6-5.7)."""

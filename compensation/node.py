@@ -24,7 +24,7 @@ from compensation.error_map import load_error_map
 from compensation.stream import CompensationStream
 from machine_ctrl import ros_io
 from machine_ctrl.errors import ConfigError
-from machine_ctrl.node_common import Rejections, declare, machine_parameter, main_for, wall_timer
+from machine_ctrl.node_common import Rejections, declare, machine_parameter, main_for, subscribe_reference, wall_timer
 
 
 class CompensationNode(Node):
@@ -47,21 +47,16 @@ class CompensationNode(Node):
         self.rejections = Rejections(self)
         self.pub = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
-        self.create_subscription(JointTrajectory, input_topic, self.on_chunk, ros_io.REFERENCE_QOS)
+        subscribe_reference(self, input_topic, self.clock, self.machine.axis_names, self.on_chunk,
+                            lambda reason: self.rejections.add('reference chunk', reason))
         self.create_service(SetBool, '/compensation/enable', self.on_enable)
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: {input_topic} -> {output_topic}, model {model}, '
                                f'{"on" if enabled else "off"}')
 
-    def on_chunk(self, msg: JointTrajectory) -> None:
-        try:
-            first, positions, velocities, accelerations = ros_io.parse_chunk(self.clock, msg, self.machine.axis_names)
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('reference chunk', str(exc))
-            return
+    def on_chunk(self, first: int, positions, velocities, accelerations) -> None:
         q, v, a, _ = self.stream.transform(first, positions, velocities, accelerations)
-        self.pub.publish(ros_io.trajectory_chunk(self.clock, first, self.machine.axis_names,
-                                                 q.tolist(), v.tolist(), a.tolist()))
+        self.pub.publish(ros_io.trajectory_chunk(self.clock, first, self.machine.axis_names, q, v, a))
 
     def on_enable(self, request, response):
         self.stream.set_enabled(bool(request.data))

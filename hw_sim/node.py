@@ -5,7 +5,10 @@ differentiated velocities, efforts = commands applied over the previous period; 
 sim time of the step), ground truth every `ground_truth_decimation` steps (default 10:
 1 kHz on the micromill) on /hw_sim/ground_truth/joint_states and
 /hw_sim/ground_truth/tool_pose (true tool tip in the workpiece frame; no controller
-subscribes to them) and /diagnostics (1 Hz wall, and at once on a fault). Subscribes
+subscribes to them; each is computed and published only while it has a subscriber, as the
+true tool pose through the error map costs ~0.15 ms) and /diagnostics (1 Hz wall, and at
+once on a fault). Per-step states go out and commands come in as CDR bytes
+(machine_ctrl.cdr; standard sensor_msgs/JointState on the wire). Subscribes
 /servo_commands (sensor_msgs/JointState: name = axes, effort = commands, stamp = the stamp
 of the state answered). Service /hw_sim/reset (std_srvs/Trigger) clears a fault.
 
@@ -48,9 +51,10 @@ from std_srvs.srv import Trigger
 from hw_sim.lockstep import LockStep, RecorderGate, progress_step
 from hw_sim.simulator import MachineSimulator, true_geometry
 from machine_ctrl import ros_io
+from machine_ctrl.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.errors import ConfigError
 from machine_ctrl.kinematics import Kinematics
-from machine_ctrl.node_common import declare, machine_parameter, main_for, wall_timer
+from machine_ctrl.node_common import declare, machine_parameter, main_for, subscribe_joint_states, wall_timer
 from machine_ctrl.recorder import PROGRESS_TOPIC
 from machine_ctrl.recorder_node import PROGRESS_QOS
 
@@ -81,6 +85,7 @@ class HwSimNode(Node):
         self.clock = ros_io.StepClock(self.machine.control_period)
         self.sim = MachineSimulator(self.machine, initial_position=initial)
         self.lockstep = LockStep(axes)
+        self.encoder = JointStateEncoder(axes)
         try:
             self.true_tool_pose = true_geometry(self.machine, Kinematics.from_config(self.machine))
         except ConfigError as exc:
@@ -100,7 +105,7 @@ class HwSimNode(Node):
         self.pub_true = self.create_publisher(JointState, ros_io.TOPIC_TRUE_JOINT_STATES, ros_io.STEP_QOS)
         self.pub_pose = self.create_publisher(PoseStamped, ros_io.TOPIC_TRUE_TOOL_POSE, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
-        self.create_subscription(JointState, ros_io.TOPIC_COMMANDS, self.on_command, ros_io.STEP_QOS)
+        subscribe_joint_states(self, ros_io.TOPIC_COMMANDS, self.on_command, self.refuse)
         self.sub_progress = (self.create_subscription(Time, PROGRESS_TOPIC, self.on_progress, PROGRESS_QOS)
                              if self.gate.window > 0 else None)
         self.create_service(Trigger, '/hw_sim/reset', self.on_reset)
@@ -131,13 +136,13 @@ class HwSimNode(Node):
             raise SystemExit(2)
 
     # -- stepping ----------------------------------------------------------------------
-    def on_command(self, msg: JointState) -> None:
+    def on_command(self, msg: JointStateData) -> None:
         try:
-            step = self.clock.step(msg.header.stamp)
+            step = self.clock.step_at(msg.sec, msg.nanosec)
         except ros_io.InvalidMessage as exc:
             self.refuse(str(exc))
             return
-        values = msg.effort.tolist()
+        values = list(msg.effort)
         if len(values) == len(msg.name) and not ros_io.all_finite(values):
             bad = [n for n, v in zip(msg.name, values) if not math.isfinite(v)]
             self.fault(f'non-finite command for {", ".join(bad)}')
@@ -252,15 +257,16 @@ class HwSimNode(Node):
     # -- publishing ---------------------------------------------------------------------
     def publish_state(self, resend: bool = False) -> None:
         step = self.lockstep.step
-        stamp = self.clock.stamp(step)
+        sec, nanosec = divmod(step * self.clock.period_ns, 1_000_000_000)
         m = self.sim.measurement
-        axes = self.machine.axis_names
-        self.pub_state.publish(ros_io.joint_state(stamp, axes, m.position, m.velocity, m.effort))
+        self.pub_state.publish(self.encoder.encode(sec, nanosec, m.position, m.velocity, m.effort))
         if step % self.clock_decimation == 0:
-            self.pub_clock.publish(Clock(clock=stamp))
+            self.pub_clock.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
         if self.truth_decimation > 0 and step % self.truth_decimation == 0:
-            self.pub_true.publish(ros_io.joint_state(stamp, axes, self.sim.true_position, self.sim.true_velocity))
-            self.pub_pose.publish(self.tool_pose(stamp))
+            if self.pub_true.get_subscription_count():
+                self.pub_true.publish(self.encoder.encode(sec, nanosec, self.sim.true_position, self.sim.true_velocity))
+            if self.pub_pose.get_subscription_count():
+                self.pub_pose.publish(self.tool_pose(Time(sec=sec, nanosec=nanosec)))
         self._state_sent_at = time.monotonic()
         if not resend:
             self._step_started_at = self._state_sent_at

@@ -26,14 +26,14 @@ from collections import deque
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
-from trajectory_msgs.msg import JointTrajectory
 
 from machine_ctrl import ros_io
+from machine_ctrl.cdr import JointStateData
 from machine_ctrl.contour import ESTIMATORS, MAX_SHIFT, ContourEstimator, ToolTrajectory, tool_reference
 from machine_ctrl.kinematics import Kinematics
-from machine_ctrl.node_common import Rejections, declare, machine_parameter, main_for, use_sim_time, wall_timer
+from machine_ctrl.node_common import (Rejections, declare, machine_parameter, main_for, subscribe_joint_states,
+                                      subscribe_reference, use_sim_time, wall_timer)
 
 TOPIC_TOOL_TIP = '/contour_error/tool_tip'
 TOPIC_TOOL_TIP_MAGNITUDE = '/contour_error/tool_tip_magnitude'
@@ -65,23 +65,20 @@ class ContourErrorNode(Node):
             (Vector3Stamped, TOPIC_TOOL_TIP), (Float64, TOPIC_TOOL_TIP_MAGNITUDE),
             (Vector3Stamped, TOPIC_ORIENTATION), (Float64, TOPIC_ORIENTATION_MAGNITUDE))]
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
-        self.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, ros_io.REFERENCE_QOS)
-        self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
+        subscribe_reference(self, ros_io.TOPIC_REFERENCE, self.clock, self.machine.axis_names, self.on_reference,
+                            lambda reason: self.rejections.add('reference', reason))
+        subscribe_joint_states(self, ros_io.TOPIC_JOINT_STATES, self.on_state,
+                               lambda reason: self.rejections.add('state', reason))
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: {method} estimator')
 
-    def on_reference(self, msg: JointTrajectory) -> None:
-        try:
-            first, q, qd, qdd = ros_io.parse_chunk(self.clock, msg, self.machine.axis_names)
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('reference', str(exc))
-            return
+    def on_reference(self, first: int, q, qd, qdd) -> None:
         self.trajectory.add(first, *tool_reference(self.kinematics, q, qd, qdd))
         self.process()
 
-    def on_state(self, msg: JointState) -> None:
+    def on_state(self, msg: JointStateData) -> None:
         try:
-            step = self.clock.step(msg.header.stamp)
+            step = self.clock.step_at(msg.sec, msg.nanosec)
             q = ros_io.select(msg, 'position', self.machine.axis_names)
         except ros_io.InvalidMessage as exc:
             self.rejections.add('state', str(exc))
@@ -89,7 +86,7 @@ class ContourErrorNode(Node):
         if step <= self.last_step:
             return
         self.last_step = step
-        self.pending.append((step, msg.header.stamp, q))
+        self.pending.append((step, q))
         if len(self.pending) > self.history:       # no reference for that long: give the oldest up
             self.pending.popleft()
             self.skipped += 1
@@ -98,10 +95,10 @@ class ContourErrorNode(Node):
     def process(self) -> None:
         """Estimate the waiting states, in step order, as far as their reference rows are here."""
         while self.pending and self.trajectory.has(self.pending[0][0]):
-            step, stamp, q = self.pending.popleft()
+            step, q = self.pending.popleft()
             self.trajectory.drop_before(step - self.history)
             estimate = self.estimator.update(self.trajectory, step, q)
-            for pub, message in zip(self.pubs, self.messages(stamp, estimate)):
+            for pub, message in zip(self.pubs, self.messages(self.clock.stamp(step), estimate)):
                 pub.publish(message)
 
     def messages(self, stamp, estimate):

@@ -14,6 +14,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
 from machine_ctrl import ros_io
+from machine_ctrl.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.dual_stage import DualStageCoupling
 from machine_ctrl.node_common import declare, machine_parameter, main_for, wall_timer
 from machine_ctrl.step_node import StepNode
@@ -30,6 +31,7 @@ class DualStageNode(StepNode):
         self.coupling = DualStageCoupling(self.machine, enabled=enabled)
         self.axes = self.machine.axis_names
         self.make_buffer(self.axes)
+        self.encoder = JointStateEncoder(self.coupling.fine_axes)
         self.pub = self.create_publisher(JointState, ros_io.TOPIC_OFFSETS, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
         self.start_stepping(self.machine, self.axes, self.pub, self.buffer.has, self.compute,
@@ -44,13 +46,13 @@ class DualStageNode(StepNode):
         response.message = f'dual-stage coupling {"on" if request.data else "off"}'
         return response
 
-    def compute(self, step: int, msg: JointState) -> JointState | None:
+    def compute(self, step: int, msg: JointStateData) -> bytes | None:
         position = self.positions(msg, self.axes)
         if position is None:
             return None
         ref_pos, _, _, _ = self.buffer.take(step, position)
         result = self.coupling.update(ref_pos, position)
-        return ros_io.joint_state(msg.header.stamp, self.coupling.fine_axes, position=result.offsets)
+        return self.encoder.encode(msg.sec, msg.nanosec, position=result.offsets)
 
     def publish_diagnostics(self) -> None:
         problems = self.buffer.underruns or self.rejections.count or self.coupling.saturation_count

@@ -26,8 +26,9 @@ import math
 import re
 import struct
 
-from machine_ctrl import msgdefs
+from machine_ctrl import cdr, msgdefs
 from machine_ctrl.bag import BagWriter
+from machine_ctrl.errors import InvalidMessage
 
 PROGRESS_TOPIC = '/recorder/progress'
 STATES_TOPIC = '/joint_states'
@@ -148,34 +149,19 @@ class StampGaps:
         return self.span // grid - self.increments if grid else 0
 
 
-def joint_names_key(data: bytes) -> tuple[bytes, ...]:
+def joint_names_key(data: bytes) -> tuple[str, ...]:
     """A CDR sensor_msgs/JointState's header.frame_id and joint names: what tells one
-    publisher's states from another's on a shared topic. Only the strings' contents count,
-    never the alignment padding between them (rclpy leaves it uninitialised). () if they
-    cannot be read."""
+    publisher's states from another's on a shared topic. Only the strings count, never the
+    alignment padding between them (rclpy leaves it uninitialised). () if they cannot be
+    read."""
     try:
-        fmt = '>I' if data[1] == 0 else '<I'
-        frame, offset = _cdr_string(data, 12, fmt)
-        offset += -(offset - 4) % 4
-        (count,) = struct.unpack_from(fmt, data, offset)
-        offset += 4
-        strings = [frame]
-        for _ in range(count):                 # each string takes >= 4 bytes: bounded by len(data)
-            name, offset = _cdr_string(data, offset, fmt)
-            strings.append(name)
-        return tuple(strings)
-    except (struct.error, IndexError):
+        _, _, frame_id, names, _ = _NAMES.read(data, cdr.byte_order(data, 'sensor_msgs/JointState'))
+    except (InvalidMessage, struct.error):
         return ()
+    return (frame_id, *names)
 
 
-def _cdr_string(data: bytes, offset: int, fmt: str) -> tuple[bytes, int]:
-    """The CDR string at `offset` (aligned to 4 relative to the payload) and the offset after it."""
-    offset += -(offset - 4) % 4
-    (size,) = struct.unpack_from(fmt, data, offset)
-    end = offset + 4 + size
-    if end > len(data):
-        raise IndexError('string beyond the message')
-    return bytes(data[offset + 4:end]), end
+_NAMES = cdr.NamesReader()
 
 
 class Stream:

@@ -8,6 +8,7 @@ exact in both directions.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -16,8 +17,12 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectory
+
+from machine_ctrl.cdr import ChunkData, ChunkDecoder, NotUniform, encode_chunk
+from machine_ctrl.errors import InvalidMessage
 
 # Per-step traffic must never be dropped silently: reliable, and deep enough for bursts.
 STEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
@@ -36,10 +41,6 @@ TOPIC_TRUE_TOOL_POSE = '/hw_sim/ground_truth/tool_pose'
 TOPIC_DIAGNOSTICS = '/diagnostics'
 
 
-class InvalidMessage(ValueError):
-    """A message another node sent that we refuse; the text is the reason."""
-
-
 class StepClock:
     def __init__(self, period: float):
         self.period_ns = int(round(period * 1e9))
@@ -51,7 +52,13 @@ class StepClock:
         return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
     def step(self, stamp: Time) -> int:
-        ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        return self.step_at(stamp.sec, stamp.nanosec)
+
+    def step_at(self, sec: int, nanosec: int) -> int:
+        """The step of the stamp (sec, nanosec); InvalidMessage if it is off the grid."""
+        if not 0 <= nanosec < 1_000_000_000:
+            raise InvalidMessage(f'stamp nanosec {nanosec} is not in [0, 1e9)')
+        ns = sec * 1_000_000_000 + nanosec
         step, rest = divmod(ns, self.period_ns)
         if rest:
             raise InvalidMessage(f'stamp {ns} ns is not on the {self.period_ns} ns control grid')
@@ -87,20 +94,28 @@ def joint_state(stamp: Time, names, position=(), velocity=(), effort=()) -> Join
     return msg
 
 
-def select(msg: JointState, field: str, wanted, allow_nonfinite: bool = False) -> list[float]:
-    """Values of `field` for the `wanted` axes, in wanted order; every wanted axis must be
-    present exactly once and the field as long as the names."""
+def select(msg, field: str, wanted, allow_nonfinite: bool = False) -> list[float]:
+    """Values of `field` for the `wanted` axes, in wanted order, from a JointState (or its
+    decoded bytes, cdr.JointStateData); every wanted axis must be present exactly once and
+    the field as long as the names."""
     values = getattr(msg, field)
-    names = list(msg.name)
+    names = tuple(msg.name)
     if len(values) != len(names):
         raise InvalidMessage(f'{len(names)} names but {len(values)} {field} values')
-    if names == list(wanted):                        # the usual case: same order
-        picked = values.tolist()
-        if allow_nonfinite or all_finite(picked):
-            return picked
-        raise InvalidMessage(f'{field} holds NaN or inf')
-    picked = [float(values[i]) for i in columns(names, wanted)]
-    return picked if allow_nonfinite else _finite(picked, field)
+    picks = _picks(names, tuple(wanted))
+    picked = list(values)
+    if picks is not None:
+        picked = [picked[i] for i in picks]
+    if allow_nonfinite or all_finite(picked):
+        return picked
+    raise InvalidMessage(f'{field} holds NaN or inf')
+
+
+@functools.lru_cache(maxsize=64)
+def _picks(names: tuple[str, ...], wanted: tuple[str, ...]) -> tuple[int, ...] | None:
+    """columns() once per pair of name lists (a publisher's names do not change); None when
+    they are the same."""
+    return None if names == wanted else tuple(columns(names, wanted))
 
 
 def columns(names, wanted) -> list[int]:
@@ -114,17 +129,11 @@ def columns(names, wanted) -> list[int]:
     return [index[w] for w in wanted]
 
 
-def trajectory_chunk(clock: StepClock, first_step: int, names, positions, velocities, accelerations) -> JointTrajectory:
-    """Reference rows first_step, first_step+1, ... as a JointTrajectory on the control grid."""
-    msg = JointTrajectory()
-    msg.header.stamp = clock.stamp(first_step)
-    msg.joint_names = list(names)
-    for i, (p, v, a) in enumerate(zip(positions, velocities, accelerations)):
-        point = JointTrajectoryPoint()
-        point.positions, point.velocities, point.accelerations = list(p), list(v), list(a)
-        point.time_from_start = clock.duration(i)
-        msg.points.append(point)
-    return msg
+def trajectory_chunk(clock: StepClock, first_step: int, names, positions, velocities, accelerations) -> bytes:
+    """Reference rows first_step, first_step+1, ... as a serialized JointTrajectory on the
+    control grid (machine_ctrl.cdr; publishers and bag writers take the bytes as they are)."""
+    stamp = clock.stamp(first_step)
+    return encode_chunk(stamp.sec, stamp.nanosec, names, positions, velocities, accelerations, clock.period_ns)
 
 
 def parse_chunk(clock: StepClock, msg: JointTrajectory, wanted):
@@ -151,6 +160,46 @@ def parse_chunk(clock: StepClock, msg: JointTrajectory, wanted):
         velocities.append(rows[1])
         accelerations.append(rows[2])
     return first, positions, velocities, accelerations
+
+
+def parse_chunk_bytes(clock: StepClock, decoder: ChunkDecoder, data: bytes, wanted):
+    """parse_chunk of a serialized JointTrajectory: decoded by cdr.ChunkDecoder with array
+    operations, or by rclpy when its points differ in layout."""
+    try:
+        chunk = decoder.decode(data)
+    except NotUniform:
+        try:
+            msg = deserialize_message(data, JointTrajectory)
+        except Exception as exc:  # noqa: BLE001 - rclpy raises its RMWError on bad bytes
+            raise InvalidMessage(f'not a trajectory_msgs/JointTrajectory: {exc}') from None
+        return parse_chunk(clock, msg, wanted)
+    return _parse_chunk_data(clock, chunk, wanted)
+
+
+def _parse_chunk_data(clock: StepClock, chunk: ChunkData, wanted):
+    """parse_chunk's checks and result, on a decoded chunk with array operations."""
+    names = list(chunk.joint_names)
+    picks = columns(names, wanted)
+    points = len(chunk.time_from_start)
+    if not points:
+        raise InvalidMessage('reference chunk has no points')
+    first = clock.step_at(chunk.sec, chunk.nanosec)
+    off_grid = np.flatnonzero(chunk.time_from_start != np.arange(points) * clock.period_ns)
+    if off_grid.size:
+        raise InvalidMessage(f'point {off_grid[0]} is not at consecutive control step {off_grid[0]}')
+    rows = []
+    for field in ('positions', 'velocities', 'accelerations'):
+        values = getattr(chunk, field)
+        if values.shape[1] == 0 and field != 'positions':
+            values = np.zeros((points, len(names)))
+        if values.shape[1] != len(names):
+            raise InvalidMessage(f'point 0: {values.shape[1]} {field} for {len(names)} joints')
+        picked = values[:, picks]
+        finite = np.isfinite(picked).all(axis=1)
+        if not finite.all():
+            raise InvalidMessage(f'point {np.argmin(finite)} {field} holds NaN or inf')
+        rows.append(picked.tolist())
+    return first, *rows
 
 
 def quaternion_z_to(axis) -> tuple[float, float, float, float]:

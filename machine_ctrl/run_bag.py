@@ -74,7 +74,7 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
     steps = len(record.measured)
 
     def put(topic, msg, ns):
-        writer.write(topic, serialize_message(msg), ns)
+        writer.write(topic, msg if isinstance(msg, bytes) else serialize_message(msg), ns)
 
     for k in range(steps):
         stamp = clock.stamp(k)

@@ -18,8 +18,9 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
 
 from machine_ctrl import ros_io
+from machine_ctrl.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.dual_stage import apply_offsets
-from machine_ctrl.node_common import declare, machine_parameter, main_for, wall_timer
+from machine_ctrl.node_common import declare, machine_parameter, main_for, subscribe_joint_states, wall_timer
 from machine_ctrl.servo import ServoGroup
 from machine_ctrl.step_node import StepNode
 
@@ -47,17 +48,19 @@ class ServoNode(StepNode):
         self.missing_offsets = 0
 
         self.make_buffer(self.axes)
+        self.encoder = JointStateEncoder(self.axes)
         self.pub = self.create_publisher(JointState, ros_io.TOPIC_COMMANDS, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
         self.start_stepping(self.machine, self.axes, self.pub, self.ready, self.compute, self.streaming)
         if self.wait_for_offsets:
-            self.create_subscription(JointState, ros_io.TOPIC_OFFSETS, self.on_offsets, ros_io.STEP_QOS)
+            subscribe_joint_states(self, ros_io.TOPIC_OFFSETS, self.on_offsets,
+                                   lambda reason: self.rejections.add('offsets', reason))
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: axes {" ".join(self.axes)}')
 
-    def on_offsets(self, msg: JointState) -> None:
+    def on_offsets(self, msg: JointStateData) -> None:
         try:
-            self.offsets[self.clock.step(msg.header.stamp)] = ros_io.select(msg, 'position', self.fine_names)
+            self.offsets[self.clock.step_at(msg.sec, msg.nanosec)] = ros_io.select(msg, 'position', self.fine_names)
         except ros_io.InvalidMessage as exc:
             self.rejections.add('offsets', str(exc))
             return
@@ -70,7 +73,7 @@ class ServoNode(StepNode):
     def ready(self, step: int) -> bool:
         return self.buffer.has(step) and (not self.wait_for_offsets or step in self.offsets)
 
-    def compute(self, step: int, msg: JointState) -> JointState | None:
+    def compute(self, step: int, msg: JointStateData) -> bytes | None:
         measured = self.positions(msg, self.axes, velocities=True)
         if measured is None:
             return None
@@ -84,7 +87,7 @@ class ServoNode(StepNode):
         elif self.wait_for_offsets:
             self.missing_offsets += 1
         commands = self.servo.update(ref_pos, ref_vel, ref_acc, position, velocity)
-        return ros_io.joint_state(msg.header.stamp, self.axes, effort=commands)
+        return self.encoder.encode(msg.sec, msg.nanosec, effort=commands)
 
     def waiting_for(self) -> str:
         if not self.responder.waiting:

@@ -1,14 +1,15 @@
 """Base of the nodes that answer every lock-step state from the streamed reference (the
-servo and dual-stage nodes): the reference buffer fed from /reference, the /joint_states
-subscription, one answer per step (StepResponder) and the count of refused messages."""
+servo and dual-stage nodes): the reference buffer fed from /reference and the /joint_states
+subscription (both raw, decoded by machine_ctrl.cdr), one answer per step (StepResponder)
+and the count of refused messages."""
 from __future__ import annotations
 
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory
 
 from machine_ctrl import ros_io
-from machine_ctrl.node_common import Rejections, StepResponder, declare, use_sim_time
+from machine_ctrl.cdr import JointStateData
+from machine_ctrl.node_common import (Rejections, StepResponder, declare, subscribe_joint_states,
+                                      subscribe_reference, use_sim_time)
 from machine_ctrl.reference import ReferenceBuffer
 
 
@@ -26,28 +27,26 @@ class StepNode(Node):
         self.clock = ros_io.StepClock(machine.control_period)
         self.reference_axes = tuple(reference_axes)
         self.responder = StepResponder(self, publisher, ready, compute, self.input_timeout, streaming)
-        self.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
-        self.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, ros_io.REFERENCE_QOS)
+        subscribe_joint_states(self, ros_io.TOPIC_JOINT_STATES, self.on_state,
+                               lambda reason: self.rejections.add('state', reason))
+        subscribe_reference(self, ros_io.TOPIC_REFERENCE, self.clock, self.reference_axes, self.on_reference,
+                            lambda reason: self.rejections.add('reference', reason))
 
     def make_buffer(self, axes) -> ReferenceBuffer:
         self.buffer = ReferenceBuffer(axes)
         return self.buffer
 
-    def on_reference(self, msg: JointTrajectory) -> None:
-        try:
-            self.buffer.add(*ros_io.parse_chunk(self.clock, msg, self.reference_axes))
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('reference', str(exc))
-            return
+    def on_reference(self, first_step: int, positions, velocities, accelerations) -> None:
+        self.buffer.add(first_step, positions, velocities, accelerations)
         self.responder.poke()
 
-    def on_state(self, msg: JointState) -> None:
+    def on_state(self, msg: JointStateData) -> None:
         try:
-            self.responder.on_state(self.clock.step(msg.header.stamp), msg)
+            self.responder.on_state(self.clock.step_at(msg.sec, msg.nanosec), msg)
         except ros_io.InvalidMessage as exc:
             self.rejections.add('state', str(exc))
 
-    def positions(self, msg: JointState, axes, velocities: bool = False):
+    def positions(self, msg: JointStateData, axes, velocities: bool = False):
         """Measured positions (and velocities) of `axes` from a state, or None if refused."""
         try:
             position = ros_io.select(msg, 'position', axes)

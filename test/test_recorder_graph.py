@@ -68,6 +68,7 @@ class PublishLog:
 
     def __init__(self, period_ns, steps):
         from rclpy.publisher import Publisher
+        from rclpy.serialization import deserialize_message
         from rclpy.task import Future
         self.cls = Publisher
         self.original = Publisher.publish
@@ -78,9 +79,12 @@ class PublishLog:
 
         def publish(publisher, msg):
             topic = publisher.topic_name
-            log.messages[topic].append((id(publisher), msg))
+            # nodes publish per-step states and chunks serialized (machine_ctrl.cdr): log what
+            # rclpy decodes them to, the message any subscriber gets
+            typed = deserialize_message(msg, publisher.msg_type) if isinstance(msg, bytes) else msg
+            log.messages[topic].append((id(publisher), typed))
             if topic == '/joint_states':
-                log.newest = max(log.newest, (msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec) // period_ns)
+                log.newest = max(log.newest, (typed.header.stamp.sec * 10**9 + typed.header.stamp.nanosec) // period_ns)
                 for k, future in log.reached.items():
                     if log.newest >= k and not future.done():
                         future.set_result(True)
