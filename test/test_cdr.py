@@ -222,6 +222,25 @@ def test_every_truncated_chunk_is_refused():
             decoder.decode(data[:end])
 
 
+def test_corrupted_chunks_parse_or_are_refused():
+    """Random byte changes, through the nodes' path (our decoder, or rclpy's for what is not
+    uniform): rows come out or InvalidMessage, never another error."""
+    rng = random.Random(4)
+    data = bytearray(encode_chunk(0, 0, AXES, *[np.ones((6, 9))] * 3, 100_000))
+    decoder = ChunkDecoder()
+    outcomes = {'parsed': 0, 'refused': 0}
+    for _ in range(3000):
+        bad = bytearray(data)
+        for _ in range(rng.randint(1, 4)):
+            bad[rng.randrange(len(bad))] = rng.randrange(256)
+        try:
+            ros_io.parse_chunk_bytes(CLOCK, decoder, bytes(bad), AXES)
+            outcomes['parsed'] += 1
+        except InvalidMessage:
+            outcomes['refused'] += 1
+    assert outcomes['parsed'] > 0 and outcomes['refused'] > 0, outcomes
+
+
 def grid_chunk(rows: int, joints=AXES, first_step: int = 40) -> JointTrajectory:
     msg = JointTrajectory()
     msg.header.stamp = CLOCK.stamp(first_step)
