@@ -4,6 +4,7 @@ malformed bytes, which must give InvalidMessage and nothing else. For reference 
 ros_io.parse_chunk_bytes (the nodes' path) against ros_io.parse_chunk on rclpy's message."""
 from __future__ import annotations
 
+import collections
 import random
 
 import numpy as np
@@ -96,22 +97,27 @@ def test_every_truncation_is_refused_with_a_reason():
             decoder.decode(data[:end])
 
 
-def test_corrupted_bytes_decode_or_are_refused():
-    """Random byte changes: either a message comes out or InvalidMessage, never another error."""
-    rng = random.Random(3)
-    data = bytearray(JointStateEncoder(AXES).encode(1, 2, *[np.arange(9.0)] * 3))
-    decoder = JointStateDecoder()
-    outcomes = {'decoded': 0, 'refused': 0}
+def outcomes_of_corruption(data: bytes, take, seed: int) -> collections.Counter:
+    """Feed 3000 copies of `data` with 1-4 random bytes changed to `take`: how many it took
+    and how many it refused with InvalidMessage; any other error fails the test."""
+    rng = random.Random(seed)
+    outcomes = collections.Counter()
     for _ in range(3000):
         bad = bytearray(data)
         for _ in range(rng.randint(1, 4)):
             bad[rng.randrange(len(bad))] = rng.randrange(256)
         try:
-            decoder.decode(bytes(bad))
-            outcomes['decoded'] += 1
+            take(bytes(bad))
+            outcomes['taken'] += 1
         except InvalidMessage:
             outcomes['refused'] += 1
-    assert outcomes['decoded'] > 0 and outcomes['refused'] > 0, outcomes
+    return outcomes
+
+
+def test_corrupted_bytes_decode_or_are_refused():
+    data = JointStateEncoder(AXES).encode(1, 2, *[np.arange(9.0)] * 3)
+    outcomes = outcomes_of_corruption(data, JointStateDecoder().decode, seed=3)
+    assert outcomes['taken'] > 0 and outcomes['refused'] > 0, outcomes
 
 
 @pytest.mark.parametrize('data, reason', [
@@ -223,22 +229,11 @@ def test_every_truncated_chunk_is_refused():
 
 
 def test_corrupted_chunks_parse_or_are_refused():
-    """Random byte changes, through the nodes' path (our decoder, or rclpy's for what is not
-    uniform): rows come out or InvalidMessage, never another error."""
-    rng = random.Random(4)
-    data = bytearray(encode_chunk(0, 0, AXES, *[np.ones((6, 9))] * 3, 100_000))
+    """Through the nodes' path: our decoder, or rclpy's for what is not uniform."""
+    data = encode_chunk(0, 0, AXES, *[np.ones((6, 9))] * 3, 100_000)
     decoder = ChunkDecoder()
-    outcomes = {'parsed': 0, 'refused': 0}
-    for _ in range(3000):
-        bad = bytearray(data)
-        for _ in range(rng.randint(1, 4)):
-            bad[rng.randrange(len(bad))] = rng.randrange(256)
-        try:
-            ros_io.parse_chunk_bytes(CLOCK, decoder, bytes(bad), AXES)
-            outcomes['parsed'] += 1
-        except InvalidMessage:
-            outcomes['refused'] += 1
-    assert outcomes['parsed'] > 0 and outcomes['refused'] > 0, outcomes
+    outcomes = outcomes_of_corruption(data, lambda bad: ros_io.parse_chunk_bytes(CLOCK, decoder, bad, AXES), seed=4)
+    assert outcomes['taken'] > 0 and outcomes['refused'] > 0, outcomes
 
 
 def grid_chunk(rows: int, joints=AXES, first_step: int = 40) -> JointTrajectory:
