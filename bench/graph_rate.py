@@ -47,12 +47,10 @@ def graph_rate(machine, single_process: bool, seconds: float) -> float:
     from rosgraph_msgs.msg import Clock
 
     with reserve_ros_domain() as lease, Supervisor(isolated_ros_env(lease.domain_id), stop_timeout=3.0) as sup:
-        specs = default_graph(machine)
         if single_process:
             sup.start('graph', [sys.executable, '-m', 'machine_ctrl.graph', '--machine', str(machine.yaml_path)])
         else:
-            for spec in specs:
-                sup.start(spec.name, spec.argv())
+            sup.start_nodes(default_graph(machine))
         context = init_context(lease.domain_id)
         try:
             node = Node('rate_probe', context=context)

@@ -83,10 +83,6 @@ class ErrorMap:
     squareness: tuple[Squareness, ...] = ()
     source: str = ''                                  # file it was read from, for messages
 
-    def is_zero(self) -> bool:
-        return (all(not any(c) for e in self.axes.values() for c in e.coefficients.values())
-                and all(s.angle == 0.0 for s in self.squareness))
-
 
 def load_error_map(path: str | Path, axis_names) -> ErrorMap:
     """Read an error map; ConfigError with one line ``<file>: <key>: <problem>``."""

@@ -71,19 +71,6 @@ class LockStep:
         self.step = step
 
 
-def progress_step(period_ns: int, sec: int, nanosec: int, current: int) -> int:
-    """The step of a recorder progress stamp (the /joint_states stamp it wrote last); ValueError
-    with the reason if it is not a stamp of a state hw_sim has published (steps 0..current)."""
-    if not 0 <= nanosec < 1_000_000_000:
-        raise ValueError(f'progress stamp nanosec {nanosec} is not in [0, 1e9)')
-    step, rest = divmod(sec * 1_000_000_000 + nanosec, period_ns)
-    if rest:
-        raise ValueError(f'progress stamp {sec}.{nanosec:09d} s is not on the {period_ns} ns control grid')
-    if not 0 <= step <= current:
-        raise ValueError(f'progress for step {step}, but the published steps are 0..{current}')
-    return step
-
-
 @dataclass
 class RecorderGate:
     """Flow control for a recorder (lock-step only): with ``window`` W > 0 steps, hw_sim does

@@ -39,7 +39,6 @@ from __future__ import annotations
 import math
 import time
 
-import pinocchio as pin
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -48,7 +47,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from hw_sim.lockstep import LockStep, RecorderGate, progress_step
+from hw_sim.lockstep import LockStep, RecorderGate
 from hw_sim.simulator import MachineSimulator, true_geometry
 from machine_ctrl import ros_io
 from machine_ctrl.cdr import JointStateData, JointStateEncoder
@@ -142,7 +141,7 @@ class HwSimNode(Node):
         except ros_io.InvalidMessage as exc:
             self.refuse(str(exc))
             return
-        values = list(msg.effort)
+        values = msg.effort
         if len(values) == len(msg.name) and not ros_io.all_finite(values):
             bad = [n for n, v in zip(msg.name, values) if not math.isfinite(v)]
             self.fault(f'non-finite command for {", ".join(bad)}')
@@ -151,7 +150,7 @@ class HwSimNode(Node):
             if step == self.lockstep.step and len(values) == len(msg.name):
                 self._latest.update((n, v) for n, v in zip(msg.name, values) if n in self.lockstep.axis_names)
             return
-        reason = self.lockstep.offer(step, list(msg.name), values)
+        reason = self.lockstep.offer(step, msg.name, values)
         if reason is not None:
             self.refuse(reason)
             return
@@ -190,7 +189,9 @@ class HwSimNode(Node):
 
     def on_progress(self, msg: Time) -> None:
         try:
-            step = progress_step(self.clock.period_ns, msg.sec, msg.nanosec, self.lockstep.step)
+            step = self.clock.step_at(msg.sec, msg.nanosec)
+            if not 0 <= step <= self.lockstep.step:
+                raise ValueError(f'progress for step {step}, but the published steps are 0..{self.lockstep.step}')
         except ValueError as exc:
             self.gate.refuse(str(exc))
             self.get_logger().warning(f'refused recorder progress: {exc}', throttle_duration_sec=1.0)
@@ -266,22 +267,11 @@ class HwSimNode(Node):
             if self.pub_true.get_subscription_count():
                 self.pub_true.publish(self.encoder.encode(sec, nanosec, self.sim.true_position, self.sim.true_velocity))
             if self.pub_pose.get_subscription_count():
-                self.pub_pose.publish(self.tool_pose(Time(sec=sec, nanosec=nanosec)))
+                self.pub_pose.publish(ros_io.pose_message(Time(sec=sec, nanosec=nanosec), self.machine.workpiece_frame,
+                                                          self.true_tool_pose(self.sim.true_position)))
         self._state_sent_at = time.monotonic()
         if not resend:
             self._step_started_at = self._state_sent_at
-
-    def tool_pose(self, stamp) -> PoseStamped:
-        pose = self.true_tool_pose(self.sim.true_position)
-        msg = PoseStamped()
-        msg.header.stamp = stamp
-        msg.header.frame_id = self.machine.workpiece_frame
-        p = msg.pose.position
-        p.x, p.y, p.z = (float(v) for v in pose[:3, 3])
-        q = pin.Quaternion(pose[:3, :3])
-        o = msg.pose.orientation
-        o.x, o.y, o.z, o.w = float(q.x), float(q.y), float(q.z), float(q.w)
-        return msg
 
     def publish_diagnostics(self) -> None:
         fault = self.sim.fault

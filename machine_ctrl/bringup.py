@@ -104,8 +104,7 @@ class Bringup:
             extra = {k: v for k, v in hw.items() if k != 'machine'}
             self.graph.start('graph', single_process_argv(self.machine, self.dual_stage, self.compensation, extra))
             return
-        for spec in self.specs:
-            self.graph.start(spec.name, spec.argv())
+        self.graph.start_nodes(self.specs)
 
     def check(self) -> None:
         """Raise processes.ChildExited when a node process has ended on its own."""

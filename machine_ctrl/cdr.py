@@ -80,6 +80,17 @@ def _pad(offset: int, size: int) -> int:
     return -(offset - _HEADER) % size
 
 
+def stamp_ns(data: bytes) -> int:
+    """The stamp (ns) that starts a message whose first field is a std_msgs/Header or a
+    builtin_interfaces/Time (JointState, Clock, PoseStamped, ...); InvalidMessage if the
+    bytes cannot hold one."""
+    order = byte_order(data, 'stamped message')
+    sec, nanosec = struct.unpack_from(order + 'iI', data, _HEADER)
+    if nanosec >= 1_000_000_000:
+        raise InvalidMessage(f'stamp nanosec {nanosec} is not in [0, 1e9)')
+    return sec * 1_000_000_000 + nanosec
+
+
 def read_string(data: bytes, offset: int, order: str) -> tuple[bytes, int]:
     """The CDR string at `offset` (before alignment) without its NUL, and the offset after it."""
     offset += _pad(offset, 4)

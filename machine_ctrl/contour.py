@@ -101,6 +101,7 @@ class ToolTrajectory:
         self.period = period
         self.first = 0
         self.rows = np.empty((5, 0, 3))          # P, V, A, O, W
+        self.version = 0                         # counts changes of rows already held
 
     @classmethod
     def from_reference(cls, kinematics: Kinematics, reference) -> ToolTrajectory:
@@ -122,6 +123,8 @@ class ToolTrajectory:
 
     def add(self, first_step: int, p, v, a, o, w) -> None:
         chunk = np.array([p, v, a, o, w], float)
+        if first_step != self.end:
+            self.version += 1
         if not len(self) or first_step > self.end or first_step < self.first:
             self.first, self.rows = first_step, chunk
         else:
@@ -222,6 +225,7 @@ class RestDirection:
         self.field = field
         self.last = None
         self._ahead: tuple[int, list[float]] | None = None
+        self._at_rest_until: tuple[int, int] | None = None    # (trajectory version, end step)
 
     def moved(self, direction) -> None:
         self.last = direction
@@ -238,8 +242,12 @@ class RestDirection:
 
     def _first_ahead(self, trajectory: ToolTrajectory, step: int):
         if self._ahead is None or self._ahead[0] < step:
-            found = trajectory.next_moving(step, self.field, SPEED_TOL)
+            start = step          # rows found at rest before, unchanged since, are not scanned again
+            if self._at_rest_until is not None and self._at_rest_until[0] == trajectory.version:
+                start = max(step, self._at_rest_until[1])
+            found = trajectory.next_moving(start, self.field, SPEED_TOL) if start < trajectory.end else None
             if found is None:
+                self._at_rest_until = (trajectory.version, trajectory.end)
                 return None
             self._ahead = (found, unit(trajectory.rows[self.field, found - trajectory.first].tolist(),
                                        SPEED_TOL)[0])

@@ -244,6 +244,12 @@ class Supervisor:
         """Stop child ``name`` and its whole process group; returns its exit code."""
         return self._stop([self.children[name]], timeout)[name]
 
+    def start_nodes(self, specs) -> None:
+        """Start each node spec (machine_ctrl.graph.NodeSpec: `name`, `argv()`) as a child
+        of its own."""
+        for spec in specs:
+            self.start(spec.name, spec.argv())
+
     def stop_all(self, timeout: float | None = None) -> dict[str, int | None]:
         """Stop every child: each signal goes to the groups in reverse start order (the
         last started, usually the one depending on the others, first), and the escalation

@@ -102,13 +102,11 @@ def subscription_qos(offers: list[dict]) -> dict:
 
 
 def cdr_stamp_ns(data: bytes) -> int | None:
-    """The stamp (ns) that starts a CDR message whose first field is a std_msgs/Header or a
-    builtin_interfaces/Time (JointState, Clock, ...): int32 sec and uint32 nanosec after the
-    4-byte encapsulation header. None if the bytes cannot hold one."""
-    if len(data) < 12 or data[0] != 0 or data[1] not in (0, 1):
+    """cdr.stamp_ns, or None if the bytes cannot hold a stamp."""
+    try:
+        return cdr.stamp_ns(data)
+    except InvalidMessage:
         return None
-    sec, nanosec = struct.unpack_from('<iI' if data[1] else '>iI', data, 4)
-    return sec * 1_000_000_000 + nanosec if nanosec < 1_000_000_000 else None
 
 
 class StampGaps:

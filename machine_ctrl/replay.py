@@ -13,25 +13,23 @@ from __future__ import annotations
 import math
 import struct
 
+from machine_ctrl import cdr
 from machine_ctrl.bag import Bag, BagError, BagMessage
 
 CLOCK_TOPIC = '/clock'
 CLOCK_TYPE = 'rosgraph_msgs/msg/Clock'
 DERIVED_CLOCK_PERIOD = 10_000_000   # ns; assumed: 100 Hz, the usual rate of a bag player's clock
-_CDR_LE = b'\x00\x01\x00\x00'       # encapsulation header: plain CDR, little endian
 
 
 def clock_ns(data: bytes) -> int:
-    """Time (ns) carried by a serialized rosgraph_msgs/Clock; ValueError if malformed."""
-    if len(data) < 12 or data[1] not in (0, 1):
-        raise ValueError('not a serialized rosgraph_msgs/Clock')
-    sec, nanosec = struct.unpack_from('<iI' if data[1] == 1 else '>iI', data, 4)
-    return sec * 1_000_000_000 + nanosec
+    """Time (ns) carried by a serialized rosgraph_msgs/Clock; ValueError (InvalidMessage) if
+    malformed."""
+    return cdr.stamp_ns(data)
 
 
 def clock_bytes(ns: int) -> bytes:
     """A serialized rosgraph_msgs/Clock carrying `ns`."""
-    return _CDR_LE + struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000)
+    return cdr.LITTLE_ENDIAN + struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000)
 
 
 def check_options(rate: float, start_offset: float) -> None:

@@ -12,6 +12,7 @@ import functools
 import math
 
 import numpy as np
+import pinocchio as pin
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
@@ -241,6 +242,18 @@ def path_to_cl(msg: Path, frame: str):
     o = np.array([(q.pose.orientation.x, q.pose.orientation.y, q.pose.orientation.z, q.pose.orientation.w)
                   for q in msg.poses])
     return toolpath.from_arrays(p, toolpath.axes_from_quaternions(o))
+
+
+def pose_message(stamp: Time, frame: str, pose) -> PoseStamped:
+    """geometry_msgs/PoseStamped of a 4 x 4 homogeneous pose."""
+    msg = PoseStamped()
+    msg.header.stamp, msg.header.frame_id = stamp, frame
+    p = msg.pose.position
+    p.x, p.y, p.z = (float(v) for v in pose[:3, 3])
+    q = pin.Quaternion(pose[:3, :3])
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = float(q.x), float(q.y), float(q.z), float(q.w)
+    return msg
 
 
 def diagnostics(stamp: Time, name: str, level: bytes, message: str, values: dict) -> DiagnosticArray:

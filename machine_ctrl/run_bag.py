@@ -15,16 +15,14 @@ There is no wall clock offline: log and publish times are the sim time of the me
 """
 from __future__ import annotations
 
-import pinocchio as pin
-from geometry_msgs.msg import PoseStamped
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
+from hw_sim.simulator import true_geometry
 from machine_ctrl import ros_io
 from machine_ctrl.bag import BagWriter, qos_profile
 from machine_ctrl.config import MachineConfig
 from machine_ctrl.graph import default_graph
-from machine_ctrl.kinematics import Kinematics
 from machine_ctrl.recorder import MACHINE_FILE_KEY, MACHINE_KEY
 
 CHUNK_STEPS = 500      # reference_node's default chunk_steps
@@ -48,18 +46,6 @@ def servo_groups(machine: MachineConfig) -> list[list[str]]:
     return [list(s.parameters['axes']) for s in default_graph(machine) if s.module == 'machine_ctrl.servo_node']
 
 
-def _pose(kinematics: Kinematics, machine: MachineConfig, stamp, q) -> PoseStamped:
-    pose = kinematics.tool_pose(q)
-    msg = PoseStamped()
-    msg.header.stamp = stamp
-    msg.header.frame_id = machine.workpiece_frame
-    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in pose[:3, 3])
-    quat = pin.Quaternion(pose[:3, :3])
-    o = msg.pose.orientation
-    o.x, o.y, o.z, o.w = float(quat.x), float(quat.y), float(quat.z), float(quat.w)
-    return msg
-
-
 def write_run_bag(directory, machine: MachineConfig, reference, record, label: str = '') -> dict[str, int]:
     """Write `record` (offline.RunRecord of `reference`) as a bag; returns the counts."""
     writer = BagWriter(directory)
@@ -70,7 +56,7 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
     clock = ros_io.StepClock(machine.control_period)
     axes = list(machine.axis_names)
     groups = [(g, [axes.index(a) for a in g]) for g in servo_groups(machine)]
-    kinematics = Kinematics.from_config(machine)
+    true_tool_pose = true_geometry(machine)     # what hw_sim publishes (its error map included)
     steps = len(record.measured)
 
     def put(topic, msg, ns):
@@ -85,7 +71,8 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
         if k % DECIMATION == 0:
             put('/clock', Clock(clock=stamp), ns)
             put(ros_io.TOPIC_TRUE_JOINT_STATES, ros_io.joint_state(stamp, axes, record.true[k]), ns)
-            put(ros_io.TOPIC_TRUE_TOOL_POSE, _pose(kinematics, machine, stamp, record.true[k]), ns)
+            put(ros_io.TOPIC_TRUE_TOOL_POSE, ros_io.pose_message(stamp, machine.workpiece_frame,
+                                                                     true_tool_pose(record.true[k])), ns)
         put(ros_io.TOPIC_JOINT_STATES, ros_io.joint_state(stamp, axes, record.measured[k],
                                                           record.measured_velocity[k], record.effort[k]), ns)
         if has_offsets:

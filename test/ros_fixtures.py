@@ -10,6 +10,7 @@ Nothing here imports rclpy at module level and no fixture is autouse: a session 
 no ROS test pays nothing. A ROS test asks for ``ros_env`` (directly or through
 ``rclpy_context``/``ros_supervisor``) before it initialises rclpy.
 """
+import contextlib
 import os
 import sys
 
@@ -56,12 +57,12 @@ def ros_env():
                     os.environ[name] = value
 
 
-@pytest.fixture
-def rclpy_context(ros_env):
-    """A fresh, initialised rclpy Context in the session's domain, shut down after the test
+@contextlib.contextmanager
+def private_context(ros_env):
+    """A fresh, initialised rclpy Context in the domain of ``ros_env``, shut down on exit
     whatever happened. Its own context (not the default one) so that a test cannot leak
     nodes or state into the next; rclpy's signal handlers are left alone (pytest owns
-    SIGINT). Destroy your nodes before the test ends, or use ``ros_node``."""
+    SIGINT). For fixtures of a wider scope than ``rclpy_context``."""
     import rclpy
     from rclpy.context import Context
 
@@ -71,6 +72,14 @@ def rclpy_context(ros_env):
         yield context
     finally:
         context.try_shutdown()
+
+
+@pytest.fixture
+def rclpy_context(ros_env):
+    """``private_context`` for one test. Destroy your nodes before the test ends, or use
+    ``ros_node``."""
+    with private_context(ros_env) as context:
+        yield context
 
 
 @pytest.fixture

@@ -110,8 +110,7 @@ def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node,
             ros_supervisor.check()
             time.sleep(0.1)
         time.sleep(0.5)                    # discovery seen; let the reader-writer match settle
-        for spec in specs:
-            ros_supervisor.start(spec.name, spec.argv())
+        ros_supervisor.start_nodes(specs)
         deadline = time.monotonic() + 120
         while not all(k in collector.tip for k in range(STEPS)) or len(collector.orientation_magnitude) < STEPS:
             assert time.monotonic() < deadline, f'got {len(collector.tip)} contour errors'

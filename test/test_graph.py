@@ -77,8 +77,7 @@ def record_graph(micromill, ros_node, ros_supervisor, single_process):
             ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.graph', '--machine',
                                            str(micromill.yaml_path), '--hw-sim', 'min_subscribers=4'])
         else:
-            for spec in default_graph(micromill, hw_sim={'min_subscribers': 4}):
-                ros_supervisor.start(spec.name, spec.argv())
+            ros_supervisor.start_nodes(default_graph(micromill, hw_sim={'min_subscribers': 4}))
         recorder.wait_for(STEPS, timeout=120, supervisor=ros_supervisor)
     finally:
         ros_supervisor.stop_all()

@@ -85,15 +85,21 @@ class Commander:
         self.executor.shutdown()
 
 
-@pytest.fixture
-def commander(micromill, ros_node, ros_supervisor):
-    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'hw_sim.node', '--ros-args',
-                                    '-p', 'command_timeout:=0.5', '-p', 'republish_period:=0.1'])
+def _commanded_hw_sim(micromill, ros_node, ros_supervisor, *parameters):
+    """hw_sim with a short command timeout (and `parameters`, 'name:=value') and a Commander
+    playing the servos; afterwards hw_sim must still be alive."""
+    args = [a for p in ('command_timeout:=0.5', 'republish_period:=0.1', *parameters) for a in ('-p', p)]
+    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'hw_sim.node', '--ros-args', *args])
     ros_supervisor.wait_for_line('hw_sim', 'ready', 60)
     c = Commander(ros_node('servos'), list(micromill.axis_names), micromill)
     yield c
     c.stop()
     assert ros_supervisor.alive() == ['hw_sim'], 'hw_sim died'
+
+
+@pytest.fixture
+def commander(micromill, ros_node, ros_supervisor):
+    yield from _commanded_hw_sim(micromill, ros_node, ros_supervisor)
 
 
 def test_nan_command_stops_the_machine_and_reset_recovers(commander):
@@ -195,13 +201,7 @@ def test_bad_parameters_stop_start_up_with_one_line(ros_env, args, message):
 
 @pytest.fixture
 def gated_commander(micromill, ros_node, ros_supervisor):
-    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'hw_sim.node', '--ros-args', '-p', 'recorder_window:=50',
-                                    '-p', 'command_timeout:=0.5', '-p', 'republish_period:=0.1'])
-    ros_supervisor.wait_for_line('hw_sim', 'ready', 60)
-    c = Commander(ros_node('servos'), list(micromill.axis_names), micromill)
-    yield c
-    c.stop()
-    assert ros_supervisor.alive() == ['hw_sim'], 'hw_sim died'
+    yield from _commanded_hw_sim(micromill, ros_node, ros_supervisor, 'recorder_window:=50')
 
 
 def _settled(c, quiet=0.6):

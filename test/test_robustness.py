@@ -16,6 +16,7 @@ from machine_ctrl.client import MachineClient
 from machine_ctrl.graph import default_graph
 from machine_ctrl.kinematics import Kinematics
 from machine_ctrl.processes import Supervisor
+from ros_fixtures import private_context
 from trajectory import toolpath
 
 OFF_GRID = 12_345          # ns: a stamp no control step has (period 100 us)
@@ -84,30 +85,27 @@ class Client(MachineClient):
 @pytest.fixture(scope='module')
 def graph(micromill, ros_env, tmp_path_factory):
     with Supervisor(ros_env, log_dir=tmp_path_factory.mktemp('logs'), stop_timeout=3.0) as supervisor:
-        for spec in graph_specs(micromill):
-            supervisor.start(spec.name, spec.argv())
+        supervisor.start_nodes(graph_specs(micromill))
         yield supervisor
 
 
 @pytest.fixture(scope='module')
 def client(micromill, graph, ros_env):
     import rclpy
-    from rclpy.context import Context
-    context = Context()
-    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
-    node = rclpy.create_node('robustness_client', context=context)
-    c = Client(node, micromill)
-    try:
-        c.wait(lambda: c.status().get('streamed_to_step', '') != '' and c.truth is not None
-               and all(n in c.diagnostics for n in ('servo_coarse', 'servo_fine', 'dual_stage', 'compensation',
-                                                     'contour_error', 'hw_sim')), 'the graph running', 120, graph.check)
-        # the table settles on the compensated hold position first (a few um): start from there
-        c.wait(lambda: int(c.diag('hw_sim', 'step')) > 3000, 'the machine settled', 120, graph.check)
-        yield c
-    finally:
-        c.close()
-        node.destroy_node()
-        context.try_shutdown()
+    with private_context(ros_env) as context:
+        node = rclpy.create_node('robustness_client', context=context)
+        c = Client(node, micromill)
+        try:
+            c.wait(lambda: c.status().get('streamed_to_step', '') != '' and c.truth is not None
+                   and all(n in c.diagnostics for n in ('servo_coarse', 'servo_fine', 'dual_stage', 'compensation',
+                                                         'contour_error', 'hw_sim')), 'the graph running', 120,
+                   graph.check)
+            # the table settles on the compensated hold position first (a few um): start from there
+            c.wait(lambda: int(c.diag('hw_sim', 'step')) > 3000, 'the machine settled', 120, graph.check)
+            yield c
+        finally:
+            c.close()
+            node.destroy_node()
 
 
 # -- messages ---------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ from machine_ctrl.client import MachineClient
 from machine_ctrl.graph import default_graph
 from machine_ctrl.kinematics import Kinematics
 from machine_ctrl.processes import Supervisor
+from ros_fixtures import private_context
 from trajectory import moves, toolpath
 
 START = [1e-3, -0.5e-3, 0.2e-3, 0, 0, 0, 0, 0, 0]      # hw_sim's initial position, away from home
@@ -87,26 +88,22 @@ def arc(machine, points=24, radius=1e-3):
 @pytest.fixture(scope='module')
 def graph(micromill, ros_env, tmp_path_factory):
     with Supervisor(ros_env, log_dir=tmp_path_factory.mktemp('logs'), stop_timeout=3.0) as supervisor:
-        for spec in default_graph(micromill, contour=None, hw_sim={'initial_position': START}):
-            supervisor.start(spec.name, spec.argv())
+        supervisor.start_nodes(default_graph(micromill, contour=None, hw_sim={'initial_position': START}))
         yield supervisor
 
 
 @pytest.fixture(scope='module')
 def client(micromill, graph, ros_env):
     import rclpy
-    from rclpy.context import Context
-    context = Context()
-    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
-    node = rclpy.create_node('trajectory_client', context=context)
-    c = Client(node, micromill)
-    try:
-        c.wait(lambda: c.status().get('streamed_to_step', '') not in ('', None), 'streaming', 60, graph.check)
-        yield c
-    finally:
-        c.close()
-        node.destroy_node()
-        context.try_shutdown()
+    with private_context(ros_env) as context:
+        node = rclpy.create_node('trajectory_client', context=context)
+        c = Client(node, micromill)
+        try:
+            c.wait(lambda: c.status().get('streamed_to_step', '') not in ('', None), 'streaming', 60, graph.check)
+            yield c
+        finally:
+            c.close()
+            node.destroy_node()
 
 
 BAD_GOALS = [

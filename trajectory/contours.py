@@ -14,26 +14,28 @@ from machine_ctrl.config import MachineConfig
 from machine_ctrl.reference import Reference
 
 
-def rest_to_rest(length: float, feed: float, ramp_time: float, period: float):
-    """Arc length s, ds/dt, d2s/dt2 sampled at `period`: quintic feed ramps (the feed is
-    F * (10 tau^3 - 15 tau^4 + 6 tau^5)) around a cruise at `feed`."""
+def quintic_ramp(tau, feed: float, ramp_time: float):
+    """s, ds/dt, d2s/dt2 of a feed ramp F (10 tau^3 - 15 tau^4 + 6 tau^5), tau = t / ramp_time."""
+    s = feed * ramp_time * (2.5 * tau**4 - 3.0 * tau**5 + tau**6)
+    v = feed * (10 * tau**3 - 15 * tau**4 + 6 * tau**5)
+    a = feed / ramp_time * (30 * tau**2 - 60 * tau**3 + 30 * tau**4)
+    return s, v, a
+
+
+def rest_to_rest(length: float, feed: float, ramp_time: float, period: float, ramp=quintic_ramp):
+    """Arc length s, ds/dt, d2s/dt2 sampled at `period`: a feed ramp up (`ramp`, covering
+    feed * ramp_time / 2 like every symmetric ramp), a cruise at `feed`, and the mirror
+    image of the ramp down."""
     ramp_length = feed * ramp_time / 2.0
     if length < 2.0 * ramp_length:
         raise ValueError(f'segment of {length:g} m is shorter than its two ramps ({2 * ramp_length:g} m)')
     duration = ramp_time * 2.0 + (length - 2.0 * ramp_length) / feed
     t = np.arange(int(math.ceil(duration / period)) + 1) * period
     t = np.minimum(t, duration)
-
-    def ramp(tau):
-        s = feed * ramp_time * (2.5 * tau**4 - 3.0 * tau**5 + tau**6)
-        v = feed * (10 * tau**3 - 15 * tau**4 + 6 * tau**5)
-        a = feed / ramp_time * (30 * tau**2 - 60 * tau**3 + 30 * tau**4)
-        return s, v, a
-
     up = np.clip(t / ramp_time, 0.0, 1.0)
     down = np.clip((duration - t) / ramp_time, 0.0, 1.0)
-    s_up, v_up, a_up = ramp(up)
-    s_down, v_down, a_down = ramp(down)
+    s_up, v_up, a_up = ramp(up, feed, ramp_time)
+    s_down, v_down, a_down = ramp(down, feed, ramp_time)
     cruise = np.clip(t - ramp_time, 0.0, duration - 2.0 * ramp_time)
     in_down = t > duration - ramp_time
     s = np.where(in_down, length - s_down, s_up + feed * cruise)

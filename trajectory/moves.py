@@ -133,7 +133,7 @@ def through_waypoints(machine: MachineConfig, start, names, points, times) -> Re
     segments, state, previous = [], AxisState.at_rest(start), 0.0
     for goal, t in zip(goals, times):
         segment = move_to(machine, goal, state, minimum_duration=(t - previous) if timed else 0.0)
-        segments.append(segment if not segments else tail(segment))
+        segments.append(segment)
         state, previous = AxisState.at_rest(goal), t
     return concatenate(segments)
 
@@ -150,12 +150,6 @@ def _axis_columns(machine: MachineConfig, names) -> list[int]:
     return [machine.axis_names.index(n) for n in names]
 
 
-def tail(reference: Reference) -> Reference:
-    """Reference without its first row (the previous segment's last)."""
-    return Reference(reference.axis_names, reference.period, reference.position[1:],
-                     reference.velocity[1:], reference.acceleration[1:])
-
-
 def stroke_violation(machine: MachineConfig, reference: Reference) -> str:
     """'' if every sampled position is inside its axis's stroke, else the first offender."""
     for i, axis in enumerate(machine.axes):
@@ -168,10 +162,11 @@ def stroke_violation(machine: MachineConfig, reference: Reference) -> str:
 
 
 def concatenate(references) -> Reference:
-    """References played back to back (each starts where the previous ended)."""
+    """References played back to back. Each later one starts with the row the previous one
+    ended on (a move from where the previous stopped); that row is played once."""
     first = references[0]
     return Reference(first.axis_names, first.period,
-                     *(np.concatenate([getattr(r, f) for r in references])
+                     *(np.concatenate([getattr(first, f)] + [getattr(r, f)[1:] for r in references[1:]])
                        for f in ('position', 'velocity', 'acceleration')))
 
 

@@ -229,7 +229,7 @@ class TrajectoryNode(Node):
             self.set_state('idle')
             self.refuse_goal('path', f'planning failed: {reason}')
             return
-        self.begin(moves.concatenate([approach, moves.tail(path)]), label)
+        self.begin(moves.concatenate([approach, path]), label)
 
     def begin(self, reference: Reference, label: str) -> None:
         self.stream.start(reference, label, self.limits, self.override_setting)

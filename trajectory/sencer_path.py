@@ -37,6 +37,7 @@ from machine_ctrl.config import MachineConfig
 from machine_ctrl.kinematics import Kinematics
 from machine_ctrl.reference import Reference
 from machine_ctrl.trt_kinematics import AXES, TrtInverseKinematics
+from trajectory.contours import rest_to_rest
 
 RADIUS_COS, RADIUS_SIN, PITCH = 0.015, 0.005, 0.015   # m, Eq. (35) (15, 5 and 15 mm)
 L_END = 4.0 * math.pi                                   # Eq. (35)
@@ -117,27 +118,12 @@ def axis_jets(l: np.ndarray, d4: float, a2: float) -> list[Jet]:
     return [x, y, z, a, c]
 
 
-def cubic_feed(length: float, feed: float, ramp_time: float, period: float):
-    """Arc length s, ds/dt, d2s/dt2 at `period`: feed F (3 tau^2 - 2 tau^3) up, cruise, and
-    the mirror image down (Sencer section 4, "cubic acceleration/decelerations")."""
-    ramp_length = feed * ramp_time / 2.0
-    if length < 2.0 * ramp_length:
-        raise ValueError(f'path of {length:g} m is shorter than its two ramps ({2 * ramp_length:g} m)')
-    duration = 2.0 * ramp_time + (length - 2.0 * ramp_length) / feed
-    t = np.minimum(np.arange(int(math.ceil(duration / period)) + 1) * period, duration)
-
-    def ramp(tau):
-        return (feed * ramp_time * (tau ** 3 - 0.5 * tau ** 4), feed * (3 * tau ** 2 - 2 * tau ** 3),
-                feed / ramp_time * (6 * tau - 6 * tau ** 2))
-
-    s_up, v_up, a_up = ramp(np.clip(t / ramp_time, 0.0, 1.0))
-    s_dn, v_dn, a_dn = ramp(np.clip((duration - t) / ramp_time, 0.0, 1.0))
-    cruise = np.clip(t - ramp_time, 0.0, duration - 2.0 * ramp_time)
-    down = t > duration - ramp_time
-    s = np.where(down, length - s_dn, s_up + feed * cruise)
-    v = np.where(down, v_dn, np.where(t < ramp_time, v_up, feed))
-    a = np.where(down, -a_dn, np.where(t < ramp_time, a_up, 0.0))
-    return s, v, a
+def cubic_ramp(tau, feed: float, ramp_time: float):
+    """s, ds/dt, d2s/dt2 of a feed ramp F (3 tau^2 - 2 tau^3), tau = t / ramp_time (Sencer
+    section 4, "cubic acceleration/decelerations"); contours.rest_to_rest adds the cruise
+    and the mirror image down."""
+    return (feed * ramp_time * (tau ** 3 - 0.5 * tau ** 4), feed * (3 * tau ** 2 - 2 * tau ** 3),
+            feed / ramp_time * (6 * tau - 6 * tau ** 2))
 
 
 def sencer_reference(machine: MachineConfig, feed: float = FEED, acceleration: float = ACCELERATION,
@@ -160,7 +146,7 @@ def sencer_reference(machine: MachineConfig, feed: float = FEED, acceleration: f
 
 def _path(machine: MachineConfig, ik: TrtInverseKinematics, feed: float, ramp_time: float):
     speed_per_l = math.sqrt(RADIUS_COS ** 2 + RADIUS_SIN ** 2 + PITCH ** 2)    # |dP/dl|, m/rad
-    s, sd, sdd = cubic_feed(speed_per_l * L_END, feed, ramp_time, machine.control_period)
+    s, sd, sdd = rest_to_rest(speed_per_l * L_END, feed, ramp_time, machine.control_period, cubic_ramp)
     l, ld, ldd = s / speed_per_l, sd / speed_per_l, sdd / speed_per_l
     jets = axis_jets(l, ik.d4, ik.a2)
     return (np.column_stack([j.f for j in jets]), np.column_stack([j.d1 * ld for j in jets]),
