@@ -15,16 +15,16 @@ PACKAGE = 'machine_ctrl'
 # One entry per executable; lib_scripts/<name> is its `ros2 run` launcher (kept in step by
 # test/test_install_layout.py).
 EXECUTABLES = {
-    'machine-ctrl': 'machine_ctrl.cli:main',
-    'hw_sim_node': 'hw_sim.node:main',
-    'servo_node': 'machine_ctrl.servo_node:main',
-    'dual_stage_node': 'machine_ctrl.dual_stage_node:main',
-    'reference_node': 'machine_ctrl.reference_node:main',
-    'recorder_node': 'machine_ctrl.recorder_node:main',
-    'replay_node': 'machine_ctrl.replay_node:main',
-    'trajectory_node': 'trajectory.node:main',
-    'contour_error_node': 'machine_ctrl.contour_error_node:main',
-    'compensation_node': 'compensation.node:main',
+    'machine-ctrl': 'machine_ctrl.app.cli:main',
+    'hw_sim_node': 'machine_ctrl.ros.hw_sim_node:main',
+    'servo_node': 'machine_ctrl.ros.servo_node:main',
+    'dual_stage_node': 'machine_ctrl.ros.dual_stage_node:main',
+    'reference_node': 'machine_ctrl.ros.reference_node:main',
+    'recorder_node': 'machine_ctrl.ros.recorder_node:main',
+    'replay_node': 'machine_ctrl.ros.replay_node:main',
+    'trajectory_node': 'machine_ctrl.ros.trajectory_node:main',
+    'contour_error_node': 'machine_ctrl.ros.contour_error_node:main',
+    'compensation_node': 'machine_ctrl.ros.compensation_node:main',
 }
 
 

@@ -3,7 +3,7 @@ and one process), and the demo's wall time with its real-time factor.
 
     .venv/bin/python bench/bringup_demo.py [--runs 3] [--no-demo]
 
-Each bringup runs in a ROS domain of its own (machine_ctrl.processes.reserve_ros_domain);
+Each bringup runs in a ROS domain of its own (machine_ctrl.app.processes.reserve_ros_domain);
 "ready" is what bringup itself reports (every node on the ROS graph and the trajectory
 node streaming), beside the wall time from starting the command to that line (which adds
 the command's own imports). The demo is `machine-ctrl demo` as the README runs it; its
@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from machine_ctrl.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
 
 TOOL = str(Path(sys.executable).with_name('machine-ctrl'))
 

@@ -9,7 +9,7 @@ import time
 
 from compensation.compensate import Compensator
 from compensation.error_map import load_error_map
-from machine_ctrl.config import load_machine
+from machine_ctrl.model.config import load_machine
 from trajectory.contours import contour_reference
 
 CHUNK = 500

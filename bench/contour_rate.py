@@ -12,10 +12,10 @@ import os
 import statistics
 import time
 
-from machine_ctrl.config import load_machine
-from machine_ctrl.contour import ESTIMATORS, ContourEstimator, ToolTrajectory, tool_reference
-from machine_ctrl.kinematics import Kinematics
-from machine_ctrl.offline import run
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.contour.estimation import ESTIMATORS, ContourEstimator, ToolTrajectory, tool_reference
+from machine_ctrl.model.kinematics import Kinematics
+from hw_sim.offline import run
 
 
 def reference_of(name):

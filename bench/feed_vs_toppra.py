@@ -36,8 +36,8 @@ import toppra as ta
 import toppra.algorithm as algo
 import toppra.constraint as constraint
 
-from machine_ctrl.config import load_machine
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.model.kinematics import Kinematics
 from trajectory.feedrate import FeedLimits
 from trajectory.planner import plan
 

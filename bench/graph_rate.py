@@ -22,10 +22,10 @@ import time
 
 from ros_chain import bare_chain_rate, init_context
 
-from machine_ctrl.config import load_machine
-from machine_ctrl.graph import default_graph
-from machine_ctrl.offline import run
-from machine_ctrl.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.ros.graph import default_graph
+from hw_sim.offline import run
+from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
 from trajectory.contours import circle
 
 CRITICAL_PATH_HOPS = 3
@@ -48,7 +48,7 @@ def graph_rate(machine, single_process: bool, seconds: float) -> float:
 
     with reserve_ros_domain() as lease, Supervisor(isolated_ros_env(lease.domain_id), stop_timeout=3.0) as sup:
         if single_process:
-            sup.start('graph', [sys.executable, '-m', 'machine_ctrl.graph', '--machine', str(machine.yaml_path)])
+            sup.start('graph', [sys.executable, '-m', 'machine_ctrl.ros.graph', '--machine', str(machine.yaml_path)])
         else:
             sup.start_nodes(default_graph(machine))
         context = init_context(lease.domain_id)

@@ -9,8 +9,8 @@ import timeit
 import numpy as np
 import pinocchio as pin
 
-from machine_ctrl.config import load_machine
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.model.kinematics import Kinematics
 
 
 def best_per_call(fn, number=2000, repeat=7):

@@ -18,8 +18,8 @@ import argparse
 import statistics
 import time
 
-from machine_ctrl.config import load_machine
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.model.kinematics import Kinematics
 from trajectory import toolpath
 from trajectory.planner import plan
 from trajectory.redundancy import resolve

@@ -18,8 +18,8 @@ from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from machine_ctrl.bag import Bag
-from machine_ctrl.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+from machine_ctrl.recording.bag import Bag
+from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
 
 RATES = (2000, 5000, 10000, 15000, 20000, 40000)     # messages/s; 0 below = unpaced
 
@@ -27,7 +27,7 @@ RATES = (2000, 5000, 10000, 15000, 20000, 40000)     # messages/s; 0 below = unp
 def one_run(supervisor, node, directory, count, rate):
     """(published, recorded, achieved rate) for one paced run."""
     bag = directory / f'bag_{rate}'
-    supervisor.start('recorder', [sys.executable, '-m', 'machine_ctrl.recorder_node', '--ros-args',
+    supervisor.start('recorder', [sys.executable, '-m', 'machine_ctrl.ros.recorder_node', '--ros-args',
                                   '-p', f'output:={bag}', '-p', "topics:=['/bench:sensor_msgs/msg/JointState']"])
     supervisor.wait_for_line('recorder', 'recording to', 60)
     publisher = node.create_publisher(JointState, '/bench', QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE))

@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 
-from machine_ctrl.config import load_machine
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.model.kinematics import Kinematics
 from trajectory.redundancy import RedundancySettings, resolve
 
 

@@ -12,7 +12,7 @@ adds on top of this rate is ours.
 
 Importable: ``bare_chain_rate(hops, steps, multiprocess, executor)`` returns steps per
 second, so another benchmark can print its rate beside the bare one measured in the same
-run. Each call leases its own ROS domain id (machine_ctrl.processes) and keeps discovery
+run. Each call leases its own ROS domain id (machine_ctrl.app.processes) and keeps discovery
 on localhost, so it disturbs neither a test session nor another benchmark.
 
 The relays of the multi-process ring are this module run as
@@ -38,7 +38,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
-from machine_ctrl.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
 
 BENCH_DIR = Path(__file__).resolve().parent
 EXECUTORS = ('single', 'events')

@@ -1,5 +1,5 @@
 """Cost of the lock-step graph's messages in Python: rclpy's typed messages against
-machine_ctrl.cdr, for a 9-joint sensor_msgs/JointState and a 500-row reference chunk
+machine_ctrl.recording.cdr, for a 9-joint sensor_msgs/JointState and a 500-row reference chunk
 (trajectory_msgs/JointTrajectory), each way. "take" is what a subscriber pays for the
 bytes (rclpy: deserialize_message; cdr: decode, plus the row parsing the nodes do), "send"
 what a publisher pays before rclpy hands the bytes on (rclpy: build the message and
@@ -21,7 +21,7 @@ def best_us(function, number: int) -> float:
 
 
 def typed_chunk(clock, first_step, names, positions, velocities, accelerations):
-    """The chunk as rclpy message objects (how the nodes built chunks before machine_ctrl.cdr)."""
+    """The chunk as rclpy message objects (how the nodes built chunks before machine_ctrl.recording.cdr)."""
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
     msg = JointTrajectory()
     msg.header.stamp = clock.stamp(first_step)
@@ -39,9 +39,9 @@ def main() -> None:
     from sensor_msgs.msg import JointState
     from trajectory_msgs.msg import JointTrajectory
 
-    from machine_ctrl import ros_io
-    from machine_ctrl.cdr import ChunkDecoder, JointStateDecoder, JointStateEncoder
-    from machine_ctrl.config import load_machine
+    from machine_ctrl.ros import messages as ros_io
+    from machine_ctrl.recording.cdr import ChunkDecoder, JointStateDecoder, JointStateEncoder
+    from machine_ctrl.model.config import load_machine
 
     machine = load_machine()
     axes, clock = machine.axis_names, ros_io.StepClock(machine.control_period)

@@ -30,10 +30,10 @@ import numpy as np
 
 from compensation.error_map import ErrorMap
 from compensation.error_model import ErrorKinematics
-from machine_ctrl.config import MachineConfig
-from machine_ctrl.errors import ConfigError
-from machine_ctrl.kinematics import Kinematics
-from machine_ctrl.reference import Reference
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.model.errors import ConfigError
+from machine_ctrl.model.kinematics import Kinematics
+from machine_ctrl.model.reference import Reference
 
 # assumed (nu of Eq. 5.27 is not stated, seed-notes.md): 1 pm, far below the 20 nm table
 # sensors; Newton steps reach it in 2-3 iterations from micrometre errors, and a tolerance

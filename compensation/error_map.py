@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from machine_ctrl.config import _Loader, _Section
-from machine_ctrl.errors import ConfigError
+from machine_ctrl.model.config import _Loader, _Section
+from machine_ctrl.model.errors import ConfigError
 
 ERROR_NAMES = ('dx', 'dy', 'dz', 'ex', 'ey', 'ez')
 DIRECTIONS = {'x': 0, 'y': 1, 'z': 2}

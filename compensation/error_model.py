@@ -1,7 +1,7 @@
 """Error-augmented forward kinematics (Yuen thesis, seed 000_d9dd5f6a818770e4.txt, §5.2,
 Eqs. 5.1-5.7), evaluated for many configurations at once.
 
-The chain is the ideal one of :class:`machine_ctrl.kinematics.Kinematics`, read from its
+The chain is the ideal one of :class:`machine_ctrl.model.kinematics.Kinematics`, read from its
 Pinocchio model (joint placements, joint types and axes, frame placements), so there is one
 definition of the machine. Each joint j contributes
 
@@ -26,9 +26,9 @@ from __future__ import annotations
 import numpy as np
 
 from compensation.error_map import DIRECTIONS, ErrorMap
-from machine_ctrl.config import MachineConfig
-from machine_ctrl.errors import ConfigError
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.model.errors import ConfigError
+from machine_ctrl.model.kinematics import Kinematics
 
 _AXES = {'X': 0, 'Y': 1, 'Z': 2}
 

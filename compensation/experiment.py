@@ -26,9 +26,9 @@ from compensation.compensate import Compensator
 from compensation.error_map import ErrorMap
 from compensation.error_model import ErrorKinematics
 from compensation.measurement import STEP
-from machine_ctrl.config import MachineConfig
-from machine_ctrl.offline import RunRecord, run
-from machine_ctrl.reference import Reference
+from machine_ctrl.model.config import MachineConfig
+from hw_sim.offline import RunRecord, run
+from machine_ctrl.model.reference import Reference
 
 # Thesis Table 6.3 (um): (mean uncompensated, mean compensated, max uncompensated, max compensated)
 THESIS_6_3 = {

@@ -27,8 +27,8 @@ import random
 import numpy as np
 from scipy.linalg import expm
 
-from machine_ctrl.config import AxisConfig
-from machine_ctrl.lugre import StribeckCurve, bristle_rate
+from machine_ctrl.model.config import AxisConfig
+from machine_ctrl.control.lugre import StribeckCurve, bristle_rate
 
 
 def quantize(value: float, step: float) -> float:

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
 from hw_sim.plant import Sensor, make_plant
-from machine_ctrl.config import MachineConfig
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.model.kinematics import Kinematics
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from machine_ctrl.config import load_machine
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.model.kinematics import Kinematics
 pytest_plugins = ['ros_fixtures']
 
 

@@ -3,7 +3,7 @@
 Why: DDS discovery is machine-wide. Two pytest sessions (two checkouts, CI beside a
 developer, xdist workers) in the same ROS domain would see each other's nodes, and a
 stray message answers the wrong test. So each session leases a domain id of its own
-(an flock under /tmp, see machine_ctrl.processes.reserve_ros_domain) and keeps
+(an flock under /tmp, see machine_ctrl.app.processes.reserve_ros_domain) and keeps
 discovery on localhost.
 
 Nothing here imports rclpy at module level and no fixture is autouse: a session that runs
@@ -16,7 +16,7 @@ import sys
 
 import pytest
 
-from machine_ctrl.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
 
 _ROS_VARIABLES = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS',
                   'ROS_LOCALHOST_ONLY', 'AMENT_PREFIX_PATH')

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from machine_ctrl import analysis
+from machine_ctrl.recording import analysis
 
 STEPS = 3000
 
@@ -18,7 +18,7 @@ STEPS = 3000
 def recorded(micromill, tmp_path_factory):
     """circle, 3000 steps, SMC and DSFD: (stats from experiments, bag directory)."""
     os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-    from machine_ctrl import experiments
+    from machine_ctrl.experiments import tracking as experiments
     directory = tmp_path_factory.mktemp('exp')
     stats = experiments.contouring(micromill, 'circle', steps=STEPS, record_dir=directory)
     return stats, directory
@@ -49,7 +49,7 @@ def test_contour_error_of_a_line_and_a_circle():
 
 
 def _cli(*args):
-    return subprocess.run([sys.executable, '-m', 'machine_ctrl.cli', *map(str, args)], capture_output=True,
+    return subprocess.run([sys.executable, '-m', 'machine_ctrl.app.cli', *map(str, args)], capture_output=True,
                           text=True, env={**os.environ, 'AMENT_PREFIX_PATH': sys.prefix})
 
 

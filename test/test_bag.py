@@ -6,8 +6,8 @@ import sys
 
 import pytest
 
-from machine_ctrl import msgdefs
-from machine_ctrl.bag import Bag, BagError, BagWriter, qos_profile
+from machine_ctrl.recording import msgdefs
+from machine_ctrl.recording.bag import Bag, BagError, BagWriter, qos_profile
 
 
 @pytest.fixture(autouse=True)
@@ -75,7 +75,7 @@ def test_writer_refuses_a_non_empty_directory(tmp_path):
 
 
 def _analyze(path):
-    return subprocess.run([sys.executable, '-m', 'machine_ctrl.cli', 'analyze', str(path)],
+    return subprocess.run([sys.executable, '-m', 'machine_ctrl.app.cli', 'analyze', str(path)],
                           capture_output=True, text=True, env={**os.environ, 'AMENT_PREFIX_PATH': sys.prefix})
 
 

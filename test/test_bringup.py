@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from machine_ctrl import analysis
+from machine_ctrl.recording import analysis
 
 EXE = str(Path(sys.executable).with_name('machine-ctrl'))
 

@@ -1,4 +1,4 @@
-"""machine_ctrl.cdr against two independent CDR implementations: rclpy's own (de)serializer
+"""machine_ctrl.recording.cdr against two independent CDR implementations: rclpy's own (de)serializer
 (Fast CDR, little endian) and rosbags' (both byte orders), on seeded random messages; and
 malformed bytes, which must give InvalidMessage and nothing else. For reference chunks also
 ros_io.parse_chunk_bytes (the nodes' path) against ros_io.parse_chunk on rclpy's message."""
@@ -14,9 +14,9 @@ from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from machine_ctrl import ros_io
-from machine_ctrl.cdr import ChunkDecoder, JointStateDecoder, JointStateEncoder, NotUniform, encode_chunk
-from machine_ctrl.errors import InvalidMessage
+from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.recording.cdr import ChunkDecoder, JointStateDecoder, JointStateEncoder, NotUniform, encode_chunk
+from machine_ctrl.model.errors import InvalidMessage
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 AXES = ['x_c', 'y_c', 'z_c', 'x_f', 'y_f', 'z_f', 'a_f', 'b_f', 'c_f']

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from compensation.cli import run_experiment
+from machine_ctrl.app.compensation_cli import run_experiment
 from compensation.compensate import Compensator
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
 from compensation.stream import CompensationStream
-from machine_ctrl.reference import Reference
+from machine_ctrl.model.reference import Reference
 from trajectory.contours import contour_reference
 
 

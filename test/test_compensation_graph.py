@@ -8,7 +8,7 @@ import numpy as np
 from compensation.compensate import Compensator
 from compensation.error_map import load_error_map
 from compensation.stream import CompensationStream
-from machine_ctrl.graph import NodeSpec
+from machine_ctrl.ros.graph import NodeSpec
 from trajectory.contours import contour_reference
 
 
@@ -31,12 +31,12 @@ def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
     from std_srvs.srv import SetBool
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-    from machine_ctrl import ros_io
+    from machine_ctrl.ros import messages as ros_io
 
     model = str(micromill.simulation.error_map_path(micromill.yaml_path))
     common = {'machine': str(micromill.yaml_path)}
-    reference = NodeSpec('reference', 'machine_ctrl.reference_node', 'ReferenceNode', {**common, 'contour': 'circle'})
-    compensation = NodeSpec('compensation', 'compensation.node', 'CompensationNode', {**common, 'model': model})
+    reference = NodeSpec('reference', 'machine_ctrl.ros.reference_node', 'ReferenceNode', {**common, 'contour': 'circle'})
+    compensation = NodeSpec('compensation', 'machine_ctrl.ros.compensation_node', 'CompensationNode', {**common, 'model': model})
     node = ros_node('probe')
     chunks = {}
 

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from machine_ctrl.config import available_machines, load_machine
-from machine_ctrl.errors import ConfigError
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.config import available_machines, load_machine
+from machine_ctrl.model.errors import ConfigError
+from machine_ctrl.model.kinematics import Kinematics
 
 MACHINES = Path(__file__).resolve().parents[1] / 'config' / 'machines'
 
@@ -99,7 +99,7 @@ def test_pinocchio_failure_is_one_line(tmp_path, micromill):
 
 def test_cli_reports_config_error_in_one_line_and_exit_2(tmp_path):
     path = edited_machine(tmp_path, ('mass: 21.19', 'mass: -21.19'))
-    result = subprocess.run([sys.executable, '-m', 'machine_ctrl.cli', 'info', str(path)],
+    result = subprocess.run([sys.executable, '-m', 'machine_ctrl.app.cli', 'info', str(path)],
                             capture_output=True, text=True)
     assert result.returncode == 2
     assert result.stdout == ''

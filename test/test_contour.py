@@ -1,15 +1,15 @@
-"""Contour-error estimators (machine_ctrl/contour.py) and the closest-point truth
-(machine_ctrl/contour_truth.py) on paths whose contour errors are known in closed form, and
+"""Contour-error estimators (machine_ctrl/contour/estimation.py) and the closest-point truth
+(machine_ctrl/contour/truth.py) on paths whose contour errors are known in closed form, and
 the done-when targets of [5/7] on the trt_5axis Eq. (35) run."""
 import math
 
 import numpy as np
 import pytest
 
-from machine_ctrl.contour import (ESTIMATORS, OrientationEstimator, ToolTipEstimator, ToolTrajectory,
+from machine_ctrl.contour.estimation import (ESTIMATORS, OrientationEstimator, ToolTipEstimator, ToolTrajectory,
                                   drive_coordinates, orientation_contour_error, rotary_contour_error,
                                   rotary_contour_error_eq34, tool_reference)
-from machine_ctrl.contour_truth import true_orientation_errors, true_tool_tip_errors
+from machine_ctrl.contour.truth import true_orientation_errors, true_tool_tip_errors
 from trajectory.sencer_path import L_END, axis_jets, eq35
 
 PERIOD = 1e-3
@@ -155,7 +155,7 @@ def test_rotary_forms_of_eq34(trt_kin):
 def test_tool_reference_matches_eq35_derivatives(trt, trt_kin):
     """P, V = dP/dt and A = d2P/dt2 from the kinematics equal Eq. (35)'s own
     derivatives along l(t) = l0 + w t + alpha t^2 / 2."""
-    from machine_ctrl.trt_kinematics import TrtInverseKinematics
+    from machine_ctrl.model.trt_kinematics import TrtInverseKinematics
     ik = TrtInverseKinematics.from_kinematics(trt_kin)
     l = np.linspace(0.0, L_END, 40)
     ld, ldd = 2.3, -1.7
@@ -185,7 +185,7 @@ def test_trajectory_chunks_replace_and_drop():
 def test_done_when_targets_on_the_trt_eq35_run():
     """[5/7]: compensated mean deviation <= 0.05 um and <= 5 % of the largest true contour
     error at its peaks, best of the three at the peaks; orientation (Eq. 28) <= 6 urad."""
-    from machine_ctrl.contour_experiment import experiment
+    from machine_ctrl.experiments.contour import experiment
     summary = experiment(helix=False)[0]['trt_5axis']
     tip = summary['tool_tip']
     assert summary['fault'] is None

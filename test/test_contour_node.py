@@ -1,6 +1,6 @@
 """contour_error_node over real DDS in a lock-step graph (hw_sim + servo_node on trt_5axis,
 this test as the reference source playing the Eq. (35) path): what it publishes for every
-step equals the same core (machine_ctrl.contour) run offline on the recorded joint states
+step equals the same core (machine_ctrl.contour.estimation) run offline on the recorded joint states
 and the same reference."""
 import math
 import threading
@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from machine_ctrl.contour import ContourEstimator, ToolTrajectory
-from machine_ctrl.graph import NodeSpec
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.contour.estimation import ContourEstimator, ToolTrajectory
+from machine_ctrl.ros.graph import NodeSpec
+from machine_ctrl.model.kinematics import Kinematics
 from trajectory.sencer_path import sencer_reference
 
 STEPS = 1200          # 0.2 s at rest, then 1 s of the path
@@ -28,8 +28,8 @@ class Collector:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64
 
-        from machine_ctrl import contour_error_node as cen
-        from machine_ctrl import ros_io
+        from machine_ctrl.ros import contour_error_node as cen
+        from machine_ctrl.ros import messages as ros_io
         self.period_ns = period_ns
         qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
         self.states, self.tip, self.orientation = {}, {}, {}
@@ -75,7 +75,7 @@ def reference(trt):
 def publish_reference(node, machine, reference):
     from trajectory_msgs.msg import JointTrajectory
 
-    from machine_ctrl import ros_io
+    from machine_ctrl.ros import messages as ros_io
     clock = ros_io.StepClock(machine.control_period)
     pub = node.create_publisher(JointTrajectory, ros_io.TOPIC_REFERENCE, ros_io.REFERENCE_QOS)
     for first in range(0, len(reference), CHUNK):
@@ -90,18 +90,18 @@ def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node,
     node = ros_node('contour_test')
     collector = Collector(node, int(round(trt.control_period * 1e9)))
     publish_reference(node, trt, reference)
-    specs = [NodeSpec('hw_sim', 'hw_sim.node', 'HwSimNode',
+    specs = [NodeSpec('hw_sim', 'machine_ctrl.ros.hw_sim_node', 'HwSimNode',
                       {**common, 'initial_position': [float(v) for v in reference.position[0]],
                        'min_subscribers': 3}),         # servo, contour_error and this test
-             NodeSpec('servo', 'machine_ctrl.servo_node', 'ServoNode', common),
-             NodeSpec('contour_error', 'machine_ctrl.contour_error_node', 'ContourErrorNode',
+             NodeSpec('servo', 'machine_ctrl.ros.servo_node', 'ServoNode', common),
+             NodeSpec('contour_error', 'machine_ctrl.ros.contour_error_node', 'ContourErrorNode',
                       {**common, 'estimator': 'compensated'})]
     try:
         # the contour node first, and its four publishers discovered by this test, before the
         # machine starts: nothing it publishes can go out before this test listens
         contour_spec = specs.pop()
         ros_supervisor.start(contour_spec.name, contour_spec.argv())
-        from machine_ctrl import contour_error_node as cen
+        from machine_ctrl.ros import contour_error_node as cen
         topics = (cen.TOPIC_TOOL_TIP, cen.TOPIC_TOOL_TIP_MAGNITUDE, cen.TOPIC_ORIENTATION,
                   cen.TOPIC_ORIENTATION_MAGNITUDE)
         deadline = time.monotonic() + 120

@@ -4,11 +4,11 @@ import math
 import numpy as np
 import pytest
 
-from machine_ctrl.config import LeadLagGains, NotchConfig, PPIGains, SlidingModeGains
-from machine_ctrl.lead_lag import LeadLagController
-from machine_ctrl.lugre import LuGreFeedforward, StribeckCurve
-from machine_ctrl.ppi import PPIController
-from machine_ctrl.sliding_mode import SlidingModeController
+from machine_ctrl.model.config import LeadLagGains, NotchConfig, PPIGains, SlidingModeGains
+from machine_ctrl.control.lead_lag import LeadLagController
+from machine_ctrl.control.lugre import LuGreFeedforward, StribeckCurve
+from machine_ctrl.control.ppi import PPIController
+from machine_ctrl.control.sliding_mode import SlidingModeController
 
 T = 1e-4
 

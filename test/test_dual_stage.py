@@ -1,6 +1,6 @@
 import pytest
 
-from machine_ctrl.dual_stage import DualStageCoupling
+from machine_ctrl.control.dual_stage import DualStageCoupling
 
 
 def full(machine, **values):

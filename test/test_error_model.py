@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 from compensation.error_map import AxisErrors, ErrorMap, Squareness, load_error_map
 from compensation.error_model import ErrorKinematics
 from hw_sim.simulator import true_geometry
-from machine_ctrl.errors import ConfigError
+from machine_ctrl.model.errors import ConfigError
 
 FINE = ('x_f', 'y_f', 'z_f', 'a_f', 'b_f', 'c_f')
 # URDF offsets (assumed there), m; see test_kinematics_micromill.py

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from machine_ctrl import experiments
-from machine_ctrl.experiments import STAT_KEYS, THESIS
+from machine_ctrl.experiments import tracking as experiments
+from machine_ctrl.experiments.tracking import STAT_KEYS, THESIS
 
 
 @pytest.fixture(scope='module')

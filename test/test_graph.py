@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from machine_ctrl.graph import default_graph
-from machine_ctrl.offline import run
+from machine_ctrl.ros.graph import default_graph
+from hw_sim.offline import run
 from trajectory.contours import circle
 
 STEPS = 2000
@@ -22,7 +22,7 @@ class StateRecorder:
         from rclpy.executors import SingleThreadedExecutor
         from sensor_msgs.msg import JointState
 
-        from machine_ctrl import ros_io
+        from machine_ctrl.ros import messages as ros_io
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         self.rows = {}
         # deep reader queue: the graph may outrun this thread for a while, and a keep-last
@@ -74,7 +74,7 @@ def record_graph(micromill, ros_node, ros_supervisor, single_process):
         # hw_sim holds step 0 until servo_coarse, servo_fine, dual_stage and this recorder
         # all subscribe /joint_states, so the recorder sees every step
         if single_process:
-            ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.graph', '--machine',
+            ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.ros.graph', '--machine',
                                            str(micromill.yaml_path), '--hw-sim', 'min_subscribers=4'])
         else:
             ros_supervisor.start_nodes(default_graph(micromill, hw_sim={'min_subscribers': 4}))
@@ -108,7 +108,7 @@ def test_dual_stage_switches_off_and_on_at_runtime(micromill, ros_node, ros_supe
     from sensor_msgs.msg import JointState
     from std_srvs.srv import SetBool
 
-    from machine_ctrl import ros_io
+    from machine_ctrl.ros import messages as ros_io
     node = ros_node('switcher')
     offsets = []
     node.create_subscription(JointState, ros_io.TOPIC_OFFSETS, lambda m: offsets.append(list(m.position)),
@@ -116,7 +116,7 @@ def test_dual_stage_switches_off_and_on_at_runtime(micromill, ros_node, ros_supe
     client = node.create_client(SetBool, '/dual_stage/enable')
     executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
-    ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.graph', '--machine', str(micromill.yaml_path)])
+    ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.ros.graph', '--machine', str(micromill.yaml_path)])
 
     def spin_until(predicate, timeout=60.0):
         deadline = time.monotonic() + timeout

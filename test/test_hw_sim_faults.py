@@ -21,8 +21,8 @@ class Commander:
         from sensor_msgs.msg import JointState
         from std_srvs.srv import Trigger
 
-        from machine_ctrl import ros_io
-        from machine_ctrl.servo import ServoGroup
+        from machine_ctrl.ros import messages as ros_io
+        from machine_ctrl.control.servo import ServoGroup
         self.ros_io, self.node, self.axes = ros_io, node, axes
         self.servo = ServoGroup(machine, axes)
         self.hold = None
@@ -89,7 +89,7 @@ def _commanded_hw_sim(micromill, ros_node, ros_supervisor, *parameters):
     """hw_sim with a short command timeout (and `parameters`, 'name:=value') and a Commander
     playing the servos; afterwards hw_sim must still be alive."""
     args = [a for p in ('command_timeout:=0.5', 'republish_period:=0.1', *parameters) for a in ('-p', p)]
-    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'hw_sim.node', '--ros-args', *args])
+    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'machine_ctrl.ros.hw_sim_node', '--ros-args', *args])
     ros_supervisor.wait_for_line('hw_sim', 'ready', 60)
     c = Commander(ros_node('servos'), list(micromill.axis_names), micromill)
     yield c
@@ -141,7 +141,7 @@ def test_missing_command_times_out_into_a_fault(commander):
 
 
 def test_malformed_commands_are_refused_and_change_nothing(commander):
-    from machine_ctrl import ros_io
+    from machine_ctrl.ros import messages as ros_io
 
     def policy(step, state):
         if step == 10:   # unknown axis, duplicate names, length mismatch, future stamp
@@ -159,7 +159,7 @@ def test_malformed_commands_are_refused_and_change_nothing(commander):
 
 @pytest.fixture
 def paced_commander(micromill, ros_node, ros_supervisor):
-    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'hw_sim.node', '--ros-args', '-p', 'mode:=paced',
+    ros_supervisor.start('hw_sim', [sys.executable, '-m', 'machine_ctrl.ros.hw_sim_node', '--ros-args', '-p', 'mode:=paced',
                                     '-p', 'real_time_factor:=0.02'])       # 200 steps/s of wall time
     ros_supervisor.wait_for_line('hw_sim', 'ready', 60)
     c = Commander(ros_node('servos'), list(micromill.axis_names), micromill)
@@ -192,7 +192,7 @@ def test_paced_mode_steps_on_the_wall_clock_and_counts_missed_deadlines(paced_co
 ])
 def test_bad_parameters_stop_start_up_with_one_line(ros_env, args, message):
     import subprocess
-    result = subprocess.run([sys.executable, '-m', 'hw_sim.node', '--ros-args', *args], env=ros_env,
+    result = subprocess.run([sys.executable, '-m', 'machine_ctrl.ros.hw_sim_node', '--ros-args', *args], env=ros_env,
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     fatal = [line for line in result.stderr.splitlines() + result.stdout.splitlines() if 'FATAL' in line]
@@ -218,9 +218,9 @@ def _settled(c, quiet=0.6):
 def test_recorder_window_holds_the_machine_without_a_fault_until_the_recorder_catches_up(gated_commander, ros_node):
     from builtin_interfaces.msg import Time
 
-    from machine_ctrl.recorder import PROGRESS_TOPIC
-    from machine_ctrl.recorder_node import PROGRESS_QOS
-    from machine_ctrl.ros_io import StepClock
+    from machine_ctrl.recording.recorder import PROGRESS_TOPIC
+    from machine_ctrl.ros.recorder_node import PROGRESS_QOS
+    from machine_ctrl.ros.messages import StepClock
     c, clock = gated_commander, StepClock(1e-4)
     c.wait(lambda: c.steps and max(c.steps) > 100, what='running without a recorder')
     progress = ros_node('recorder').create_publisher(Time, PROGRESS_TOPIC, PROGRESS_QOS)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from conftest import central_difference_jacobian, random_configurations
 
-from machine_ctrl.kinematics import task_jacobian
+from machine_ctrl.model.kinematics import task_jacobian
 
 # The offsets written in config/machines/micromill_9axis.urdf (all assumed there), in m.
 L_YZ, L_XZ, L_S, Z_F0, L_R, L_W, Z_C0 = 0.060, 0.040, 0.025, 0.002, 0.015, 0.010, 0.010

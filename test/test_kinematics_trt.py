@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from conftest import random_configurations
 
-from machine_ctrl.trt_kinematics import TrtInverseKinematics
+from machine_ctrl.model.trt_kinematics import TrtInverseKinematics
 
 A2 = 0.070   # m, Sencer section 4
 D4 = 0.020   # m, assumed in config/machines/trt_5axis.urdf

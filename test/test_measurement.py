@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation.cli import fit_errors_main
+from machine_ctrl.app.compensation_cli import fit_errors_main
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
 from compensation.fitting import fit_map

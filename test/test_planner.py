@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from machine_ctrl import cli
+from machine_ctrl.app import cli
 from trajectory import toolpath
 from trajectory.planner import plan
 

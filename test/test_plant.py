@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hw_sim.plant import FrictionAxis, LinearAxis, Sensor, quantize
-from machine_ctrl.lugre import StribeckCurve
+from machine_ctrl.control.lugre import StribeckCurve
 
 
 def table_axis(micromill, name='x_f', **plant):

@@ -1,4 +1,4 @@
-"""machine_ctrl.processes: the supervisor the graph tests and bringup rely on to start nodes
+"""machine_ctrl.app.processes: the supervisor the graph tests and bringup rely on to start nodes
 and, above all, to leave nothing running afterwards."""
 import os
 import signal
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from machine_ctrl.processes import (ChildExited, Supervisor, isolated_ros_env,
+from machine_ctrl.app.processes import (ChildExited, Supervisor, isolated_ros_env,
                                     reserve_ros_domain)
 
 # Tiny children. Each prints 'ready' once its signal dispositions are in place, so a test

@@ -4,8 +4,8 @@ import struct
 
 import pytest
 
-from machine_ctrl import recorder
-from machine_ctrl.bag import Bag
+from machine_ctrl.recording import recorder
+from machine_ctrl.recording.bag import Bag
 
 PERIOD = 100_000      # ns: the micromill's 100 us
 
@@ -31,7 +31,7 @@ def test_stamp_of_rclpy_serialized_messages():
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
 
-    from machine_ctrl.ros_io import StepClock, joint_state
+    from machine_ctrl.ros.messages import StepClock, joint_state
     stamp = StepClock(1e-4).stamp(12_345)
     assert recorder.cdr_stamp_ns(serialize_message(joint_state(stamp, ['x'], [1.0]))) == 12_345 * PERIOD
     assert recorder.cdr_stamp_ns(serialize_message(Clock(clock=stamp))) == 12_345 * PERIOD
@@ -59,7 +59,7 @@ def test_gaps_on_an_inferred_grid():
 def state(step, names=('x_c', 'y_c', 'z_c'), frame=''):
     from rclpy.serialization import serialize_message
 
-    from machine_ctrl.ros_io import StepClock, joint_state
+    from machine_ctrl.ros.messages import StepClock, joint_state
     msg = joint_state(StepClock(1e-4).stamp(step), names, [0.1 * step] * len(names), effort=[1.0] * len(names))
     msg.header.frame_id = frame
     return serialize_message(msg)

@@ -40,7 +40,7 @@ TOPICS = {
 def _recorder_argv(bag, topics, machine, discovered=()):
     listed = ','.join(f"'{name}'" if name in discovered else f"'{name}:{type_name}'"
                       for name, type_name in topics.items())
-    return [sys.executable, '-m', 'machine_ctrl.recorder_node', '--ros-args', '-p', f'output:={bag}',
+    return [sys.executable, '-m', 'machine_ctrl.ros.recorder_node', '--ros-args', '-p', f'output:={bag}',
             '-p', f'topics:=[{listed}]', '-p', f'machine:={machine}']
 
 
@@ -48,7 +48,7 @@ def _wait_matched(node, topics, timeout=30.0):
     """Until this participant has matched a subscriber on every topic (the recorder's)."""
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    from machine_ctrl.recorder_node import message_class
+    from machine_ctrl.ros.recorder_node import message_class
     probes = []
     for name, type_name in topics.items():
         durability = DurabilityPolicy.TRANSIENT_LOCAL if name == '/reference' else DurabilityPolicy.VOLATILE
@@ -79,7 +79,7 @@ class PublishLog:
 
         def publish(publisher, msg):
             topic = publisher.topic_name
-            # nodes publish per-step states and chunks serialized (machine_ctrl.cdr): log what
+            # nodes publish per-step states and chunks serialized (machine_ctrl.recording.cdr): log what
             # rclpy decodes them to, the message any subscriber gets
             typed = deserialize_message(msg, publisher.msg_type) if isinstance(msg, bytes) else msg
             log.messages[topic].append((id(publisher), typed))
@@ -132,9 +132,9 @@ def live(micromill, ros_env, tmp_path_factory):
     from rclpy.duration import Duration
     from rclpy.node import Node
 
-    from machine_ctrl.graph import create_nodes, default_graph
-    from machine_ctrl.node_common import DefaultExecutor
-    from machine_ctrl.processes import Supervisor
+    from machine_ctrl.ros.graph import create_nodes, default_graph
+    from machine_ctrl.ros.node_common import DefaultExecutor
+    from machine_ctrl.app.processes import Supervisor
     base = tmp_path_factory.mktemp('live')
     bag = base / 'live_bag'
     with Supervisor(ros_env, log_dir=base / 'logs', stop_timeout=10.0) as supervisor:
@@ -212,7 +212,7 @@ def _decoded_reprs(topic, datas):
     serializations of one message can differ in their padding."""
     from rclpy.serialization import deserialize_message
 
-    from machine_ctrl.recorder_node import message_class
+    from machine_ctrl.ros.recorder_node import message_class
     cls = message_class(TOPICS[topic])
     return [repr(deserialize_message(d, cls)) for d in datas]
 
@@ -379,8 +379,8 @@ def test_rosbags_reads_the_same_topics_counts_and_messages(live, readback):
 def test_analysis_of_the_recording_matches_the_offline_run(live, micromill):
     """The graph is bit-identical to the offline runner, so the analysis of the bag must
     give the offline run's errors (computed here with plain numpy)."""
-    from machine_ctrl import analysis
-    from machine_ctrl.offline import run
+    from machine_ctrl.recording import analysis
+    from hw_sim.offline import run
     from trajectory.contours import circle
     bag, _, _, _ = live
     result = analysis.analyse(analysis.load(bag))
@@ -395,15 +395,15 @@ def test_analysis_of_the_recording_matches_the_offline_run(live, micromill):
 
 
 def test_replay_into_a_fresh_recording_gives_the_same_analysis(live, micromill, ros_supervisor, tmp_path):
-    from machine_ctrl import analysis
-    from machine_ctrl.bag import Bag
-    from machine_ctrl.replay import clock_ns
+    from machine_ctrl.recording import analysis
+    from machine_ctrl.recording.bag import Bag
+    from machine_ctrl.recording.replay import clock_ns
     bag, _, _, _ = live
     copy = tmp_path / 'replayed'
     topics = {t: TOPICS[t] for t in ('/joint_states', '/reference', '/clock')}
     ros_supervisor.start('recorder2', _recorder_argv(copy, topics, micromill.yaml_path))
     ros_supervisor.wait_for_line('recorder2', 'recording to', timeout=60)
-    ros_supervisor.start('replay', [sys.executable, '-m', 'machine_ctrl.cli', 'replay', str(bag), '--rate', '2',
+    ros_supervisor.start('replay', [sys.executable, '-m', 'machine_ctrl.app.cli', 'replay', str(bag), '--rate', '2',
                                     '--topics', *topics, '--wait-for-subscribers', '1'])
     assert ros_supervisor.wait('replay', timeout=240) == 0, ros_supervisor['replay'].tail()
     ros_supervisor.stop('recorder2')

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from machine_ctrl.kinematics import orientation_basis
+from machine_ctrl.model.kinematics import orientation_basis
 from trajectory.redundancy import (RedundancySettings, Resolution, _basis,
                                    initial_configuration, resolve)
 

@@ -11,11 +11,11 @@ import threading
 import numpy as np
 import pytest
 
-from machine_ctrl import ros_io
-from machine_ctrl.client import MachineClient
-from machine_ctrl.graph import default_graph
-from machine_ctrl.kinematics import Kinematics
-from machine_ctrl.processes import Supervisor
+from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.app.client import MachineClient
+from machine_ctrl.ros.graph import default_graph
+from machine_ctrl.model.kinematics import Kinematics
+from machine_ctrl.app.processes import Supervisor
 from ros_fixtures import private_context
 from trajectory import toolpath
 

@@ -103,7 +103,7 @@ def test_time_law_spline_has_the_lp_differences_at_the_nodes():
 
 
 def fake_sampling(s, need):
-    from machine_ctrl.reference import Reference
+    from machine_ctrl.model.reference import Reference
     from trajectory.sampling import Sampling
     ref = Reference(('x',), 1e-4, np.zeros((len(s), 1)), np.zeros((len(s), 1)), np.zeros((len(s), 1)))
     return Sampling(ref, np.asarray(s, float), np.zeros(len(s)), 1.0, 1, np.zeros((1, 3)),

@@ -4,8 +4,8 @@ import math
 import numpy as np
 
 from hw_sim.simulator import MachineSimulator
-from machine_ctrl.offline import run
-from machine_ctrl.reference import Reference
+from hw_sim.offline import run
+from machine_ctrl.model.reference import Reference
 from trajectory.contours import circle
 
 

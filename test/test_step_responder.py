@@ -15,7 +15,7 @@ class FakePublisher:
 
 @pytest.fixture
 def responder(ros_node):
-    from machine_ctrl.node_common import StepResponder
+    from machine_ctrl.ros.node_common import StepResponder
     inputs = {'ready': set(), 'streaming': True, 'computed': []}
 
     def compute(step, msg):
@@ -58,7 +58,7 @@ def test_no_timeout_before_the_stream_ever_started(responder):
 
 
 def test_a_stray_future_stamp_is_refused_once_and_the_real_steps_go_on(responder):
-    from machine_ctrl.ros_io import InvalidMessage
+    from machine_ctrl.ros.messages import InvalidMessage
     r, pub, inputs = responder
     inputs['ready'].update(range(10))
     r.on_state(0, 'state 0')

@@ -8,7 +8,7 @@ import pytest
 from limit_checks import assert_within_limits
 from scipy.optimize import minimize_scalar
 
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.kinematics import Kinematics
 from trajectory import toolpath
 from trajectory.moves import AxisState, move_to, through_waypoints
 from trajectory.planner import plan

@@ -1,6 +1,6 @@
 """trajectory_node in the running lock-step graph (hw_sim, servos, dual_stage, trajectory;
 each node its own process, real DDS), driven only through its topics and services
-(machine_ctrl.client): refused goals move nothing, a tool path runs end to end after an
+(machine_ctrl.app.client): refused goals move nothing, a tool path runs end to end after an
 approach from where the machine stands, joint goals, home, feed hold, fault and reset."""
 import math
 import threading
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from limit_checks import assert_within_limits
 
-from machine_ctrl import ros_io
-from machine_ctrl.client import MachineClient
-from machine_ctrl.graph import default_graph
-from machine_ctrl.kinematics import Kinematics
-from machine_ctrl.processes import Supervisor
+from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.app.client import MachineClient
+from machine_ctrl.ros.graph import default_graph
+from machine_ctrl.model.kinematics import Kinematics
+from machine_ctrl.app.processes import Supervisor
 from ros_fixtures import private_context
 from trajectory import moves, toolpath
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from machine_ctrl.offline import run
+from hw_sim.offline import run
 from trajectory.sencer_path import ACCELERATION, FEED, limit_ratios, sencer_reference
 
 

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from machine_ctrl.config import MachineConfig
-from machine_ctrl.reference import Reference
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.model.reference import Reference
 
 
 def quintic_ramp(tau, feed: float, ramp_time: float):

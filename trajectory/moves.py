@@ -16,8 +16,8 @@ import numpy as np
 from ruckig import (ControlInterface, DurationDiscretization, InputParameter, Result, Ruckig,
                     Trajectory)
 
-from machine_ctrl.config import MachineConfig
-from machine_ctrl.reference import Reference
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.model.reference import Reference
 
 
 @dataclass(frozen=True)

@@ -10,9 +10,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from machine_ctrl.config import MachineConfig, load_machine
-from machine_ctrl.kinematics import Kinematics
-from machine_ctrl.reference import Reference
+from machine_ctrl.model.config import MachineConfig, load_machine
+from machine_ctrl.model.kinematics import Kinematics
+from machine_ctrl.model.reference import Reference
 from trajectory import toolpath
 from trajectory.feedrate import FeedLimits, FeedProfile, optimize_feed
 from trajectory.redundancy import RedundancySettings, Resolution, resolve

@@ -11,7 +11,7 @@ Resolved rate (Eq. 3.27, with the errata of seed-notes.md applied)::
     dq/ds = g(s, q) = J_t^# (dR_t/ds + K_e e_t) - beta (I - J_t^# J_t) grad H(q)
 
 * J_t is the 5 x n task Jacobian [dP/dq; B^T dO/dq] (B = orthonormal basis of the plane
-  normal to the current tool axis O(q), as :func:`machine_ctrl.kinematics.task_jacobian`):
+  normal to the current tool axis O(q), as :func:`machine_ctrl.model.kinematics.task_jacobian`):
   the 6 x n J of Eq. 3.13 has rank <= 5, so J J^T of Eq. 3.15 is never invertible. The task
   rate is dR_t/ds = [dP/ds; B^T dO/ds] and the task error (Eq. 3.26) is
   e_t = [P(s) - P(q); B^T (O(s) - O(q))].
@@ -59,8 +59,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from machine_ctrl.config import MachineConfig
-from machine_ctrl.kinematics import Kinematics
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.model.kinematics import Kinematics
 
 
 @dataclass(frozen=True)
@@ -119,7 +119,7 @@ class Resolution:
 
 
 def _basis(o: np.ndarray) -> np.ndarray:
-    """Same basis as machine_ctrl.kinematics.orientation_basis (written out: np.cross on
+    """Same basis as machine_ctrl.model.kinematics.orientation_basis (written out: np.cross on
     3-vectors costs more than the rest of the rate evaluation)."""
     ox, oy, oz = o
     if abs(ox) < 0.9:       # helper e_x: e1 = o x e_x

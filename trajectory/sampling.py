@@ -52,7 +52,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.interpolate import BSpline
 
-from machine_ctrl.reference import Reference
+from machine_ctrl.model.reference import Reference
 
 # Eq. 3.40 with Δs = 1 (rows: q[n], q[n+1], q'[n], q'[n+1], q''[n], q''[n+1], q'''[n],
 # q'''[n+1]; columns: coefficients of u^7 ... u^0).

@@ -23,7 +23,7 @@ lengthened until every axis is within its acceleration and jerk limits (125 ms, 
 mm/s^2 tangential: still "not exceeding 1500 mm/s^2").
 
 The axes follow from the inverse kinematics (Eqs. 3 and 6, with the Eq. 6 erratum of
-machine_ctrl/trt_kinematics.py). Derivatives are exact: every quantity is carried as a
+machine_ctrl/model/trt_kinematics.py). Derivatives are exact: every quantity is carried as a
 second-order jet (value, d/dl, d2/dl2), then q' = q_l l', q'' = q_ll l'^2 + q_l l''.
 """
 from __future__ import annotations
@@ -33,10 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from machine_ctrl.config import MachineConfig
-from machine_ctrl.kinematics import Kinematics
-from machine_ctrl.reference import Reference
-from machine_ctrl.trt_kinematics import AXES, TrtInverseKinematics
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.model.kinematics import Kinematics
+from machine_ctrl.model.reference import Reference
+from machine_ctrl.model.trt_kinematics import AXES, TrtInverseKinematics
 from trajectory.contours import rest_to_rest
 
 RADIUS_COS, RADIUS_SIN, PITCH = 0.015, 0.005, 0.015   # m, Eq. (35) (15, 5 and 15 mm)

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from machine_ctrl.reference import Reference
+from machine_ctrl.model.reference import Reference
 
 # assumed: where the planned motion leaves no headroom, a ramp's extra acceleration and jerk
 # terms may use 5 % of each axis's limit (see the module docstring).

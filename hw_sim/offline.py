@@ -1,0 +1,70 @@
+"""Offline runner: steps exactly the plant, servo and coupling objects the nodes use, in a
+plain loop without ROS — for experiments, tests and benchmarks. Per step k:
+
+    measurement k  ->  dual-stage offsets  ->  servo commands  ->  plant step k -> k+1
+
+which is the lock-step graph's order (design.md "Time"), so both give the same numbers.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hw_sim.simulator import MachineSimulator
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.control.dual_stage import DualStageCoupling, apply_offsets
+from machine_ctrl.model.reference import Reference
+from machine_ctrl.control.servo import ServoGroup
+
+
+@dataclass
+class RunRecord:
+    """Per step k (rows): reference, measured (position, velocity) and true positions at
+    step k, the efforts applied over the period before it (what /joint_states carries), the
+    commands computed at k, and the fine-stage offsets."""
+    axis_names: tuple[str, ...]
+    period: float
+    reference: np.ndarray
+    measured: np.ndarray
+    measured_velocity: np.ndarray
+    effort: np.ndarray
+    true: np.ndarray
+    commands: np.ndarray
+    offsets: np.ndarray
+    fault: str | None = None
+    saturations: int = 0
+    fine_axes: tuple[str, ...] = field(default_factory=tuple)
+
+    def column(self, array: np.ndarray, axis: str) -> np.ndarray:
+        return array[:, self.axis_names.index(axis)]
+
+
+def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
+        laws: dict[str, str] | None = None, feedforward: bool = True, steps: int | None = None,
+        progress=None) -> RunRecord:
+    steps = len(reference) if steps is None else steps
+    simulator = MachineSimulator(machine, initial_position=reference.position[0])
+    servo = ServoGroup(machine, machine.axis_names, laws, feedforward)
+    coupling = DualStageCoupling(machine, enabled=dual_stage)
+    fine_index = [machine.axis_names.index(a) for a in coupling.fine_axes]
+    n = len(machine.axes)
+    rec = {name: np.empty((steps, n))
+           for name in ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')}
+    offsets_log = np.zeros((steps, len(fine_index)))
+    for k in range(steps):
+        measured = simulator.measurement
+        ref_pos, ref_vel, ref_acc = reference.row(k)
+        offsets = coupling.update(ref_pos, measured.position).offsets
+        commands = servo.update(apply_offsets(ref_pos, fine_index, offsets), ref_vel, ref_acc,
+                                measured.position, measured.velocity)
+        rec['reference'][k], rec['measured'][k] = ref_pos, measured.position
+        rec['measured_velocity'][k], rec['effort'][k] = measured.velocity, measured.effort
+        rec['true'][k], rec['commands'][k] = simulator.true_position, commands
+        offsets_log[k] = offsets
+        simulator.step(commands)
+        if progress is not None and k % 10000 == 0:
+            progress(k, steps)
+    return RunRecord(machine.axis_names, machine.control_period, offsets=offsets_log,
+                     fault=simulator.fault, saturations=coupling.saturation_count,
+                     fine_axes=coupling.fine_axes, **rec)

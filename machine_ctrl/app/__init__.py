@@ -1,0 +1,1 @@
+"""The roof: bringup, process supervision, client, CLI, demo."""

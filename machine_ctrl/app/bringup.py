@@ -1,0 +1,293 @@
+"""``machine-ctrl bringup``: the whole node graph of a machine, ready for commands.
+
+hw_sim, the servo nodes, dual_stage, trajectory, contour_error and (with a model)
+compensation, each in its own process under :class:`machine_ctrl.app.processes.Supervisor`, or
+all in one process (``python -m machine_ctrl.ros.graph``); with ``record`` the recorder runs in
+a process of its own (always: it must close its bag) and hw_sim holds at step 0 until it is
+matched. :class:`Bringup` waits until every node is on the ROS graph and the trajectory
+node streams, follows /trajectory/status, and stops everything (graph first, then the
+recorder, which drains, closes the bag and prints its per-topic counts).
+
+The shell is :func:`main`: prints the command API (:data:`API`), the state changes, and
+stops on Ctrl-C / SIGTERM. The demo (:mod:`machine_ctrl.app.demo`) drives a :class:`Bringup`
+from the same process.
+"""
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.ros.graph import NodeSpec, default_graph
+from machine_ctrl.app.processes import Supervisor
+
+READY_TIMEOUT = 120.0          # s (wall) for every node to come up
+RECORDER_STOP_TIMEOUT = 60.0   # s the recorder may take to drain and close before SIGTERM
+# node classes that keep a /joint_states subscription (the trajectory node drops its own
+# after the first state): hw_sim's min_subscribers counts them plus the recorder
+JOINT_STATE_READERS = {'ServoNode', 'DualStageNode', 'ContourErrorNode'}
+RECORDER_WINDOW = 100          # steps hw_sim may run ahead of the recorder (README: recommended)
+
+API = [   # (topic or service, type, what)
+    ('/trajectory/path', 'nav_msgs/Path', 'tool path, frame workpiece, m; pose z-axis = tool axis'),
+    ('/trajectory/joint_goal', 'trajectory_msgs/JointTrajectory', 'axis goals, m / rad, times s'),
+    ('/trajectory/feed_override', 'std_msgs/Float64', 'feed fraction 0..1, ramped'),
+    ('/trajectory/hold', 'std_srvs/Trigger', 'feed hold along the path (program kept)'),
+    ('/trajectory/resume', 'std_srvs/Trigger', 'resume after a hold'),
+    ('/trajectory/stop', 'std_srvs/Trigger', 'stop smoothly and drop the program'),
+    ('/trajectory/home', 'std_srvs/Trigger', 'move to home (when idle)'),
+    ('/hw_sim/reset', 'std_srvs/Trigger', 'clear a fault'),
+    ('/dual_stage/enable', 'std_srvs/SetBool', 'dual-stage coupling on/off'),
+    ('/compensation/enable', 'std_srvs/SetBool', 'geometric compensation on/off (with a model)'),
+    ('/trajectory/status', 'diagnostic_msgs/DiagnosticStatus', 'latched: state, progress, refusals'),
+    ('/diagnostics', 'diagnostic_msgs/DiagnosticArray', 'every node: faults, refusals, counters'),
+]
+
+
+def graph_specs(machine: MachineConfig, dual_stage: bool = True, compensation: str | None = None,
+                record: bool = False) -> list[NodeSpec]:
+    """The bringup graph: the default graph with the trajectory node and contour_error;
+    with a recording, hw_sim waits at step 0 for every /joint_states reader and the recorder."""
+    specs = default_graph(machine, contour=None, dual_stage=dual_stage, compensation_model=compensation,
+                          contour_error=True)
+    if not record:
+        return specs
+    hw = {'min_subscribers': sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1,
+          'recorder_window': RECORDER_WINDOW}
+    return [NodeSpec(s.name, s.module, s.cls, {**s.parameters, **hw}) if s.name == 'hw_sim' else s for s in specs]
+
+
+def single_process_argv(machine: MachineConfig, dual_stage: bool, compensation: str | None,
+                        hw_sim: dict) -> list[str]:
+    argv = [sys.executable, '-m', 'machine_ctrl.ros.graph', '--machine', str(machine.yaml_path), '--contour', 'none',
+            '--contour-error']
+    if not dual_stage:
+        argv.append('--no-dual-stage')
+    if compensation is not None:
+        argv += ['--compensation', str(compensation)]
+    return argv + [f'--hw-sim={key}={value}' for key, value in hw_sim.items()]
+
+
+def recorder_argv(machine: MachineConfig, output: str) -> list[str]:
+    return [sys.executable, '-m', 'machine_ctrl.ros.recorder_node', '--ros-args', '-r', '__node:=recorder',
+            '-p', f'output:={output}', '-p', f'machine:={machine.yaml_path}']
+
+
+class Bringup:
+    """The running graph. Context manager: leaving the block stops everything."""
+
+    def __init__(self, machine: MachineConfig, *, single_process: bool = False, record: str | None = None,
+                 dual_stage: bool = True, compensation: str | None = None, env=None,
+                 log_dir: str | None = None):
+        self.machine, self.single_process, self.record = machine, single_process, record
+        self.specs = graph_specs(machine, dual_stage, compensation, record is not None)
+        self.dual_stage, self.compensation = dual_stage, compensation
+        self.log_dir = Path(log_dir or tempfile.mkdtemp(prefix='machine_ctrl_bringup_'))
+        self.graph = Supervisor(env, log_dir=self.log_dir, stop_timeout=5.0)
+        self.recorder = Supervisor(env, log_dir=self.log_dir, stop_timeout=RECORDER_STOP_TIMEOUT)
+        self.report: list[str] = []
+        self.stopped = False
+
+    @property
+    def node_names(self) -> set[str]:
+        return {spec.name for spec in self.specs} | ({'recorder'} if self.record else set())
+
+    def start(self) -> None:
+        if self.record is not None:
+            self.recorder.start('recorder', recorder_argv(self.machine, self.record))
+        if self.single_process:
+            hw = next(s for s in self.specs if s.name == 'hw_sim').parameters
+            extra = {k: v for k, v in hw.items() if k != 'machine'}
+            self.graph.start('graph', single_process_argv(self.machine, self.dual_stage, self.compensation, extra))
+            return
+        self.graph.start_nodes(self.specs)
+
+    def check(self) -> None:
+        """Raise processes.ChildExited when a node process has ended on its own."""
+        self.recorder.check()
+        self.graph.check()
+
+    def wait_ready(self, client, timeout: float = READY_TIMEOUT) -> float:
+        """Wait until every node is on the ROS graph and the trajectory node streams;
+        returns the seconds waited."""
+        started = time.monotonic()
+        client.wait(lambda: self.node_names <= set(client.node.get_node_names()), 'every node on the ROS graph',
+                    timeout, self.check)
+        left = timeout - (time.monotonic() - started)
+        client.wait(lambda: client.status().get('streamed_to_step', '') != '', 'the trajectory node streaming',
+                    left, self.check)
+        return time.monotonic() - started
+
+    def stop(self) -> list[str]:
+        """Stop the graph, then the recorder (drain, close the bag); returns the recorder's
+        report lines (per-topic counts) or []. Once only; later calls return the same."""
+        if self.stopped:
+            return self.report
+        self.stopped = True
+        self.graph.stop_all()
+        if 'recorder' not in self.recorder.children:
+            return []
+        child = self.recorder['recorder']
+        self.recorder.stop_all()
+        lines = child.tail(200)
+        start = max((i for i, line in enumerate(lines) if line.startswith('recorded ')), default=None)
+        self.report = lines[start:] if start is not None else [f'recorder: no report; last output: {lines[-5:]}']
+        return self.report
+
+    def __enter__(self) -> Bringup:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.stop()
+
+
+def client_node(name: str, domain_id: int | None = None):
+    """An rclpy context + node for a command-line client (rclpy's signal handlers off:
+    the shell decides what Ctrl-C does), in `domain_id` (default: ROS_DOMAIN_ID).
+    Returns (context, node)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    context = Context()
+    rclpy.init(args=['machine-ctrl'], context=context, domain_id=domain_id,
+               signal_handler_options=SignalHandlerOptions.NO)
+    return context, rclpy.create_node(name, context=context)
+
+
+def listening(client, publisher) -> bool:
+    """Whether the trajectory node subscribes `publisher`'s topic and every subscriber of
+    the topic is matched with it (a message published now reaches the trajectory node)."""
+    infos = client.node.get_subscriptions_info_by_topic(publisher.topic_name)
+    return any(info.node_name == 'trajectory' for info in infos) and publisher.get_subscription_count() >= len(infos)
+
+
+class StateReporter:
+    """Prints each new /trajectory/status state (with motion, progress, fault, refusal)."""
+
+    def __init__(self, client, out=sys.stdout):
+        self.client, self.out, self.seen = client, out, 0
+        self.last = None
+        self.tenths = 0            # progress already shown, in tenths of the motion
+
+    def poll(self) -> None:
+        statuses = self.client.statuses[self.seen:]
+        self.seen += len(statuses)
+        for status in statuses:
+            values = {kv.key: kv.value for kv in status.values}
+            key = (status.message, values.get('rejected_goals'), values.get('motion'))
+            tenths = int(float(values.get('progress') or 0) * 10)
+            if key != self.last:
+                self.last, self.tenths = key, tenths
+                print(describe(status.message, values), file=self.out, flush=True)
+            elif status.message in ('running', 'holding') and tenths > self.tenths:
+                self.tenths = tenths
+                print(f'  {tenths * 10} % (sim time {int(values.get("step") or 0) * self.client.machine.control_period:.2f} s, '
+                      f'feed override {values.get("feed_override", "1")})', file=self.out, flush=True)
+
+
+def describe(state: str, values: dict) -> str:
+    """One line for a /trajectory/status."""
+    text = f'state {state}'
+    if values.get('motion'):
+        text += f": {values['motion']} (progress {float(values.get('progress', 0)) * 100:.0f} %)"
+    if state == 'fault' and values.get('fault'):
+        text += f" -- {values['fault']}"
+    if values.get('last_rejection') and values.get('rejected_goals', '0') != '0':
+        text += f" [refused so far: {values['rejected_goals']}, last: {values['last_rejection']}]"
+    return text
+
+
+def api_table() -> str:
+    width = max(len(name) for name, _, _ in API)
+    type_width = max(len(kind) for _, kind, _ in API)
+    return '\n'.join(f'  {name:{width}s}  {kind:{type_width}s}  {what}' for name, kind, what in API)
+
+
+class Stopped(Exception):
+    """SIGTERM (or SIGINT) asked the shell to stop."""
+
+
+def _raise_stopped(*_):
+    raise Stopped
+
+
+def stop_on_signals() -> dict:
+    """SIGINT and SIGTERM raise Stopped in the main thread; returns the previous handlers."""
+    return {sig: signal.signal(sig, _raise_stopped) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+
+@contextlib.contextmanager
+def client_session(machine: MachineConfig, name: str, domain_id: int | None = None):
+    """A command-line client of the graph: MachineClient on a context of its own, closed,
+    destroyed and shut down on leaving."""
+    from machine_ctrl.app.client import MachineClient
+    context, node = client_node(name, domain_id)
+    client = MachineClient(node, machine)
+    try:
+        yield client
+    finally:
+        client.close()
+        node.destroy_node()
+        context.try_shutdown()
+
+
+@contextlib.contextmanager
+def monitor(machine: MachineConfig, name: str, domain_id: int | None = None):
+    """client_session with SIGINT / SIGTERM raising Stopped meanwhile."""
+    previous = stop_on_signals()
+    try:
+        with client_session(machine, name, domain_id) as client:
+            yield client
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
+def signals_ignored():
+    """While shutting down: a second Ctrl-C must not cut the bag's closing short."""
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def run(args, machine: MachineConfig) -> int:
+    """The bringup command: start, wait until ready, report states until asked to stop."""
+    from machine_ctrl.app.client import Timeout
+    from machine_ctrl.app.processes import ChildExited
+    status = 0
+    try:
+        with monitor(machine, 'bringup_monitor') as client, \
+                Bringup(machine, single_process=args.single_process, record=args.record,
+                        dual_stage=not args.no_dual_stage, compensation=args.compensation) as bringup:
+            try:
+                print(f'starting {len(bringup.specs)} nodes ({"one process" if args.single_process else "one process each"})'
+                      f'{", recording to " + args.record if args.record else ""}; logs in {bringup.log_dir}', flush=True)
+                bringup.start()
+                waited = bringup.wait_ready(client)
+                print(f'all nodes ready after {waited:.1f} s: {" ".join(sorted(bringup.node_names))}')
+                print(f'commands (ROS_DOMAIN_ID={client.node.context.get_domain_id()}):\n{api_table()}', flush=True)
+                reporter = StateReporter(client)
+                while True:
+                    bringup.check()
+                    reporter.poll()
+                    time.sleep(0.1)
+            except Stopped:
+                print('stopping ...', flush=True)
+            except (ChildExited, Timeout) as exc:
+                print(f'machine-ctrl: bringup: {exc}', file=sys.stderr)
+                status = 1
+            finally:
+                with signals_ignored():
+                    for line in bringup.stop():
+                        print(line, flush=True)
+    except Stopped:
+        status = 130
+    return status

@@ -1,0 +1,135 @@
+"""Command-line entry points of the compensation package, wired into `machine-ctrl`:
+
+* ``machine-ctrl fit-errors CSV [--machine M] [--out MODEL] [--json]``: fit quintics
+  (thesis Eqs. 5.9-5.13) to a measurement CSV (measurement.py), print the residuals, write
+  the model (error_map.py format) to MODEL.
+* ``machine-ctrl experiment geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis
+  Tables 6.3 and 6.4 on the simulated machine (experiment.py); DIR receives the measurement
+  CSV, the fitted model and the PNG plots.
+
+Bad input (CSV, config, model) prints one line ``machine-ctrl: <file>: ...`` and exits 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+from compensation import experiment as exp
+from compensation.compensate import Compensator
+from compensation.error_map import dump_error_map, load_error_map
+from compensation.error_model import ErrorKinematics
+from compensation.fitting import fit_map, measure_and_fit
+from compensation.measurement import MeasurementError, read_csv
+from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
+from machine_ctrl.model.errors import ConfigError
+
+
+def _fail(message: str) -> int:
+    print(f'machine-ctrl: {message}', file=sys.stderr)
+    return 2
+
+
+def fit_errors_main(argv) -> int:
+    parser = argparse.ArgumentParser(prog='machine-ctrl fit-errors',
+                                     description='fit quintic geometric error models to a measurement CSV')
+    parser.add_argument('csv')
+    parser.add_argument('--machine', default=DEFAULT_MACHINE)
+    parser.add_argument('--out', metavar='MODEL', help='write the fitted model (YAML) here')
+    parser.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    args = parser.parse_args(argv)
+    try:
+        machine = load_machine(args.machine)
+        model, residuals = fit_map(read_csv(args.csv, machine.axis_names))
+    except (ConfigError, MeasurementError) as exc:
+        return _fail(str(exc))
+    if args.out:
+        try:
+            Path(args.out).write_text(dump_error_map(model, f'fitted by machine-ctrl fit-errors from {args.csv}'))
+        except OSError as exc:
+            return _fail(f'{args.out}: cannot write: {exc.strerror}')
+    if args.json:
+        print(json.dumps({'model': args.out, 'residuals': [r.as_dict() for r in residuals]}))
+        return 0
+    print(f'{"axis":5} {"error":5} {"points":>6} {"repeats":>7} {"rms residual":>13} {"max residual":>13}'
+          f' {"repeatability":>13}')
+    for r in residuals:
+        scale, unit = (1e6, 'um') if r.error.startswith('d') else (1e6, 'urad')
+        print(f'{r.axis:5} {r.error:5} {r.positions:6d} {r.repeats:7d} {r.rms * scale:10.4f} {unit:4}'
+              f'{r.max * scale:9.4f} {unit:4}{r.repeatability * scale:9.4f} {unit}')
+    return 0
+
+
+def experiment_main(argv) -> int:
+    parser = argparse.ArgumentParser(prog='machine-ctrl experiment geometric',
+                                     description='thesis Tables 6.3/6.4: geometric error compensation')
+    parser.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
+    parser.add_argument('--out', metavar='DIR', help='measurement CSV, fitted model and plots (default: a temp dir)')
+    parser.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    parser.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    args = parser.parse_args(argv)
+    progress = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    try:
+        machine = load_machine(args.machine)
+        path = machine.simulation.error_map_path(machine.yaml_path)
+        if path is None:
+            return _fail(f'{machine.yaml_path}: simulation.error_map: missing (the experiment needs a true map)')
+        true_map = load_error_map(path, machine.axis_names)
+        out = Path(args.out or tempfile.mkdtemp(prefix='geometric_'))
+        out.mkdir(parents=True, exist_ok=True)
+        result = run_experiment(machine, true_map, out, progress)
+    except (ConfigError, MeasurementError) as exc:
+        return _fail(str(exc))
+    if args.json:
+        print(json.dumps(result))
+    else:
+        _print(result)
+    return 0
+
+
+def run_experiment(machine, true_map, out: Path, progress, reference=None) -> dict:
+    """Measure, fit, Table 6.3, Table 6.4 (the planned spiral unless `reference` is given)."""
+    truth = ErrorKinematics.from_config(machine, true_map)
+    csv_path, model_path, model, residuals = measure_and_fit(
+        truth, true_map, machine.simulation.seed, out, f'{machine.name}, machine-ctrl experiment geometric')
+    fitted = Compensator.from_map(machine, model)
+    singles = exp.single_axis(machine, truth, fitted, true_map)
+    if reference is None:
+        from trajectory.planner import plan
+        progress('planning the spiral ...')
+        reference = plan('spiral', machine).reference
+    runs = []
+    for label, compensator in (('uncompensated', None), ('compensated', fitted),
+                               ('true map', Compensator.from_map(machine, true_map))):
+        progress(f'spiral {label}: {len(reference)} steps ...')
+        runs.append(exp.spiral_run(machine, truth, fitted.ideal, reference, label, compensator))
+    plots = exp.write_plots(out, singles, runs, fitted.fine_axes)
+    return {'measurement': str(csv_path), 'model': str(model_path),
+            'fit_residuals': [r.as_dict() for r in residuals],
+            'table_6_3': exp.table_6_3(singles), 'table_6_4': exp.table_6_4(runs),
+            'thesis_6_4': exp.THESIS_6_4, 'fine_stroke': exp.fine_stroke_use(machine, runs),
+            'plots': [str(p) for p in plots]}
+
+
+def _print(result: dict) -> None:
+    print('Table 6.3: tool-tip errors moving one axis at rest, um (sim | thesis)')
+    print(f'{"error":9} {"mean unc.":>18} {"mean comp.":>18} {"max unc.":>18} {"max comp.":>18}')
+    for name, row in result['table_6_3'].items():
+        thesis = row['thesis'] or (float('nan'),) * 4
+        cells = [f'{row[k]:8.3f} | {t:7.3f}' for k, t in zip(
+            ('mean_uncompensated', 'mean_compensated', 'max_uncompensated', 'max_compensated'), thesis)]
+        print(f'{name:9} ' + ' '.join(f'{c:>18}' for c in cells))
+    print('\nTable 6.4: spiral tool-tip errors |dP|, um: total = tracking + geometric parts')
+    for label, row in result['table_6_4'].items():
+        for d in 'xyz':
+            t, tr, g = (row[k][d] for k in ('total', 'tracking', 'geometric'))
+            print(f'{label:14} {d}: mean {t["mean"]:7.3f} max {t["max"]:7.3f}   '
+                  f'(tracking mean {tr["mean"]:6.3f} max {tr["max"]:6.3f}; '
+                  f'geometric mean {g["mean"]:6.3f} max {g["max"]:6.3f})')
+        if row['compensation']:
+            print(f'{"":14} compensation: {row["compensation"]}')
+    print(f'thesis: {result["thesis_6_4"]} (mean unc., mean comp., max unc., max comp.)')
+    print(f'fine stroke used (fraction of half stroke): {result["fine_stroke"]}')
+    print('plots: ' + ' '.join(result['plots']))

@@ -1,0 +1,1 @@
+"""ROS-free contour-error estimation and its truth."""

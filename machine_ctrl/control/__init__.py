@@ -1,0 +1,1 @@
+"""ROS-free control laws behind one interface."""

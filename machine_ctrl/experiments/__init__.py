@@ -1,0 +1,1 @@
+"""ROS-free experiments of the seeds, run offline."""

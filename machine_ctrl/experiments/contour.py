@@ -1,0 +1,213 @@
+"""Sencer Figs. 9-10 on the simulated machines: the Frenet-frame contour-error estimates
+(basic, shifted, compensated; Eqs. 20, 22, 26) and the orientation estimate (Eq. 28 and
+Eq. 34) against the true contour errors (closest-point search), along the Eq. (35) run of
+trt_5axis on the offline runner, and the same estimators on the micromill helix.
+
+Per estimator: the deviation |eps_est - eps_true| (vector difference, um) on average and
+at its maximum, over the whole run (rests included) and at the peaks (steps where the
+true contour error is >= half its maximum). Orientation in drive coordinates of the rotary
+axes (Sencer Fig. 10): true J_O^+ eps (Eq. 36 with the pseudo-inverse) vs Eq. (28) through
+J_O^+ (what contour_error_node publishes, in the workpiece frame), vs Eq. (34) as printed
+and vs its exact form (G = J_O^T J_O, :func:`machine_ctrl.contour.estimation.rotary_contour_error`). Inputs are the encoder readings, as the node sees them.
+
+``python -m machine_ctrl.experiments.contour [--json] [--plots DIR] [--quiet]``
+(also ``machine-ctrl experiment contour``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.contour.estimation import (ESTIMATORS, OrientationEstimator, ToolTipEstimator, ToolTrajectory,
+                                  drive_coordinates, rotary_contour_error, rotary_contour_error_eq34)
+from machine_ctrl.contour.truth import true_orientation_errors, true_tool_tip_errors
+from machine_ctrl.model.kinematics import Kinematics
+from hw_sim.offline import run
+from trajectory.sencer_path import sencer_reference
+
+UM = 1e6
+
+
+def estimate_run(kinematics: Kinematics, trajectory: ToolTrajectory, measured) -> dict:
+    """Tool tips, tool axes, the three tool-tip estimates (+ t_d), the orientation estimate
+    and the true errors for measured axis rows (one per step from trajectory.first)."""
+    poses = [kinematics.forward(q) for q in measured]
+    p = np.array([x[0] for x in poses])
+    o = np.array([x[1] for x in poses])
+    out = {'p': p, 'o': o, 'true_tip': true_tool_tip_errors(trajectory, p),
+           'true_orientation': true_orientation_errors(trajectory, o)}
+    for method in ESTIMATORS:
+        estimator = ToolTipEstimator(method)
+        estimates = [estimator.estimate(trajectory, k, pk) for k, pk in enumerate(p.tolist())]
+        out[method] = np.array([e.vector for e in estimates])
+        out[f'{method}_delay'] = np.array([e.delay for e in estimates])
+    orientation = OrientationEstimator()
+    out['orientation'] = np.array([orientation.estimate(trajectory, k, ok) for k, ok in enumerate(o.tolist())])
+    return out
+
+
+def tip_statistics(result: dict) -> dict:
+    true = result['true_tip']
+    magnitude = np.linalg.norm(true, axis=1)
+    peaks = magnitude >= 0.5 * magnitude.max()
+    stats = {'true': {'mean_um': magnitude.mean() * UM, 'max_um': magnitude.max() * UM}}
+    for method in ESTIMATORS:
+        deviation = np.linalg.norm(result[method] - true, axis=1)
+        stats[method] = {'mean_deviation_um': deviation.mean() * UM, 'max_deviation_um': deviation.max() * UM,
+                         'peak_max_deviation_um': deviation[peaks].max() * UM,
+                         'peak_max_deviation_percent': 100 * deviation[peaks].max() / magnitude.max()}
+    return stats
+
+
+def rotary_drive_errors(machine, reference, record, result) -> dict:
+    """Fig. 10: tracking errors of the rotary axes and the orientation contour errors in
+    their coordinates (true, Eq. 28 via J_O^+, Eq. 34 as printed and with G = J_O^T J_O), rad."""
+    kinematics = Kinematics.from_config(machine)
+    rotary = [i for i, a in enumerate(machine.axes) if a.kind == 'rotary']
+    tracking = reference.position[:len(record.measured)] - record.measured
+    out = {'tracking': tracking[:, rotary], 'true': [], 'eq28': [], 'eq34': [], 'eq34_exact': []}
+    for k, q in enumerate(reference.position[:len(record.measured)]):
+        j_o = kinematics.jacobian(q)[3:, rotary]
+        out['true'].append(drive_coordinates(j_o, result['true_orientation'][k]))
+        out['eq28'].append(drive_coordinates(j_o, result['orientation'][k]))
+        out['eq34'].append(rotary_contour_error_eq34(tracking[k, rotary], reference.velocity[k, rotary]))
+        out['eq34_exact'].append(rotary_contour_error(tracking[k, rotary], reference.velocity[k, rotary], j_o))
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def experiment(progress=lambda text: None, helix: bool = True) -> tuple[dict, dict]:
+    """(summary, series for the plots)."""
+    machine = load_machine('trt_5axis')
+    kinematics = Kinematics.from_config(machine)
+    reference = sencer_reference(machine)
+    progress(f'trt_5axis: Eq. (35) run, {len(reference)} steps')
+    record = run(machine, reference)
+    trajectory = ToolTrajectory.from_reference(kinematics, reference)
+    progress('trt_5axis: estimates and true contour errors')
+    result = estimate_run(kinematics, trajectory, record.measured)
+    drives = rotary_drive_errors(machine, reference, record, result)
+    names = [a.name for a in machine.axes if a.kind == 'rotary']
+    summary = {'trt_5axis': {'steps': len(reference), 'fault': record.fault, 'tool_tip': tip_statistics(result),
+                             'orientation_max_deviation_urad': {
+                                 form: {n: float(np.abs(drives[form][:, i] - drives['true'][:, i]).max() * UM)
+                                        for i, n in enumerate(names)} for form in ('eq28', 'eq34', 'eq34_exact')},
+                             'orientation_true_max_urad': {n: float(np.abs(drives['true'][:, i]).max() * UM)
+                                                           for i, n in enumerate(names)}}}
+    series = {'period': machine.control_period, 'result': result, 'drives': drives, 'rotary': names}
+    if helix:
+        summary['micromill_9axis_helix'] = helix_run(progress)
+    return summary, series
+
+
+def helix_run(progress) -> dict:
+    """The same estimators on the 9-axis micromill along the [3/7] helix."""
+    from trajectory.planner import plan
+    machine = load_machine('micromill_9axis')
+    progress('micromill_9axis: planning the helix')
+    reference = plan('helix', machine).reference
+    progress(f'micromill_9axis: helix run, {len(reference)} steps')
+    record = run(machine, reference, progress=lambda k, n: progress(f'  step {k}/{n}'))
+    kinematics = Kinematics.from_config(machine)
+    trajectory = ToolTrajectory.from_reference(kinematics, reference)
+    progress('micromill_9axis: estimates and true contour errors')
+    result = estimate_run(kinematics, trajectory, record.measured)
+    deviation = np.linalg.norm(result['orientation'] - result['true_orientation'], axis=1)
+    return {'steps': len(reference), 'fault': record.fault, 'tool_tip': tip_statistics(result),
+            'orientation_max_deviation_urad': float(deviation.max() * UM),
+            'orientation_true_max_urad': float(np.linalg.norm(result['true_orientation'], axis=1).max() * UM)}
+
+
+def plots(series: dict, directory) -> list[str]:
+    """fig9_tool_tip.png and fig10_orientation.png in `directory`."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from pathlib import Path
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    result, drives = series['result'], series['drives']
+    t = np.arange(len(result['p'])) * series['period']
+    true = np.linalg.norm(result['true_tip'], axis=1) * UM
+    fig, ax = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
+    ax[0].plot(t, true, 'k', label='true')
+    for method in ESTIMATORS:
+        magnitude = np.linalg.norm(result[method], axis=1) * UM
+        ax[0].plot(t, magnitude, '--', lw=0.8, label=method)
+        ax[1].plot(t, magnitude - true, lw=0.8, label=method)
+    ax[0].set_ylabel('|contour error| (um)')
+    ax[1].set_ylabel('estimate - true (um)')
+    ax[1].set_ylim(-0.5, 0.5)
+    ax[2].plot(t, result['compensated_delay'] * 1e3)
+    ax[2].set_ylabel('t_d, Eq. (21) (ms)')
+    ax[2].set_xlabel('time (s)')
+    for a in ax[:2]:
+        a.legend(loc='upper right')
+    fig.suptitle('Sencer Fig. 9 on trt_5axis: tool-tip contour error estimates, Eq. (35) path')
+    files = [directory / 'fig9_tool_tip.png']
+    fig.savefig(files[0], dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(2, len(series['rotary']), figsize=(11, 7), sharex=True)
+    for i, name in enumerate(series['rotary']):
+        ax[0, i].plot(t, drives['tracking'][:, i] * UM, lw=0.8, label='tracking error')
+        ax[0, i].plot(t, drives['true'][:, i] * UM, lw=0.8, label='true contour error')
+        ax[0, i].plot(t, drives['eq28'][:, i] * UM, '--', lw=0.8, label='Eq. (28) via J_O+')
+        ax[0, i].set_ylabel(f'{name} (urad)')
+        ax[1, i].plot(t, (drives['eq28'][:, i] - drives['true'][:, i]) * UM, lw=0.8, label='Eq. (28) - true')
+        ax[1, i].plot(t, (drives['eq34'][:, i] - drives['true'][:, i]) * UM, lw=0.8, label='Eq. (34) printed - true')
+        ax[1, i].set_ylim(-20, 20)
+        ax[1, i].set_xlabel('time (s)')
+        for a in ax[:, i]:
+            a.legend(loc='upper right', fontsize=7)
+    fig.suptitle('Sencer Fig. 10 on trt_5axis: orientation contour errors in drive coordinates')
+    files.append(directory / 'fig10_orientation.png')
+    fig.savefig(files[1], dpi=110)
+    plt.close(fig)
+    return [str(f) for f in files]
+
+
+def table(summary: dict) -> str:
+    lines = []
+    for run_name, data in summary.items():
+        tip = data['tool_tip']
+        lines.append(f'{run_name} ({data["steps"]} steps): true contour error mean {tip["true"]["mean_um"]:.3f} um, '
+                     f'max {tip["true"]["max_um"]:.3f} um')
+        lines.append(f'  {"estimator":<12} {"mean dev um":>12} {"max dev um":>11} {"peak dev um":>12} {"peak dev %":>11}')
+        for method in ESTIMATORS:
+            s = tip[method]
+            lines.append(f'  {method:<12} {s["mean_deviation_um"]:12.4f} {s["max_deviation_um"]:11.3f} '
+                         f'{s["peak_max_deviation_um"]:12.4f} {s["peak_max_deviation_percent"]:11.4f}')
+        orientation = data['orientation_max_deviation_urad']
+        lines.append(f'  orientation: max deviation from the true contour error (urad): {json.dumps(orientation)}; '
+                     f'true max {json.dumps(data["orientation_true_max_urad"])}')
+    return '\n'.join(lines)
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    return float(value) if isinstance(value, (np.floating, float)) else value
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog='machine-ctrl experiment contour', description=__doc__.split('\n')[0])
+    parser.add_argument('--json', action='store_true', help='print one JSON object')
+    parser.add_argument('--plots', metavar='DIR', help='write fig9_tool_tip.png and fig10_orientation.png')
+    parser.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    parser.add_argument('--no-helix', action='store_true', help='skip the micromill helix run')
+    args = parser.parse_args(argv)
+    progress = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    summary, series = experiment(progress, helix=not args.no_helix)
+    if args.plots:
+        for path in plots(series, args.plots):
+            progress(f'wrote {path}')
+    print(json.dumps(_jsonable(summary)) if args.json else table(summary))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""Ground: the machine model (config, URDF, kinematics, units)."""

@@ -1,0 +1,473 @@
+"""Machine descriptions: a URDF (kinematic chain, strokes) plus a YAML file (drives, limits,
+sensors, control period), loaded into frozen, validated dataclasses.
+
+Every problem stops loading with one line, ``<file>: <key>: <problem>``, raised as
+:class:`ConfigError`. Unknown YAML keys are errors too, so a typo never silently falls back
+to a default.
+
+Units are SI (m, rad, s, kg, kg*m^2, N, N*m, V). Which values come from which seed is
+recorded next to each value in ``config/machines/*.yaml`` / ``*.urdf``.
+"""
+from __future__ import annotations
+
+import math
+import re
+import sys
+import types
+import typing
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from machine_ctrl.model import urdf
+from machine_ctrl.model.errors import ConfigError
+
+DEFAULT_MACHINE = 'micromill_9axis'
+
+DRIVE_TYPES = {
+    # type: what the command u is
+    'linear_motor': 'V (amplifier input: force = amplifier_gain * force_constant * u)',
+    'maglev': 'amplifier command (force/torque = amplifier_gain * u on the levitated table)',
+    'servo_voltage': 'V (drive identified normalized to its input: u = mass*acc + damping*vel)',
+}
+
+
+def _positive(**kw):
+    return field(metadata={'check': 'positive'}, **kw)
+
+
+def _nonnegative(**kw):
+    return field(metadata={'check': 'nonnegative'}, **kw)
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    type: str = field(metadata={'choices': tuple(DRIVE_TYPES)})
+    mass: float = _positive()        # kg or kg*m^2 (servo_voltage: V*s^2/m or V*s^2/rad)
+    damping: float = _nonnegative()  # viscous friction per unit velocity
+    command_limit: float = _positive()                  # |u| saturation, in the command's unit
+    force_constant: float = _positive(default=1.0)      # N/A (linear_motor), else 1
+    amplifier_gain: float = _positive(default=1.0)      # A/V (linear_motor), else 1
+    command_resolution: float = _nonnegative(default=0.0)  # quantization step of u, 0 = none
+
+    @property
+    def gain(self) -> float:
+        """Force (or torque) per unit command."""
+        return self.force_constant * self.amplifier_gain
+
+
+@dataclass(frozen=True)
+class Limits:
+    velocity: float = _positive()
+    acceleration: float = _positive()
+    jerk: float = _positive()
+
+
+@dataclass(frozen=True)
+class FrictionConfig:
+    """Plant friction of a linear-motor axis: LuGre bristle dynamics (thesis Eqs. 4.58,
+    4.62) whose steady state is the asymmetric Stribeck curve of Eq. (4.41), with the
+    magnitude varying sinusoidally along the stroke. Pairs are (positive, negative direction)
+    magnitudes."""
+    static: tuple[float, float] = _nonnegative()     # N, F_stat
+    coulomb: tuple[float, float] = _nonnegative()    # N, F_coul
+    omega1: tuple[float, float] = _positive()        # m/s, Stribeck decay of static friction
+    omega2: tuple[float, float] = _positive()        # m/s, rise of Coulomb friction
+    sigma0: float = _positive()               # N/m, bristle stiffness
+    sigma1: float = _nonnegative()            # N*s/m, bristle damping
+    variation: float = _nonnegative(default=0.0)            # relative amplitude along the stroke
+    variation_wavelength: float = _positive(default=1.0)    # m
+
+
+@dataclass(frozen=True)
+class ModeConfig:
+    omega: float = _positive()                # rad/s
+    zeta: float = _positive()
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """What hw_sim simulates beyond the drive (rigid body, gain, saturation, quantization)."""
+    friction: FrictionConfig | None = None    # linear motors
+    resonance: ModeConfig | None = None       # flexible table modes (lightly damped poles ...
+    antiresonance: ModeConfig | None = None   # ... and zeros), DC gain 1
+    sensor_noise: float = _nonnegative(default=0.0)   # m or rad, std of additive noise
+    force_noise: float = _nonnegative(default=0.0)    # N or N*m, std of a white actuator
+                                                      # force disturbance held over each period
+
+
+@dataclass(frozen=True)
+class SlidingModeGains:
+    """Thesis Eqs. (4.47)-(4.57)."""
+    bandwidth: float = _positive()            # lambda, 1/s
+    gain: float = _positive()                 # K_s, V*s/m (V*s/rad)
+    adaptation: float = _nonnegative()        # rho, V/m (V/rad)
+    disturbance_bounds: tuple[float, float] = (0.0, 0.0)   # d-, d+ in V
+
+
+@dataclass(frozen=True)
+class LuGreFeedforwardGains:
+    """Thesis Eqs. (4.58)-(4.67) with g(v) = F_c + (F_s - F_c) exp(-|v|/Omega_s)."""
+    sigma0: float = _positive()               # N/m
+    sigma1: float = _nonnegative()            # N*s/m
+    coulomb: float = _nonnegative()           # F_c, N
+    static: float = _nonnegative()            # F_s, N
+    stribeck_velocity: float = _positive()    # Omega_s, m/s
+
+
+@dataclass(frozen=True)
+class PPIGains:
+    """CIRP paper Eq. (13): P position loop cascaded with a PI velocity loop."""
+    position_gain: float = _positive()        # K_p, 1/s
+    velocity_gain: float = _positive()        # K_v, V*s/m
+    velocity_integral_gain: float = _nonnegative()   # K_vi, V/m
+
+
+@dataclass(frozen=True)
+class NotchConfig:
+    """(s^2 + 2 zeta_num omega s + omega^2) / (s^2 + 2 zeta_den omega s + omega^2), Eq. (4.76)."""
+    omega: float = _positive()
+    zeta_num: float = _positive()
+    zeta_den: float = _positive()
+
+
+@dataclass(frozen=True)
+class LeadLagGains:
+    """Thesis Eqs. (4.73)-(4.76): K (1 + alpha T s)/(1 + T s) (1 + K_i/s) N(s)."""
+    gain: float = _positive()                 # K_f, command unit per m (rad)
+    alpha: float = _positive()
+    time_constant: float = _positive()        # T, s
+    integral: float = _nonnegative()          # K_i, rad/s
+    notches: tuple[NotchConfig, ...] = ()
+
+
+CONTROL_LAWS = ('sliding_mode', 'ppi', 'lead_lag')
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    law: str = field(metadata={'choices': CONTROL_LAWS})
+    sliding_mode: SlidingModeGains | None = None
+    lugre_feedforward: LuGreFeedforwardGains | None = None   # used with sliding_mode and ppi
+    ppi: PPIGains | None = None
+    lead_lag: LeadLagGains | None = None
+
+
+@dataclass(frozen=True)
+class DualStagePair:
+    coarse: str
+    fine: str
+    sign: float      # fine reference += sign * coarse tracking error (seed-notes.md: z needs -1)
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    seed: int = 0             # seeds every random source of hw_sim
+    substeps: int = 1         # plant integration steps per control period (nonlinear plants)
+    error_map: str | None = None   # true geometric errors (path relative to the YAML file;
+                                   # compensation/error_map.py), None: an ideal machine
+
+    def error_map_path(self, yaml_path: Path) -> Path | None:
+        return None if self.error_map is None else (yaml_path.parent / self.error_map).resolve()
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    name: str
+    kind: str                                # 'linear' (m) or 'rotary' (rad)
+    stroke: tuple[float, float] | None       # None: unlimited (continuous joint)
+    limits: Limits
+    drive: DriveConfig
+    sensor_resolution: float
+    effort: float                            # actuator peak force/torque from the URDF
+    plant: PlantConfig | None = None         # None: this axis cannot be simulated
+    control: ControlConfig | None = None     # None: no servo law configured
+
+    @property
+    def unit(self) -> str:
+        return 'm' if self.kind == 'linear' else 'rad'
+
+    def in_stroke(self, value: float) -> bool:
+        return self.stroke is None or self.stroke[0] <= value <= self.stroke[1]
+
+
+@dataclass(frozen=True)
+class MachineConfig:
+    name: str
+    description: str
+    yaml_path: Path
+    urdf_path: Path
+    control_period: float
+    workpiece_frame: str
+    tool_frame: str
+    axes: tuple[AxisConfig, ...]
+    home: tuple[float, ...]
+    dual_stage: tuple[DualStagePair, ...] = ()
+    simulation: SimulationConfig = SimulationConfig()
+
+    @property
+    def axis_names(self) -> tuple[str, ...]:
+        return tuple(a.name for a in self.axes)
+
+    def axis(self, name: str) -> AxisConfig:
+        for a in self.axes:
+            if a.name == name:
+                return a
+        raise KeyError(f'{self.name}: no axis {name!r} (axes: {", ".join(self.axis_names)})')
+
+
+_REQUIRED = object()
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML 1.2 floats: PyYAML (YAML 1.1) would read ``9.0e5`` (no exponent sign) as a string."""
+
+
+_Loader.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r'^[-+]?(?:\d[\d_]*\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$|^[-+]?\.(?:inf|Inf|INF)$|^\.(?:nan|NaN|NAN)$'),
+    list('-+0123456789.'))
+
+
+class _Section:
+    """A YAML mapping being read, remembering its file and key path for error messages."""
+
+    def __init__(self, data: Any, file: Path, key: str):
+        self.file, self.key = file, key
+        if not isinstance(data, dict):
+            self.fail(f'must be a mapping, got {type(data).__name__}')
+        self.data = data
+        self._used: set[str] = set()
+
+    def fail(self, problem: str, key: str | None = None):
+        where = '.'.join(k for k in (self.key, key) if k)
+        raise ConfigError(f'{self.file}: {where or "<top>"}: {problem}')
+
+    def _get(self, key: str, default: Any):
+        self._used.add(key)
+        if key not in self.data:
+            if default is _REQUIRED:
+                self.fail('missing', key)
+            return default
+        return self.data[key]
+
+    def section(self, key: str) -> _Section:
+        return _Section(self._get(key, _REQUIRED), self.file, f'{self.key}.{key}' if self.key else key)
+
+    def string(self, key: str, default: str | None = None, choices=None) -> str:
+        if default is not None and key not in self.data:
+            self._used.add(key)
+            return default
+        value = self._get(key, _REQUIRED)
+        if not isinstance(value, str) or not value:
+            self.fail(f'must be a non-empty string, got {value!r}', key)
+        if choices is not None and value not in choices:
+            self.fail(f'must be one of {", ".join(sorted(choices))}, got {value!r}', key)
+        return value
+
+    def number(self, key: str, default: float | None = None, *, positive=False,
+               nonnegative=False) -> float:
+        value = self._get(key, _REQUIRED if default is None else default)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(f'must be a number, got {value!r}', key)
+        value = float(value)
+        if not math.isfinite(value):
+            self.fail(f'must be finite, got {value}', key)
+        if positive and value <= 0:
+            self.fail(f'must be > 0, got {value:g}', key)
+        if nonnegative and value < 0:
+            self.fail(f'must be >= 0, got {value:g}', key)
+        return value
+
+    def finish(self):
+        unknown = sorted(set(map(str, self.data)) - self._used)
+        if unknown:
+            self.fail(f'unknown key(s): {", ".join(unknown)}')
+
+
+def _read(s: _Section, cls):
+    """Read dataclass ``cls`` from section ``s`` by its field names and type hints: floats
+    (checked by the field's metadata), number pairs, nested dataclasses (optional when the
+    default is None) and tuples of dataclasses. Unknown keys are errors."""
+    hints = typing.get_type_hints(cls)
+    values = {f.name: _value(s, f, hints[f.name]) for f in fields(cls)
+              if f.name in s.data or f.default is MISSING}
+    s.finish()
+    return cls(**values)
+
+
+def _value(s: _Section, f, hint):
+    """One field; only called when the key is present or required (then `missing`)."""
+    name = f.name
+    if isinstance(hint, types.UnionType):            # X | None
+        hint = next(h for h in typing.get_args(hint) if h is not type(None))
+    if hint is float:
+        check = f.metadata.get('check')
+        return s.number(name, positive=check == 'positive', nonnegative=check == 'nonnegative')
+    if hint is int:
+        value = s.number(name, nonnegative=True)
+        if value != int(value):
+            s.fail(f'must be a whole number, got {value:g}', name)
+        return int(value)
+    if hint is str:
+        return s.string(name, choices=f.metadata.get('choices'))
+    if is_dataclass(hint):
+        return _read(s.section(name), hint)
+    args = typing.get_args(hint)
+    raw = s._get(name, _REQUIRED)
+    if not isinstance(raw, (list, tuple)):
+        s.fail(f'must be a list, got {raw!r}', name)
+    if args and is_dataclass(args[0]):              # tuple[Dataclass, ...]
+        return tuple(_read(_Section(item, s.file, f'{s.key}.{name}[{i}]'), args[0])
+                     for i, item in enumerate(raw))
+    if len(raw) != 2:                                # tuple[float, float]
+        s.fail(f'must be a pair of numbers, got {raw!r}', name)
+    pair = _Section({'0': raw[0], '1': raw[1]}, s.file, f'{s.key}.{name}')
+    check = f.metadata.get('check')
+    return tuple(pair.number(k, positive=check == 'positive', nonnegative=check == 'nonnegative')
+                 for k in ('0', '1'))
+
+
+def _control(s: _Section) -> ControlConfig:
+    control = _read(s, ControlConfig)
+    if getattr(control, control.law) is None:
+        s.fail(f'law {control.law} needs its gains section {control.law!r}')
+    return control
+
+
+def _axis(s: _Section, name: str, joint: urdf.Joint) -> AxisConfig:
+    limits = _read(s.section('limits'), Limits)
+    if not math.isclose(joint.velocity, limits.velocity, rel_tol=1e-9):
+        s.fail(f'{limits.velocity:g} differs from the URDF joint velocity limit {joint.velocity:g}',
+               'limits.velocity')
+    axis = AxisConfig(
+        name=name,
+        kind='linear' if joint.type == 'prismatic' else 'rotary',
+        stroke=joint.stroke,
+        limits=limits,
+        drive=_read(s.section('drive'), DriveConfig),
+        sensor_resolution=s.number('sensor_resolution', positive=True),
+        effort=joint.effort,
+        plant=_read(s.section('plant'), PlantConfig) if 'plant' in s.data else None,
+        control=_control(s.section('control')) if 'control' in s.data else None,
+    )
+    s._used.update(('plant', 'control'))
+    s.finish()
+    return axis
+
+
+def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
+    """Load a machine by name (``config/machines/<name>.yaml``) or by YAML path."""
+    path = resolve_machine(name_or_path)
+    try:
+        raw = yaml.load(path.read_text(), Loader=_Loader)
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f'{path}: cannot read: {_one_line(exc)}') from None
+    top = _Section(raw, path, '')
+    name = top.string('name')
+    description = top.string('description', '')
+    urdf_path = (path.parent / top.string('urdf')).resolve()
+    joints = urdf.read_joints(urdf_path)
+    control_period = top.number('control_period', positive=True)
+    frames = top.section('frames')
+    workpiece_frame, tool_frame = frames.string('workpiece'), frames.string('tool')
+    frames.finish()
+    links = urdf.read_links(urdf_path)
+    for key, frame in (('workpiece', workpiece_frame), ('tool', tool_frame)):
+        if frame not in links:
+            frames.fail(f'no link {frame!r} in {urdf_path.name}', key)
+
+    axes_section = top.section('axes')
+    if not axes_section.data:
+        axes_section.fail('no axes')
+    axes = []
+    for axis_name in map(str, axes_section.data):
+        if axis_name not in joints:
+            axes_section.fail(f'unknown axis (no movable joint of that name in {urdf_path.name}; '
+                              f'joints: {", ".join(joints) or "none"})', axis_name)
+        axes.append(_axis(axes_section.section(axis_name), axis_name, joints[axis_name]))
+    axes_section.finish()
+    missing = [j for j in joints if j not in axes_section.data]
+    if missing:
+        axes_section.fail(f'URDF joint(s) without an axis entry: {", ".join(missing)}')
+
+    home = tuple(0.0 for _ in axes)
+    if 'home' in top.data:
+        home_section = top.section('home')
+        home = tuple(home_section.number(a.name, 0.0) for a in axes)
+        home_section.finish()
+    dual_stage = _dual_stage(top, axes) if 'dual_stage' in top.data else ()
+    simulation = _read(top.section('simulation'), SimulationConfig) if 'simulation' in top.data \
+        else SimulationConfig()
+    top._used.update(('dual_stage', 'simulation'))
+    top.finish()
+    for axis, value in zip(axes, home):
+        if not axis.in_stroke(value):
+            raise ConfigError(f'{path}: home.{axis.name}: {value:g} is outside the stroke {axis.stroke}')
+    return MachineConfig(name, description, path, urdf_path, control_period, workpiece_frame,
+                         tool_frame, tuple(axes), home, dual_stage, simulation)
+
+
+def _dual_stage(top: _Section, axes: list[AxisConfig]) -> tuple[DualStagePair, ...]:
+    raw = top._get('dual_stage', _REQUIRED)
+    if not isinstance(raw, list):
+        top.fail('must be a list of {coarse, fine, sign}', 'dual_stage')
+    by_name = {a.name: a for a in axes}
+    pairs = []
+    for i, item in enumerate(raw):
+        s = _Section(item, top.file, f'dual_stage[{i}]')
+        pair = DualStagePair(s.string('coarse'), s.string('fine'), s.number('sign'))
+        s.finish()
+        for role in ('coarse', 'fine'):
+            axis = by_name.get(getattr(pair, role))
+            if axis is None:
+                s.fail(f'unknown axis {getattr(pair, role)!r}', role)
+        if pair.sign not in (1.0, -1.0):
+            s.fail(f'must be 1 or -1, got {pair.sign:g}', 'sign')
+        if by_name[pair.coarse].kind != by_name[pair.fine].kind:
+            s.fail('coarse and fine axes must be of the same kind')
+        pairs.append(pair)
+    fines = [p.fine for p in pairs]
+    if len(set(fines)) != len(fines):
+        top.fail('a fine axis appears in two pairs', 'dual_stage')
+    return tuple(pairs)
+
+
+def config_dirs() -> list[Path]:
+    """Where machine descriptions are looked up, first match wins: the source checkout this
+    package runs from (editable install), the ament index, then the Python prefix."""
+    dirs = []
+    source = Path(__file__).resolve().parents[2]
+    if (source / 'package.xml').is_file():
+        dirs.append(source / 'config')
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        dirs.append(Path(get_package_share_directory('machine_ctrl')) / 'config')
+    except Exception:  # noqa: BLE001 - index absent or package not registered: fall through
+        pass
+    dirs.append(Path(sys.prefix) / 'share' / 'machine_ctrl' / 'config')
+    return [d for d in dict.fromkeys(dirs) if d.is_dir()]
+
+
+def available_machines() -> list[str]:
+    return sorted({p.stem for d in config_dirs() for p in (d / 'machines').glob('*.yaml')})
+
+
+def resolve_machine(name_or_path: str | Path) -> Path:
+    text = str(name_or_path)
+    if text.endswith(('.yaml', '.yml')) or '/' in text:
+        path = Path(text)
+        if not path.is_file():
+            raise ConfigError(f'{path}: no such machine file')
+        return path.resolve()
+    for d in config_dirs():
+        path = d / 'machines' / f'{text}.yaml'
+        if path.is_file():
+            return path
+    raise ConfigError(f'{text}: unknown machine (available: {", ".join(available_machines()) or "none"})')
+
+
+def _one_line(exc: BaseException) -> str:
+    return ' '.join(str(exc).split())

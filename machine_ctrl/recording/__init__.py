@@ -1,0 +1,1 @@
+"""ROS-free CDR, MCAP bags, replay timing, analysis, plots."""

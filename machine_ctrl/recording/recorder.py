@@ -1,0 +1,284 @@
+"""Recording core (no rclpy): which topics to record, with which subscription QoS, and the
+bag they go to. :mod:`machine_ctrl.ros.recorder_node` wires it to the ROS graph.
+
+* Topics: every topic of the graph except ``/rosout`` and ``/parameter_events`` (ROS's log
+  and parameter traffic, noise for analysis; name them to record them), or the named ones.
+  A name may carry its type, ``/joint_states:sensor_msgs/msg/JointState``: such a topic is
+  subscribed at once, before any publisher exists, so nothing its first publisher sends is
+  missed; others are subscribed when discovery first sees a publisher.
+* QoS (rosbag2's rule): reliable unless some publisher offers only best effort (a reliable
+  reader would not match it), transient local when every publisher offers it (so chunks
+  published before the recorder started arrive too), and a deep keep-last queue so a
+  recorder that falls behind buffers instead of dropping. Fast DDS keeps only ~5000 samples
+  per reader whatever the depth, so that buffer is finite: see "Progress".
+* Progress (flow control): a stamp up to which every per-step stream has been written
+  (:class:`Progress`), published on ``/recorder/progress`` (builtin_interfaces/Time) at
+  start (0: nothing yet), after every ``PROGRESS_EVERY``-th state and whenever newer on a
+  short timer. hw_sim with ``recorder_window`` > 0 holds the lock-step graph while it is
+  too far ahead of it.
+* Loss check: with the machine known, /joint_states (one per control step) and /clock (on a
+  grid of its own) are checked for skipped stamps (:class:`StampGaps`); the counts go into
+  the report and the bag's custom_data.
+"""
+from __future__ import annotations
+
+import math
+import re
+import struct
+
+from machine_ctrl.recording import cdr
+from machine_ctrl.recording import msgdefs
+from machine_ctrl.recording.bag import BagWriter
+from machine_ctrl.model.errors import InvalidMessage
+
+PROGRESS_TOPIC = '/recorder/progress'
+STATES_TOPIC = '/joint_states'
+CLOCK_TOPIC = '/clock'
+JOINT_STATE = 'sensor_msgs/msg/JointState'
+# ROS's log and parameter traffic, and our own flow-control reports
+DEFAULT_EXCLUDED = ('/rosout', '/parameter_events', PROGRESS_TOPIC)
+# assumed: a report every 10 states costs the recorder < 1 % (one small publish per ~40
+# messages of the graph) and keeps hw_sim's view of it at most 10 steps (+ transit) stale,
+# small beside the windows that make sense (~100 steps: README).
+PROGRESS_EVERY = 10
+PROGRESS_PERIOD = 0.005    # s (wall): a newer progress goes out at least this often
+# the per-step topics of the machine_ctrl graph; each publisher on them is a stream (Progress)
+PROGRESS_STREAM_TOPICS = ('/joint_states', '/servo_commands', '/dual_stage/offsets', '/clock',
+                          '/hw_sim/ground_truth/joint_states', '/hw_sim/ground_truth/tool_pose')
+# assumed: DDS repairs a lost sample within a few seconds (the writers' periodic heartbeat,
+# 3 s by default in Fast DDS); a stream silent for longer has lost its publisher (a node
+# that left) and must no longer hold the graph.
+STREAM_SILENCE = 10.0      # s (wall)
+# assumed: 1e6 queued messages (~300 MB of JointState) is more backlog than a recorder
+# falling behind the 10 kHz graph builds up in any run we make; the queue only holds what
+# has not been taken yet.
+QUEUE_DEPTH = 1_000_000
+_TOPIC = re.compile(r'^/?[A-Za-z_~{][A-Za-z0-9_/{}~]*$')
+MACHINE_KEY = 'machine_ctrl.machine'
+MACHINE_FILE_KEY = 'machine_ctrl.machine_file'
+LOST_KEY = 'machine_ctrl.lost'                  # + topic name: messages lost (stamp gaps)
+STAMPS_BACK_KEY = 'machine_ctrl.stamps_back'    # + topic name: stamps that went back
+
+
+def parse_topic(text: str) -> tuple[str, str | None]:
+    """('/name', 'pkg/msg/Type' or None) from 'NAME' or 'NAME:TYPE'; ValueError otherwise."""
+    name, _, type_name = text.partition(':')
+    name = name.strip()
+    if not _TOPIC.match(name) or name.endswith('/') or '//' in name:
+        raise ValueError(f'{text!r} is not a topic name (or NAME:pkg/msg/Type)')
+    if not name.startswith('/'):
+        name = '/' + name
+    return name, (msgdefs.full_name(type_name.strip()) if type_name else None)
+
+
+def wanted_topics(specs) -> dict[str, str | None]:
+    """Topic name -> type (or None: from discovery) for the topic arguments."""
+    result: dict[str, str | None] = {}
+    for spec in specs:
+        name, type_name = parse_topic(spec)
+        result[name] = type_name or result.get(name)
+    return result
+
+
+def to_subscribe(available: dict[str, list[str]], wanted: dict | None, excluded, done) -> dict[str, str]:
+    """Of the discovered topics (name -> types), those to subscribe now: selected (all but
+    the excluded, or the wanted), not yet subscribed, with exactly one type."""
+    chosen = {}
+    for name, types in available.items():
+        if name in done or name in excluded and not (wanted and name in wanted):
+            continue
+        if wanted is not None and name not in wanted:
+            continue
+        if len(types) == 1:
+            chosen[name] = msgdefs.full_name(types[0])
+    return chosen
+
+
+def subscription_qos(offers: list[dict]) -> dict:
+    """Reliability and durability that match every offered profile (rosbag2's adaptation)."""
+    reliable = bool(offers) and all(o.get('reliability') == 'reliable' for o in offers)
+    transient = bool(offers) and all(o.get('durability') == 'transient_local' for o in offers)
+    return {'reliability': 'reliable' if reliable else 'best_effort',
+            'durability': 'transient_local' if transient else 'volatile', 'depth': QUEUE_DEPTH}
+
+
+def cdr_stamp_ns(data: bytes) -> int | None:
+    """cdr.stamp_ns, or None if the bytes cannot hold a stamp."""
+    try:
+        return cdr.stamp_ns(data)
+    except InvalidMessage:
+        return None
+
+
+class StampGaps:
+    """Messages lost from a stream published once per grid step, from its stamps alone: a
+    stamp n grid steps after the newest one so far means n - 1 lost. A repeated stamp (a
+    re-send) is no loss; a stamp that goes back (a restarted publisher, a looped replay) is
+    counted and the check goes on from it. ``grid_ns`` None: the grid is the greatest common
+    divisor of the increments seen (a stream decimated by an unknown factor; losing every
+    other message then goes unnoticed). Stamps off a known grid are counted, not judged."""
+
+    def __init__(self, grid_ns: int | None = None):
+        self.grid_ns = grid_ns
+        self.newest: int | None = None
+        self.span = 0                   # ns, summed over the increments on the grid
+        self.increments = 0
+        self.gcd = 0
+        self.back = 0
+        self.unreadable = 0             # messages without a stamp or off the known grid
+
+    def add(self, stamp: int | None) -> None:
+        if stamp is None:
+            self.unreadable += 1
+            return
+        delta = 0 if self.newest is None else stamp - self.newest
+        if delta < 0:
+            self.back += 1
+        elif delta > 0 and self.grid_ns and delta % self.grid_ns:
+            self.unreadable += 1
+        elif delta > 0:
+            self.span += delta
+            self.increments += 1
+            self.gcd = math.gcd(self.gcd, delta)
+        self.newest = stamp
+
+    @property
+    def lost(self) -> int:
+        grid = self.grid_ns or self.gcd
+        return self.span // grid - self.increments if grid else 0
+
+
+def joint_names_key(data: bytes) -> tuple[str, ...]:
+    """A CDR sensor_msgs/JointState's header.frame_id and joint names: what tells one
+    publisher's states from another's on a shared topic. Only the strings count, never the
+    alignment padding between them (rclpy leaves it uninitialised). () if they cannot be
+    read."""
+    try:
+        _, _, frame_id, names, _ = _NAMES.read(data, cdr.byte_order(data, 'sensor_msgs/JointState'))
+    except (InvalidMessage, struct.error):
+        return ()
+    return (frame_id, *names)
+
+
+_NAMES = cdr.NamesReader()
+
+
+class Stream:
+    """One publisher's stamped per-step messages: the newest stamp written, the grid its
+    stamps advance on (gcd of the increments; 0 until two have come) and when it last wrote."""
+    __slots__ = ('newest', 'grid', 'seen')
+
+    def __init__(self, stamp: int, now: float):
+        self.newest, self.grid, self.seen = stamp, 0, now
+
+    def add(self, stamp: int, now: float) -> None:
+        if stamp > self.newest:
+            self.grid = math.gcd(self.grid, stamp - self.newest)
+        elif stamp < self.newest:                # the publisher started over
+            self.grid = 0
+        self.newest, self.seen = stamp, now
+
+
+class Progress:
+    """What the recorder reports to hw_sim's flow control: a stamp P such that every
+    per-step stream has been written up to about P. A stream is one publisher on one of
+    ``topics`` (JointState topics are split by joint names: /servo_commands has one per
+    servo node), since DDS delivers each publisher's messages in order: a message awaiting
+    a repair holds back that publisher's later ones while other publishers flow on. So P is
+    the minimum over the streams of (newest stamp + its grid - one state period): a
+    decimated stream (/clock) is complete until its next message is due. A stream
+    constrains P once its grid is known and until it has been silent for ``silence`` s (its
+    publisher left). P never exceeds the newest /joint_states stamp; 0 before the first.
+    Due after every ``every``-th /joint_states message; :meth:`take` also serves a timer."""
+
+    def __init__(self, topics=None, every: int = None, silence: float = None):
+        self.topics = frozenset(PROGRESS_STREAM_TOPICS if topics is None else topics) | {STATES_TOPIC}
+        self.every = PROGRESS_EVERY if every is None else every
+        self.silence = STREAM_SILENCE if silence is None else silence
+        self.streams: dict[tuple, Stream] = {}
+        self.sent: int | None = None
+        self._since_sent = 0
+
+    def written(self, topic: str, joint_state: bool, data: bytes, now: float) -> bool:
+        """A message was written; True if a progress report is due now."""
+        if topic not in self.topics:
+            return False
+        stamp = cdr_stamp_ns(data)
+        if stamp is not None:
+            key = (topic, joint_names_key(data) if joint_state else ())
+            stream = self.streams.get(key)
+            if stream is None:
+                self.streams[key] = Stream(stamp, now)
+            else:
+                stream.add(stamp, now)
+            self._since_sent += topic == STATES_TOPIC
+        return self._since_sent >= self.every
+
+    def value(self, now: float) -> int:
+        states = [s for (topic, _), s in self.streams.items() if topic == STATES_TOPIC]
+        if not states:
+            return 0
+        state = max(states, key=lambda s: s.seen)
+        period = state.grid
+        complete = [s.newest + s.grid - period for s in self.streams.values()
+                    if s.grid and period and now - s.seen < self.silence]
+        return min([state.newest, *complete])
+
+    def take(self, now: float) -> int | None:
+        """The stamp to publish now, or None if it went out already."""
+        self._since_sent = 0
+        value = self.value(now)
+        if self.sent == value:
+            return None
+        self.sent = value
+        return value
+
+
+class Recording:
+    """The bag being written plus what the report needs. With the machine's control period
+    (``period_ns``) the loss check runs on /joint_states (grid = the period) and /clock
+    (grid inferred)."""
+
+    def __init__(self, directory, custom_data: dict | None = None, period_ns: int | None = None):
+        self.writer = BagWriter(directory)
+        self.custom_data = dict(custom_data or {})
+        self.gaps = {STATES_TOPIC: StampGaps(period_ns), CLOCK_TOPIC: StampGaps()} if period_ns else {}
+        self.progress = Progress()
+
+    def add_topic(self, name: str, type_name: str, offers) -> None:
+        self.writer.add_topic(name, type_name, offers)
+
+    def write(self, topic: str, data: bytes, receive_time_ns: int, now: float) -> bool:
+        """Write one message (``now``: s, monotonic); True when a progress report is due."""
+        self.writer.write(topic, data, receive_time_ns)
+        gaps = self.gaps.get(topic)
+        if gaps is not None:
+            gaps.add(cdr_stamp_ns(data))
+        return self.progress.written(topic, self.writer.topics[topic].type == JOINT_STATE, data, now)
+
+    def loss(self) -> dict[str, str]:
+        """custom_data entries of the loss check, per checked topic that was recorded."""
+        entries = {}
+        for topic, gaps in self.gaps.items():
+            if topic in self.writer.topics:
+                entries[LOST_KEY + topic] = str(gaps.lost)
+                entries[STAMPS_BACK_KEY + topic] = str(gaps.back)
+        return entries
+
+    def close(self) -> dict[str, int]:
+        return self.writer.close({**self.custom_data, **self.loss()})
+
+    def report(self) -> str:
+        """Per-topic message counts, one line each after a summary line, then the loss check."""
+        counts = self.writer.counts()
+        lines = [f'recorded {sum(counts.values())} messages on {len(counts)} topics to {self.writer.directory}']
+        for name, info in sorted(self.writer.topics.items()):
+            lines.append(f'  {name} ({info.type}): {info.count}')
+        checked = [(t, g) for t, g in self.gaps.items() if t in self.writer.topics]
+        if not self.gaps:
+            lines.append('lost: not checked (no machine given: its control period is unknown)')
+        elif checked:
+            lines.append('lost (skipped stamps): ' + ', '.join(
+                f'{t} {g.lost}' + (f' ({g.back} stamps went back)' if g.back else '')
+                + (f' ({g.unreadable} without a stamp on the grid)' if g.unreadable else '') for t, g in checked))
+        return '\n'.join(lines)

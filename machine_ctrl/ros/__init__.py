@@ -1,0 +1,1 @@
+"""The ROS side: message conversion and the thin nodes."""

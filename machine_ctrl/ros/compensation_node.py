@@ -1,0 +1,82 @@
+"""compensation_node: geometric error compensation of the reference stream (Yuen thesis,
+seed 000_d9dd5f6a818770e4.txt, Algorithm 2) between the trajectory source and the servos.
+
+Subscribes `input_topic` (default /trajectory/reference) and publishes every chunk, corrected
+(core: compensation.stream.CompensationStream), on `output_topic` (default /reference), same
+first step and format (ros_io.trajectory_chunk; trajectory_msgs/JointTrajectory, SI units,
+all machine axes, transient-local like every reference stream).
+Parameters: `machine`, `model` (required: error model YAML, e.g. from machine-ctrl
+fit-errors --out), `enabled` (start on/off), `input_topic`, `output_topic`.
+Service /compensation/enable (std_srvs/SetBool) switches it at runtime (ramped, see
+stream.py). A malformed chunk is refused (reason on /diagnostics and the log), nothing is
+forwarded for it and the node keeps running. /diagnostics (1 Hz wall): enabled, chunks,
+refused chunks, rows stopped by the iteration cap, largest predicted residual.
+"""
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.node import Node
+from std_srvs.srv import SetBool
+from trajectory_msgs.msg import JointTrajectory
+
+from compensation.compensate import Compensator
+from compensation.error_map import load_error_map
+from compensation.stream import CompensationStream
+from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.model.errors import ConfigError
+from machine_ctrl.ros.node_common import Rejections, declare, machine_parameter, main_for, subscribe_reference, wall_timer
+
+
+class CompensationNode(Node):
+    def __init__(self, name: str = 'compensation', **kwargs):
+        super().__init__(name, **kwargs)
+        self.machine = machine_parameter(self)
+        model = declare(self, 'model', '', 'geometric error model YAML (machine-ctrl fit-errors --out)')
+        enabled = declare(self, 'enabled', True, 'compensation on at start')
+        input_topic = declare(self, 'input_topic', '/trajectory/reference', 'uncompensated reference chunks')
+        output_topic = declare(self, 'output_topic', ros_io.TOPIC_REFERENCE, 'compensated reference chunks')
+        try:
+            if not model:
+                raise ConfigError('parameter model: missing (path of a geometric error model YAML)')
+            compensator = Compensator.from_map(self.machine, load_error_map(model, self.machine.axis_names))
+        except ConfigError as exc:
+            self.get_logger().fatal(str(exc))
+            raise SystemExit(2) from None
+        self.stream = CompensationStream(compensator, self.machine.control_period, enabled)
+        self.clock = ros_io.StepClock(self.machine.control_period)
+        self.rejections = Rejections(self)
+        self.pub = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
+        subscribe_reference(self, input_topic, self.clock, self.machine.axis_names, self.on_chunk,
+                            lambda reason: self.rejections.add('reference chunk', reason))
+        self.create_service(SetBool, '/compensation/enable', self.on_enable)
+        wall_timer(self, 1.0, self.publish_diagnostics)
+        self.get_logger().info(f'ready: {input_topic} -> {output_topic}, model {model}, '
+                               f'{"on" if enabled else "off"}')
+
+    def on_chunk(self, first: int, positions, velocities, accelerations) -> None:
+        q, v, a, _ = self.stream.transform(first, positions, velocities, accelerations)
+        self.pub.publish(ros_io.trajectory_chunk(self.clock, first, self.machine.axis_names, q, v, a))
+
+    def on_enable(self, request, response):
+        self.stream.set_enabled(bool(request.data))
+        response.success = True
+        response.message = f'compensation {"on" if request.data else "off"} from the next chunk (ramped)'
+        return response
+
+    def publish_diagnostics(self) -> None:
+        s = self.stream
+        problems = self.rejections.count or s.capped_rows
+        values = {'enabled': s.enabled, 'chunks': s.chunks, 'rejected_chunks': self.rejections.count,
+                  'last_rejection': self.rejections.last, 'capped_rows': s.capped_rows,
+                  'max_predicted_residual_m': s.max_residual}
+        self.pub_diag.publish(ros_io.diagnostics(
+            self.get_clock().now().to_msg(), 'compensation',
+            DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
+            f'compensation {"on" if s.enabled else "off"}', values))
+
+
+main = main_for(CompensationNode)
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,72 @@
+"""dual_stage_node: per step k, the fine-stage reference offsets of the dual-stage coupling
+(thesis section 4.4) from the coarse tracking errors, on /dual_stage/offsets
+(sensor_msgs/JointState: name = fine axes, position = offsets in m, stamp = step k).
+Inputs: /joint_states and the reference stream /reference (all coupled axes). Waits for a
+reference stream that never started; once it has, waits up to `input_timeout` s (wall)
+for a missing row, then holds (see servo_node).
+Service /dual_stage/enable (std_srvs/SetBool) switches the coupling at runtime; while off
+the offsets are zero. Saturation at the fine stroke is counted and reported on /diagnostics.
+"""
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool
+
+from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
+from machine_ctrl.control.dual_stage import DualStageCoupling
+from machine_ctrl.ros.node_common import declare, machine_parameter, main_for, wall_timer
+from machine_ctrl.ros.step_node import StepNode
+
+
+class DualStageNode(StepNode):
+    def __init__(self, name: str = 'dual_stage', **kwargs):
+        super().__init__(name, **kwargs)
+        self.machine = machine_parameter(self)
+        if not self.machine.dual_stage:
+            self.get_logger().fatal(f'{self.machine.name}: the machine config has no dual_stage pairs')
+            raise SystemExit(2)
+        enabled = declare(self, 'enabled', True, 'coupling on at start')
+        self.coupling = DualStageCoupling(self.machine, enabled=enabled)
+        self.axes = self.machine.axis_names
+        self.make_buffer(self.axes)
+        self.encoder = JointStateEncoder(self.coupling.fine_axes)
+        self.pub = self.create_publisher(JointState, ros_io.TOPIC_OFFSETS, ros_io.STEP_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
+        self.start_stepping(self.machine, self.axes, self.pub, self.buffer.has, self.compute,
+                            streaming=lambda: self.buffer.started)
+        self.create_service(SetBool, '/dual_stage/enable', self.on_enable)
+        wall_timer(self, 1.0, self.publish_diagnostics)
+        self.get_logger().info(f'ready: fine axes {" ".join(self.coupling.fine_axes)}')
+
+    def on_enable(self, request, response):
+        self.coupling.enabled = bool(request.data)
+        response.success = True
+        response.message = f'dual-stage coupling {"on" if request.data else "off"}'
+        return response
+
+    def compute(self, step: int, msg: JointStateData) -> bytes | None:
+        position = self.positions(msg, self.axes)
+        if position is None:
+            return None
+        ref_pos, _, _, _ = self.buffer.take(step, position)
+        result = self.coupling.update(ref_pos, position)
+        return self.encoder.encode(msg.sec, msg.nanosec, position=result.offsets)
+
+    def publish_diagnostics(self) -> None:
+        problems = self.buffer.underruns or self.rejections.count or self.coupling.saturation_count
+        step = self.responder.answered_step
+        values = {'enabled': self.coupling.enabled, 'answered_step': step,
+                  'fine_stroke_saturations': self.coupling.saturation_count,
+                  'reference_underruns': self.buffer.underruns, 'rejected_messages': self.rejections.count,
+                  'last_rejection': self.rejections.last}
+        self.pub_diag.publish(ros_io.diagnostics(
+            self.clock.stamp(step), 'dual_stage', DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
+            f'coupling {"on" if self.coupling.enabled else "off"}', values))
+
+
+main = main_for(DualStageNode)
+
+if __name__ == '__main__':
+    raise SystemExit(main())

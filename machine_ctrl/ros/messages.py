@@ -1,0 +1,265 @@
+"""Message conversion and validation shared by the nodes (the ROS edge of the functional
+core). Every parser raises :class:`InvalidMessage` with a one-line reason; nodes catch it,
+report it on /diagnostics and keep running.
+
+Time: control step k of a machine with period T happens at sim time t_k = k*T, carried in
+stamps as integer nanoseconds (T is a whole number of nanoseconds), so step <-> stamp is
+exact in both directions.
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+import pinocchio as pin
+from builtin_interfaces.msg import Duration, Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from machine_ctrl.recording.cdr import ChunkData, ChunkDecoder, NotUniform, encode_chunk
+from machine_ctrl.model.errors import InvalidMessage
+
+# Per-step traffic must never be dropped silently: reliable, and deep enough for bursts.
+STEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+# References are streamed ahead in chunks; a node that joins late still gets the last
+# chunks (transient local), so no step's reference depends on discovery timing.
+REFERENCE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+TOPIC_JOINT_STATES = '/joint_states'
+TOPIC_COMMANDS = '/servo_commands'
+TOPIC_REFERENCE = '/reference'
+TOPIC_OFFSETS = '/dual_stage/offsets'
+TOPIC_TRUE_JOINT_STATES = '/hw_sim/ground_truth/joint_states'
+TOPIC_TRUE_TOOL_POSE = '/hw_sim/ground_truth/tool_pose'
+TOPIC_DIAGNOSTICS = '/diagnostics'
+
+
+class StepClock:
+    def __init__(self, period: float):
+        self.period_ns = int(round(period * 1e9))
+        if self.period_ns <= 0 or abs(self.period_ns - period * 1e9) > 1e-6:
+            raise ValueError(f'control period {period!r} s is not a whole number of nanoseconds')
+
+    def stamp(self, step: int) -> Time:
+        ns = step * self.period_ns
+        return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+    def step(self, stamp: Time) -> int:
+        return self.step_at(stamp.sec, stamp.nanosec)
+
+    def step_at(self, sec: int, nanosec: int) -> int:
+        """The step of the stamp (sec, nanosec); InvalidMessage if it is off the grid."""
+        if not 0 <= nanosec < 1_000_000_000:
+            raise InvalidMessage(f'stamp nanosec {nanosec} is not in [0, 1e9)')
+        ns = sec * 1_000_000_000 + nanosec
+        step, rest = divmod(ns, self.period_ns)
+        if rest:
+            raise InvalidMessage(f'stamp {ns} ns is not on the {self.period_ns} ns control grid')
+        return step
+
+    def duration(self, steps: int) -> Duration:
+        ns = steps * self.period_ns
+        return Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def all_finite(values) -> bool:
+    """True if no value is NaN or inf: one C-level sum, through which NaN and inf propagate
+    (inf - inf raises; a sum beyond the float range, impossible for real values, counts as
+    not finite)."""
+    try:
+        return math.isfinite(math.fsum(values))
+    except (ValueError, OverflowError):
+        return False
+
+
+def _finite(values, what: str) -> list[float]:
+    values = [float(v) for v in values]
+    if not all_finite(values):
+        raise InvalidMessage(f'{what} holds NaN or inf')
+    return values
+
+
+def joint_state(stamp: Time, names, position=(), velocity=(), effort=()) -> JointState:
+    msg = JointState()
+    msg.header.stamp = stamp
+    msg.name = list(names)
+    msg.position, msg.velocity, msg.effort = list(position), list(velocity), list(effort)
+    return msg
+
+
+def select(msg, field: str, wanted, allow_nonfinite: bool = False) -> list[float]:
+    """Values of `field` for the `wanted` axes, in wanted order, from a JointState (or its
+    decoded bytes, cdr.JointStateData); every wanted axis must be present exactly once and
+    the field as long as the names."""
+    values = getattr(msg, field)
+    names = tuple(msg.name)
+    if len(values) != len(names):
+        raise InvalidMessage(f'{len(names)} names but {len(values)} {field} values')
+    picks = _picks(names, tuple(wanted))
+    picked = list(values)
+    if picks is not None:
+        picked = [picked[i] for i in picks]
+    if allow_nonfinite or all_finite(picked):
+        return picked
+    raise InvalidMessage(f'{field} holds NaN or inf')
+
+
+@functools.lru_cache(maxsize=64)
+def _picks(names: tuple[str, ...], wanted: tuple[str, ...]) -> tuple[int, ...] | None:
+    """columns() once per pair of name lists (a publisher's names do not change); None when
+    they are the same."""
+    return None if names == wanted else tuple(columns(names, wanted))
+
+
+def columns(names, wanted) -> list[int]:
+    """Index in `names` of every `wanted` joint; names must be unique and complete."""
+    if len(set(names)) != len(names):
+        raise InvalidMessage('duplicate joint names')
+    index = {n: i for i, n in enumerate(names)}
+    missing = [w for w in wanted if w not in index]
+    if missing:
+        raise InvalidMessage(f'missing joints {", ".join(missing)}')
+    return [index[w] for w in wanted]
+
+
+def trajectory_chunk(clock: StepClock, first_step: int, names, positions, velocities, accelerations) -> bytes:
+    """Reference rows first_step, first_step+1, ... as a serialized JointTrajectory on the
+    control grid (machine_ctrl.recording.cdr; publishers and bag writers take the bytes as they are)."""
+    stamp = clock.stamp(first_step)
+    return encode_chunk(stamp.sec, stamp.nanosec, names, positions, velocities, accelerations, clock.period_ns)
+
+
+def parse_chunk(clock: StepClock, msg: JointTrajectory, wanted):
+    """(first_step, positions, velocities, accelerations) for the `wanted` axes. Points must
+    be consecutive control steps; velocities/accelerations may be empty (taken as zero)."""
+    names = list(msg.joint_names)
+    picks = columns(names, wanted)
+    if not msg.points:
+        raise InvalidMessage('reference chunk has no points')
+    first = clock.step(msg.header.stamp)
+    zeros = [0.0] * len(names)
+    positions, velocities, accelerations = [], [], []
+    for i, point in enumerate(msg.points):
+        offset = point.time_from_start.sec * 1_000_000_000 + point.time_from_start.nanosec
+        if offset != i * clock.period_ns:
+            raise InvalidMessage(f'point {i} is not at consecutive control step {i}')
+        rows = []
+        for field in ('positions', 'velocities', 'accelerations'):
+            values = list(getattr(point, field)) or (zeros if field != 'positions' else [])
+            if len(values) != len(names):
+                raise InvalidMessage(f'point {i}: {len(values)} {field} for {len(names)} joints')
+            rows.append(_finite([values[c] for c in picks], f'point {i} {field}'))
+        positions.append(rows[0])
+        velocities.append(rows[1])
+        accelerations.append(rows[2])
+    return first, positions, velocities, accelerations
+
+
+def parse_chunk_bytes(clock: StepClock, decoder: ChunkDecoder, data: bytes, wanted):
+    """parse_chunk of a serialized JointTrajectory: decoded by cdr.ChunkDecoder with array
+    operations, or by rclpy when its points differ in layout."""
+    try:
+        chunk = decoder.decode(data)
+    except NotUniform:
+        try:
+            msg = deserialize_message(data, JointTrajectory)
+        except Exception as exc:  # noqa: BLE001 - rclpy raises its RMWError on bad bytes
+            raise InvalidMessage(f'not a trajectory_msgs/JointTrajectory: {exc}') from None
+        return parse_chunk(clock, msg, wanted)
+    return _parse_chunk_data(clock, chunk, wanted)
+
+
+def _parse_chunk_data(clock: StepClock, chunk: ChunkData, wanted):
+    """parse_chunk's checks and result, on a decoded chunk with array operations."""
+    names = list(chunk.joint_names)
+    picks = columns(names, wanted)
+    points = len(chunk.time_from_start)
+    if not points:
+        raise InvalidMessage('reference chunk has no points')
+    first = clock.step_at(chunk.sec, chunk.nanosec)
+    off_grid = np.flatnonzero(chunk.time_from_start != np.arange(points) * clock.period_ns)
+    if off_grid.size:
+        raise InvalidMessage(f'point {off_grid[0]} is not at consecutive control step {off_grid[0]}')
+    rows = []
+    for field in ('positions', 'velocities', 'accelerations'):
+        values = getattr(chunk, field)
+        if values.shape[1] == 0 and field != 'positions':
+            values = np.zeros((points, len(names)))
+        if values.shape[1] != len(names):
+            raise InvalidMessage(f'point 0: {values.shape[1]} {field} for {len(names)} joints')
+        picked = values[:, picks]
+        finite = np.isfinite(picked).all(axis=1)
+        if not finite.all():
+            raise InvalidMessage(f'point {np.argmin(finite)} {field} holds NaN or inf')
+        rows.append(picked.tolist())
+    return first, *rows
+
+
+def quaternion_z_to(axis) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of the shortest rotation taking +z onto the unit vector `axis`."""
+    o = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    w = 1.0 + o[2]                           # unnormalized: (z x o, 1 + z.o)
+    if w < 1e-12:                            # o = -z: half a turn about x
+        return (1.0, 0.0, 0.0, 0.0)
+    q = np.array([-o[1], o[0], 0.0, w])
+    return tuple(float(v) for v in q / np.linalg.norm(q))
+
+
+def path_message(cl, frame: str) -> Path:
+    """nav_msgs/Path of CL data: pose position = tool tip, pose z-axis = tool axis."""
+    msg = Path()
+    msg.header.frame_id = frame
+    for p, o in zip(cl.positions, cl.axes):
+        pose = PoseStamped()
+        pose.header.frame_id = frame
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (float(v) for v in p)
+        q = pose.pose.orientation
+        q.x, q.y, q.z, q.w = quaternion_z_to(o)
+        msg.poses.append(pose)
+    return msg
+
+
+def path_to_cl(msg: Path, frame: str):
+    """CL data (trajectory.toolpath.CLData) of a nav_msgs/Path in the workpiece frame
+    `frame`; ValueError naming the first problem."""
+    from trajectory import toolpath
+    if msg.header.frame_id != frame:
+        raise ValueError(f'frame_id {msg.header.frame_id!r} is not the workpiece frame {frame!r}')
+    bad = [i for i, p in enumerate(msg.poses) if p.header.frame_id not in ('', frame)]
+    if bad:
+        raise ValueError(f'pose {bad[0]}: frame_id {msg.poses[bad[0]].header.frame_id!r} is not {frame!r}')
+    if not msg.poses:
+        raise ValueError('path has no poses')
+    p = np.array([(q.pose.position.x, q.pose.position.y, q.pose.position.z) for q in msg.poses])
+    o = np.array([(q.pose.orientation.x, q.pose.orientation.y, q.pose.orientation.z, q.pose.orientation.w)
+                  for q in msg.poses])
+    return toolpath.from_arrays(p, toolpath.axes_from_quaternions(o))
+
+
+def pose_message(stamp: Time, frame: str, pose) -> PoseStamped:
+    """geometry_msgs/PoseStamped of a 4 x 4 homogeneous pose."""
+    msg = PoseStamped()
+    msg.header.stamp, msg.header.frame_id = stamp, frame
+    p = msg.pose.position
+    p.x, p.y, p.z = (float(v) for v in pose[:3, 3])
+    q = pin.Quaternion(pose[:3, :3])
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = float(q.x), float(q.y), float(q.z), float(q.w)
+    return msg
+
+
+def diagnostics(stamp: Time, name: str, level: bytes, message: str, values: dict) -> DiagnosticArray:
+    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id='machine_ctrl')
+    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
+    array = DiagnosticArray()
+    array.header.stamp = stamp
+    array.status = [status]
+    return array

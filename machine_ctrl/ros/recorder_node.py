@@ -1,0 +1,193 @@
+"""recorder_node: records topics of the graph into a rosbag2/MCAP bag directory
+(:mod:`machine_ctrl.recording.recorder` decides what and how; :mod:`machine_ctrl.recording.bag` writes).
+
+Parameters: ``output`` (bag directory, must not exist or be empty), ``topics`` (names, or
+``NAME:pkg/msg/Type`` to subscribe before the topic exists; empty: every topic but
+``/rosout`` and ``/parameter_events``), ``machine`` (name or YAML path, stored in the bag's
+custom_data for ``machine-ctrl analyze``), ``discovery_period`` (s, wall), ``duration``
+(s, wall; 0: until stopped).
+
+Progress: when it records /joint_states, the node publishes on /recorder/progress
+(builtin_interfaces/Time, reliable, transient local, depth 1) a stamp up to which every
+per-step publisher's messages are written (:class:`machine_ctrl.recording.recorder.Progress`; 0 at
+start), after every ``recorder.PROGRESS_EVERY``-th state and every
+``recorder.PROGRESS_PERIOD`` s when newer. hw_sim's ``recorder_window`` uses it to hold the
+lock-step graph so no publisher gets further ahead of this node than DDS keeps. Time is the
+standard type of a point in ROS time and exactly what is reported (a stamp of the graph's
+headers): no header or frame around it that would mean nothing, and not rosgraph_msgs/Clock,
+which would read as a clock source.
+
+Stopping (SIGINT, SIGTERM, ``duration``): discovery stops, messages already received by
+DDS are drained (until none arrives for ``DRAIN_QUIET`` s), the bag is closed (summary,
+footer, metadata.yaml) and the per-topic counts are printed on stdout.
+"""
+from __future__ import annotations
+
+import importlib
+import signal
+import sys
+import time
+
+import rclpy
+from builtin_interfaces.msg import Time
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
+
+from machine_ctrl.recording import recorder
+from machine_ctrl.recording.bag import qos_profile
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.model.errors import ConfigError
+from machine_ctrl.recording.msgdefs import DefinitionNotFound, split_type
+from machine_ctrl.ros.node_common import DefaultExecutor, declare, wall_timer
+
+DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
+DRAIN_LIMIT = 30.0     # s: the drain never takes longer
+# the latest progress only matters; transient local so that an hw_sim that starts later
+# learns at once that a recorder is there and how far it is
+PROGRESS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def message_class(type_name: str):
+    """The rclpy message class of 'pkg/msg/Type'; LookupError if not importable."""
+    package, name = split_type(type_name)
+    try:
+        return getattr(importlib.import_module(f'{package}.msg'), name)
+    except (ImportError, AttributeError):
+        raise LookupError(f'message type {type_name} is not installed') from None
+
+
+def offered_profile(qos) -> dict:
+    """An rclpy QoSProfile as the bag's profile mapping."""
+    def duration(d):
+        ns = d.nanoseconds
+        return {'sec': ns // 1_000_000_000, 'nsec': ns % 1_000_000_000}
+    return qos_profile(reliability=qos.reliability.name.lower(), durability=qos.durability.name.lower(),
+                       history=qos.history.name.lower(), depth=qos.depth, deadline=duration(qos.deadline),
+                       lifespan=duration(qos.lifespan), liveliness=qos.liveliness.name.lower(),
+                       liveliness_lease_duration=duration(qos.liveliness_lease_duration),
+                       avoid_ros_namespace_conventions=qos.avoid_ros_namespace_conventions)
+
+
+class RecorderNode(Node):
+    def __init__(self, name: str = 'recorder', **kwargs):
+        super().__init__(name, **kwargs)
+        output = declare(self, 'output', '', 'bag directory to create')
+        topics = declare(self, 'topics', [''], 'topics (NAME or NAME:pkg/msg/Type); empty: all')
+        machine = declare(self, 'machine', '', 'machine name or YAML path stored with the bag')
+        self.discovery_period = declare(self, 'discovery_period', 0.2, 's (wall) between topic discovery')
+        self.duration = declare(self, 'duration', 0.0, 's (wall) to record; 0: until stopped')
+        try:
+            if not output:
+                raise ValueError('parameter output: the bag directory is required')
+            self.wanted = recorder.wanted_topics([t for t in topics if t]) or None
+            if self.duration < 0 or self.discovery_period <= 0:
+                raise ValueError('parameters: duration must be >= 0 and discovery_period > 0')
+            config = load_machine(machine) if machine else None
+            self.recording = recorder.Recording(output, self._machine_data(config),
+                                                round(config.control_period * 1e9) if config else None)
+        except (ValueError, ConfigError) as exc:      # BagError is a ValueError
+            self.get_logger().fatal(str(exc))
+            raise SystemExit(2) from None
+        self.subscribed: dict[str, object] = {}
+        self.last_message = time.monotonic()
+        self.started = time.monotonic()
+        self.pub_progress = None
+        if self.wanted is None or recorder.STATES_TOPIC in self.wanted:
+            self.pub_progress = self.create_publisher(Time, recorder.PROGRESS_TOPIC, PROGRESS_QOS)
+            self.publish_progress()                  # 0: a recorder is here, nothing written yet
+            wall_timer(self, recorder.PROGRESS_PERIOD, self.publish_progress)
+        for topic, type_name in (self.wanted or {}).items():
+            if type_name is not None:
+                self.subscribe(topic, type_name, [])
+        self.discovery = wall_timer(self, self.discovery_period, self.discover)
+        self.discover()
+        self.get_logger().info(f'recording to {output}')
+
+    @staticmethod
+    def _machine_data(config) -> dict:
+        if config is None:
+            return {}
+        return {recorder.MACHINE_KEY: config.name, recorder.MACHINE_FILE_KEY: str(config.yaml_path)}
+
+    def publish_progress(self) -> None:
+        stamp = self.recording.progress.take(time.monotonic())
+        if stamp is not None:
+            self.pub_progress.publish(Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000))
+
+    def discover(self) -> None:
+        available = {name: list(types) for name, types in self.get_topic_names_and_types()}
+        chosen = recorder.to_subscribe(available, self.wanted, recorder.DEFAULT_EXCLUDED, self.subscribed)
+        for topic, type_name in chosen.items():
+            offers = [offered_profile(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
+            if offers:                        # wait for a publisher: its QoS decides ours
+                self.subscribe(topic, type_name, offers)
+
+    def subscribe(self, topic: str, type_name: str, offers: list[dict]) -> None:
+        try:
+            cls = message_class(type_name)
+            self.recording.add_topic(topic, type_name, offers)
+        except (LookupError, DefinitionNotFound, ValueError) as exc:
+            self.get_logger().error(f'not recording {topic}: {exc}', once=True)
+            self.subscribed[topic] = None
+            return
+        want = recorder.subscription_qos(offers) if offers else {
+            'reliability': 'reliable', 'durability': 'volatile', 'depth': recorder.QUEUE_DEPTH}
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=want['depth'],
+                         reliability=ReliabilityPolicy[want['reliability'].upper()],
+                         durability=DurabilityPolicy[want['durability'].upper()])
+
+        def on_message(data: bytes, topic=topic) -> None:
+            now = self.last_message = time.monotonic()
+            if self.recording.write(topic, data, time.time_ns(), now) and self.pub_progress is not None:
+                self.publish_progress()
+
+        self.subscribed[topic] = self.create_subscription(cls, topic, on_message, qos, raw=True)
+        self.get_logger().info(f'subscribed {topic} ({type_name})')
+
+    def finish(self) -> str:
+        """Close the bag; the report text."""
+        self.recording.close()
+        return self.recording.report()
+
+
+def run(node: RecorderNode) -> int:
+    """Spin until SIGINT/SIGTERM or the node's duration, drain, close, report."""
+    executor = DefaultExecutor()
+    executor.add_node(node)
+    stop = Future()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.done() or stop.set_result(True))
+    try:
+        while not stop.done() and rclpy.ok():
+            executor.spin_until_future_complete(stop, timeout_sec=0.1)
+            if node.duration and time.monotonic() - node.started >= node.duration:
+                break
+        node.discovery.cancel()
+        drain_start = time.monotonic()
+        while rclpy.ok() and time.monotonic() - node.last_message < DRAIN_QUIET \
+                and time.monotonic() - drain_start < DRAIN_LIMIT:
+            executor.spin_until_future_complete(Future(), timeout_sec=0.05)
+    finally:
+        print(node.finish(), flush=True)
+        executor.shutdown()
+        node.destroy_node()
+    return 0
+
+
+def main(args=None) -> int:
+    rclpy.init(args=sys.argv if args is None else args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        try:
+            node = RecorderNode()
+        except SystemExit as exc:
+            return int(exc.code or 1)
+        return run(node)
+    finally:
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,144 @@
+"""replay_node: republishes a bag (:mod:`machine_ctrl.recording.replay` decides what and when).
+
+Parameters: ``bag`` (directory or .mcap), ``rate`` (factor on the recorded timing, > 0),
+``topics`` (empty: all), ``start_offset`` (s into the bag), ``loop``, ``wait_for_subscribers``
+(start only once every publisher has this many matched subscriptions, e.g. a recorder),
+``wait_timeout`` (s for that). Publishers offer the recorded QoS (reliability, durability)
+with a queue of at least ``MIN_DEPTH``. At the end it waits until every subscriber has
+acknowledged everything, prints the counts and exits.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from machine_ctrl.recording import replay
+from machine_ctrl.recording.bag import Bag
+from machine_ctrl.ros.node_common import declare
+from machine_ctrl.ros.recorder_node import message_class
+
+MIN_DEPTH = 1000     # assumed: a burst at a high rate factor outruns a 10-deep queue
+
+
+def publisher_qos(offers: list[dict]) -> QoSProfile:
+    """The first recorded offer's reliability/durability (reliable, volatile if none)."""
+    offer = offers[0] if offers else {}
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(int(offer.get('depth', 0) or 0), MIN_DEPTH),
+                      reliability=ReliabilityPolicy[str(offer.get('reliability', 'reliable')).upper()],
+                      durability=DurabilityPolicy[str(offer.get('durability', 'volatile')).upper()])
+
+
+def recorded_offers(bag: Bag) -> dict[str, list]:
+    """Topic -> offered QoS profiles from the bag information (empty when unknown)."""
+    result = {}
+    for entry in bag.information.get('topics_with_message_count') or []:
+        meta = entry.get('topic_metadata') or {}
+        offers = meta.get('offered_qos_profiles')
+        result[meta.get('name')] = offers if isinstance(offers, list) else []
+    return result
+
+
+class ReplayNode(Node):
+    def __init__(self, name: str = 'replay', **kwargs):
+        super().__init__(name, **kwargs)
+        path = declare(self, 'bag', '', 'bag directory or .mcap file')
+        self.rate = declare(self, 'rate', 1.0, 'factor on the recorded timing')
+        topics = [t for t in declare(self, 'topics', [''], 'topics to replay; empty: all') if t]
+        start_offset = declare(self, 'start_offset', 0.0, 's into the bag to start at')
+        self.loop = declare(self, 'loop', False, 'replay again and again')
+        self.wait_for = declare(self, 'wait_for_subscribers', 0, 'matched subscriptions to wait for')
+        self.wait_timeout = declare(self, 'wait_timeout', 30.0, 's to wait for them')
+        try:
+            replay.check_options(self.rate, start_offset)
+            if not path:
+                raise ValueError('parameter bag: the bag to replay is required')
+            with Bag(path) as bag:
+                self.messages = replay.select(bag, topics or None, start_offset)
+                offers = recorded_offers(bag)
+                types = {name: info.type for name, info in bag.topics.items()}
+        except (ValueError, LookupError) as exc:          # BagError is a ValueError
+            self.get_logger().fatal(str(exc))
+            raise SystemExit(2) from None
+        self.clock = replay.ClockSource(self.messages)
+        self.publishers_by_topic = {}
+        for topic in sorted({m.topic for m in self.messages} | {replay.CLOCK_TOPIC}):
+            type_name = types.get(topic, replay.CLOCK_TYPE)
+            try:
+                cls = message_class(type_name)
+            except LookupError as exc:
+                self.get_logger().fatal(f'{topic}: {exc}')
+                raise SystemExit(2) from None
+            self.publishers_by_topic[topic] = self.create_publisher(cls, topic, publisher_qos(offers.get(topic, [])))
+        self.counts = dict.fromkeys(self.publishers_by_topic, 0)
+
+    def wait_for_subscribers(self) -> bool:
+        deadline = time.monotonic() + self.wait_timeout
+        while rclpy.ok() and time.monotonic() < deadline:
+            if all(p.get_subscription_count() >= self.wait_for for p in self.publishers_by_topic.values()):
+                return True
+            time.sleep(0.05)
+        return False
+
+    def publish(self, topic: str, data: bytes) -> None:
+        self.publishers_by_topic[topic].publish(data)
+        self.counts[topic] += 1
+
+    def play_pass(self) -> bool:
+        """One pass through the messages on schedule; False if interrupted."""
+        first = self.messages[0].log_time
+        started = time.monotonic()
+        for message in self.messages:
+            due = (message.log_time - first) / 1e9 / self.rate
+            while (ahead := due - (time.monotonic() - started)) > 0:
+                if not rclpy.ok():
+                    return False
+                time.sleep(min(ahead, 0.05))
+            stamp = self.clock.stamp_for(message)
+            if stamp is not None:
+                self.publish(replay.CLOCK_TOPIC, replay.clock_bytes(stamp))
+            if message.topic != replay.CLOCK_TOPIC:
+                self.publish(message.topic, message.data)
+        return rclpy.ok()
+
+    def run(self) -> int:
+        if self.wait_for > 0 and not self.wait_for_subscribers():
+            self.get_logger().fatal(f'fewer than {self.wait_for} subscribers on some topic after '
+                                    f'{self.wait_timeout:g} s')
+            return 1
+        number = 0
+        while self.play_pass() and self.loop:
+            number += 1
+            self.clock.new_pass(number)
+        for publisher in self.publishers_by_topic.values():
+            publisher.wait_for_all_acked(Duration(seconds=10))
+        print(f'replayed {sum(self.counts.values())} messages', flush=True)
+        for topic, count in sorted(self.counts.items()):
+            print(f'  {topic}: {count}', flush=True)
+        return 0
+
+
+def main(args=None, overrides=()) -> int:
+    """`replay_node` (ROS arguments from argv) and `machine-ctrl replay` (parameter overrides)."""
+    rclpy.init(args=sys.argv if args is None else args)
+    try:
+        try:
+            node = ReplayNode(parameter_overrides=list(overrides))
+        except SystemExit as exc:
+            return int(exc.code or 1)
+        try:
+            return node.run()
+        finally:
+            node.destroy_node()
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,85 @@
+"""An offline run (:mod:`hw_sim.offline`) written as the bag the lock-step graph would
+record: same topics, types, stamps and contents per step k (stamp t_k = k T):
+
+* /joint_states: measured position, velocity and the efforts applied over the period before;
+* /servo_commands: one message per servo node of the default graph (coarse, fine), effort =
+  the commands computed at k;
+* /dual_stage/offsets: the fine-stage offsets (zero with the coupling off), if the machine
+  has dual-stage pairs;
+* /reference: chunks of ``CHUNK_STEPS`` rows as reference_node sends them;
+* /clock and the ground truth (/hw_sim/ground_truth/joint_states: true positions — the
+  offline record keeps no true velocities, so that field is empty — and the true tool pose)
+  every ``DECIMATION`` steps.
+
+There is no wall clock offline: log and publish times are the sim time of the message.
+"""
+from __future__ import annotations
+
+from rclpy.serialization import serialize_message
+from rosgraph_msgs.msg import Clock
+
+from hw_sim.simulator import true_geometry
+from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.recording.bag import BagWriter, qos_profile
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.ros.graph import default_graph
+from machine_ctrl.recording.recorder import MACHINE_FILE_KEY, MACHINE_KEY
+
+CHUNK_STEPS = 500      # reference_node's default chunk_steps
+DECIMATION = 10        # hw_sim's default clock_decimation and ground_truth_decimation
+
+_STEP = qos_profile(depth=200)                                     # ros_io.STEP_QOS
+_TOPICS = {
+    ros_io.TOPIC_JOINT_STATES: ('sensor_msgs/msg/JointState', _STEP),
+    ros_io.TOPIC_COMMANDS: ('sensor_msgs/msg/JointState', _STEP),
+    ros_io.TOPIC_OFFSETS: ('sensor_msgs/msg/JointState', _STEP),
+    ros_io.TOPIC_REFERENCE: ('trajectory_msgs/msg/JointTrajectory',
+                             qos_profile(depth=50, durability='transient_local')),   # ros_io.REFERENCE_QOS
+    '/clock': ('rosgraph_msgs/msg/Clock', qos_profile(depth=10)),
+    ros_io.TOPIC_TRUE_JOINT_STATES: ('sensor_msgs/msg/JointState', _STEP),
+    ros_io.TOPIC_TRUE_TOOL_POSE: ('geometry_msgs/msg/PoseStamped', _STEP),
+}
+
+
+def servo_groups(machine: MachineConfig) -> list[list[str]]:
+    """The axes of each servo node of the default graph, in start order."""
+    return [list(s.parameters['axes']) for s in default_graph(machine) if s.module == 'machine_ctrl.ros.servo_node']
+
+
+def write_run_bag(directory, machine: MachineConfig, reference, record, label: str = '') -> dict[str, int]:
+    """Write `record` (offline.RunRecord of `reference`) as a bag; returns the counts."""
+    writer = BagWriter(directory)
+    has_offsets = bool(machine.dual_stage)
+    for topic, (type_name, qos) in _TOPICS.items():
+        if topic != ros_io.TOPIC_OFFSETS or has_offsets:
+            writer.add_topic(topic, type_name, [qos])
+    clock = ros_io.StepClock(machine.control_period)
+    axes = list(machine.axis_names)
+    groups = [(g, [axes.index(a) for a in g]) for g in servo_groups(machine)]
+    true_tool_pose = true_geometry(machine)     # what hw_sim publishes (its error map included)
+    steps = len(record.measured)
+
+    def put(topic, msg, ns):
+        writer.write(topic, msg if isinstance(msg, bytes) else serialize_message(msg), ns)
+
+    for k in range(steps):
+        stamp = clock.stamp(k)
+        ns = k * clock.period_ns
+        if k % CHUNK_STEPS == 0:
+            rows = [reference.row(i) for i in range(k, k + CHUNK_STEPS)]
+            put(ros_io.TOPIC_REFERENCE, ros_io.trajectory_chunk(clock, k, axes, *zip(*rows)), ns)
+        if k % DECIMATION == 0:
+            put('/clock', Clock(clock=stamp), ns)
+            put(ros_io.TOPIC_TRUE_JOINT_STATES, ros_io.joint_state(stamp, axes, record.true[k]), ns)
+            put(ros_io.TOPIC_TRUE_TOOL_POSE, ros_io.pose_message(stamp, machine.workpiece_frame,
+                                                                     true_tool_pose(record.true[k])), ns)
+        put(ros_io.TOPIC_JOINT_STATES, ros_io.joint_state(stamp, axes, record.measured[k],
+                                                          record.measured_velocity[k], record.effort[k]), ns)
+        if has_offsets:
+            put(ros_io.TOPIC_OFFSETS, ros_io.joint_state(stamp, record.fine_axes, record.offsets[k]), ns)
+        for names, index in groups:
+            put(ros_io.TOPIC_COMMANDS, ros_io.joint_state(stamp, names, effort=record.commands[k, index]), ns)
+    custom = {MACHINE_KEY: machine.name, MACHINE_FILE_KEY: str(machine.yaml_path)}
+    if label:
+        custom['machine_ctrl.run'] = label
+    return writer.close(custom)

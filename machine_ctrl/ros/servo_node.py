@@ -1,0 +1,115 @@
+"""servo_node: the servo laws of any subset of axes (parameter `axes`: one node per axis,
+one per stage, or all), answering every /joint_states step with /servo_commands.
+
+Inputs per step k: the state (/joint_states), the reference row k of its axes (streamed
+ahead in chunks on /reference, trajectory_msgs/JointTrajectory on the control grid) and,
+for fine axes of a dual-stage pair, the offsets of step k (/dual_stage/offsets). An input
+stream that has never delivered is waited for (reported on /diagnostics as waiting_for);
+once it has, the node waits for a missing step up to `input_timeout` s (wall) — so a
+lock-step run does not depend on message timing — and then goes on without it: no
+reference row = hold the last reference position at rest (underrun, counted and reported);
+no offsets = zero offsets.
+A repeated state stamp (hw_sim re-sends while waiting) is answered with the command already
+computed, so no controller state is ever advanced twice.
+"""
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from sensor_msgs.msg import JointState
+
+from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
+from machine_ctrl.control.dual_stage import apply_offsets
+from machine_ctrl.ros.node_common import declare, machine_parameter, main_for, subscribe_joint_states, wall_timer
+from machine_ctrl.control.servo import ServoGroup
+from machine_ctrl.ros.step_node import StepNode
+
+
+class ServoNode(StepNode):
+    def __init__(self, name: str = 'servo', **kwargs):
+        super().__init__(name, **kwargs)
+        self.machine = machine_parameter(self)
+        controlled = [a.name for a in self.machine.axes if a.control is not None]
+        axes = declare(self, 'axes', controlled, 'axes this node controls (machine axis names)')
+        self.feedforward = declare(self, 'feedforward', True, 'velocity/acceleration/friction feed-forward')
+        try:
+            self.servo = ServoGroup(self.machine, axes, feedforward=self.feedforward)
+        except ValueError as exc:
+            self.get_logger().fatal(f'parameter axes: {exc}')
+            raise SystemExit(2) from None
+        self.axes = self.servo.axis_names
+        fine = {p.fine for p in self.machine.dual_stage}
+        self.fine_slots = [i for i, a in enumerate(self.axes) if a in fine]
+        self.fine_names = [self.axes[i] for i in self.fine_slots]
+        coupled = declare(self, 'dual_stage', bool(self.fine_slots), 'wait for /dual_stage/offsets')
+        self.wait_for_offsets = coupled and bool(self.fine_slots)
+        self.offsets: dict[int, list[float]] = {}
+        self.offsets_started = False
+        self.missing_offsets = 0
+
+        self.make_buffer(self.axes)
+        self.encoder = JointStateEncoder(self.axes)
+        self.pub = self.create_publisher(JointState, ros_io.TOPIC_COMMANDS, ros_io.STEP_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
+        self.start_stepping(self.machine, self.axes, self.pub, self.ready, self.compute, self.streaming)
+        if self.wait_for_offsets:
+            subscribe_joint_states(self, ros_io.TOPIC_OFFSETS, self.on_offsets,
+                                   lambda reason: self.rejections.add('offsets', reason))
+        wall_timer(self, 1.0, self.publish_diagnostics)
+        self.get_logger().info(f'ready: axes {" ".join(self.axes)}')
+
+    def on_offsets(self, msg: JointStateData) -> None:
+        try:
+            self.offsets[self.clock.step_at(msg.sec, msg.nanosec)] = ros_io.select(msg, 'position', self.fine_names)
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('offsets', str(exc))
+            return
+        self.offsets_started = True
+        self.responder.poke()
+
+    def streaming(self) -> bool:
+        return self.buffer.started and (self.offsets_started or not self.wait_for_offsets)
+
+    def ready(self, step: int) -> bool:
+        return self.buffer.has(step) and (not self.wait_for_offsets or step in self.offsets)
+
+    def compute(self, step: int, msg: JointStateData) -> bytes | None:
+        measured = self.positions(msg, self.axes, velocities=True)
+        if measured is None:
+            return None
+        position, velocity = measured
+        ref_pos, ref_vel, ref_acc, _ = self.buffer.take(step, position)
+        offsets = self.offsets.pop(step, None)
+        for old in [s for s in self.offsets if s < step]:
+            del self.offsets[old]
+        if offsets is not None:
+            ref_pos = apply_offsets(ref_pos, self.fine_slots, offsets)
+        elif self.wait_for_offsets:
+            self.missing_offsets += 1
+        commands = self.servo.update(ref_pos, ref_vel, ref_acc, position, velocity)
+        return self.encoder.encode(msg.sec, msg.nanosec, effort=commands)
+
+    def waiting_for(self) -> str:
+        if not self.responder.waiting:
+            return ''
+        missing = [] if self.buffer.started else ['/reference (never received)']
+        if self.wait_for_offsets and not self.offsets_started:
+            missing.append('/dual_stage/offsets (never received)')
+        return ', '.join(missing) or 'inputs of the current step'
+
+    def publish_diagnostics(self) -> None:
+        problems = self.buffer.underruns or self.missing_offsets or self.rejections.count
+        step = self.responder.answered_step
+        values = {'axes': ' '.join(self.axes), 'answered_step': step, 'waiting_for': self.waiting_for(),
+                  'reference_underruns': self.buffer.underruns, 'buffered_steps': len(self.buffer),
+                  'missing_offsets': self.missing_offsets, 'rejected_messages': self.rejections.count,
+                  'last_rejection': self.rejections.last}
+        self.pub_diag.publish(ros_io.diagnostics(
+            self.clock.stamp(step), self.get_name(), DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
+            'reference underrun' if self.buffer.underruns else 'ok', values))
+
+
+main = main_for(ServoNode)
+
+if __name__ == '__main__':
+    raise SystemExit(main())

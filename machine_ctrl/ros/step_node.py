@@ -1,0 +1,56 @@
+"""Base of the nodes that answer every lock-step state from the streamed reference (the
+servo and dual-stage nodes): the reference buffer fed from /reference and the /joint_states
+subscription (both raw, decoded by machine_ctrl.recording.cdr), one answer per step (StepResponder)
+and the count of refused messages."""
+from __future__ import annotations
+
+from rclpy.node import Node
+
+from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.recording.cdr import JointStateData
+from machine_ctrl.ros.node_common import (Rejections, StepResponder, declare, subscribe_joint_states,
+                                      subscribe_reference, use_sim_time)
+from machine_ctrl.model.reference import ReferenceBuffer
+
+
+class StepNode(Node):
+    def __init__(self, name: str, **kwargs):
+        super().__init__(name, **kwargs)
+        use_sim_time(self)
+        self.input_timeout = declare(self, 'input_timeout', 0.5,
+                                     's (wall) to wait for a missing reference row or offsets')
+        self.rejections = Rejections(self)
+
+    def start_stepping(self, machine, reference_axes, publisher, ready, compute, streaming) -> None:
+        """Subscribe /joint_states and /reference; `ready`, `compute`, `streaming` as in
+        StepResponder."""
+        self.clock = ros_io.StepClock(machine.control_period)
+        self.reference_axes = tuple(reference_axes)
+        self.responder = StepResponder(self, publisher, ready, compute, self.input_timeout, streaming)
+        subscribe_joint_states(self, ros_io.TOPIC_JOINT_STATES, self.on_state,
+                               lambda reason: self.rejections.add('state', reason))
+        subscribe_reference(self, ros_io.TOPIC_REFERENCE, self.clock, self.reference_axes, self.on_reference,
+                            lambda reason: self.rejections.add('reference', reason))
+
+    def make_buffer(self, axes) -> ReferenceBuffer:
+        self.buffer = ReferenceBuffer(axes)
+        return self.buffer
+
+    def on_reference(self, first_step: int, positions, velocities, accelerations) -> None:
+        self.buffer.add(first_step, positions, velocities, accelerations)
+        self.responder.poke()
+
+    def on_state(self, msg: JointStateData) -> None:
+        try:
+            self.responder.on_state(self.clock.step_at(msg.sec, msg.nanosec), msg)
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('state', str(exc))
+
+    def positions(self, msg: JointStateData, axes, velocities: bool = False):
+        """Measured positions (and velocities) of `axes` from a state, or None if refused."""
+        try:
+            position = ros_io.select(msg, 'position', axes)
+            return (position, ros_io.select(msg, 'velocity', axes)) if velocities else position
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('state', str(exc))
+            return None
