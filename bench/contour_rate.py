@@ -24,7 +24,7 @@ def reference_of(name):
         from trajectory.sencer_path import sencer_reference
         return machine, sencer_reference(machine)
     from trajectory.planner import plan
-    return machine, plan('helix', machine).reference
+    return machine, plan('helix', machine).unwrap().reference
 
 
 def per_row(fn, rows, repeat):

@@ -69,7 +69,7 @@ def main():
     rows = []
     for name in args.paths:
         for feed in args.feed:
-            r = plan(name, machine, feed=feed, kinematics=kin)
+            r = plan(name, machine, feed=feed, kinematics=kin).unwrap()     # PlanError if it fails
             res = r.resolution
             path = ta.SplineInterpolator(res.s, np.column_stack((res.q, res.s)))
             lim = FeedLimits.from_machine(machine, feed=feed)

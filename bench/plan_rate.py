@@ -44,7 +44,7 @@ def main():
         runs = []
         for _ in range(args.runs):
             t0 = time.perf_counter()
-            r = plan(cl, machine, feed=args.feed, kinematics=kin)
+            r = plan(cl, machine, feed=args.feed, kinematics=kin).unwrap()     # PlanError if it fails
             wall = time.perf_counter() - t0
             t0 = time.perf_counter()
             resolve(path, kin, machine)

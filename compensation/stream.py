@@ -6,9 +6,10 @@ corrected row by row by :class:`compensation.compensate.Compensator`, so a chunk
 gives exactly the rows :meth:`Compensator.compensate` gives for the whole trajectory.
 
 Switching on or off never steps the reference: the correction c(t) is blended in or out with
-a weight w(k) going 0 -> 1 (or 1 -> 0) along a quintic smoothstep over RAMP_STEPS, starting at
-the first step of the next chunk transformed after the switch (chunks run ahead of the
-machine, so that is up to the trajectory's lookahead later). Output rows:
+a weight w(k) going 0 -> 1 (or 1 -> 0) along the quintic smoothstep (trajectory/ramp.py)
+over RAMP_STEPS, starting at the first step of the next chunk transformed after the switch
+(chunks run ahead of the machine, so that is up to the trajectory's lookahead later).
+Output rows:
     q + w c,   v + w c' + w' c,   a + w c'' + 2 w' c' + w'' c.
 Fully on (w = 1) the rows are the compensator's own; fully off (w = 0) the input rows.
 """
@@ -17,16 +18,11 @@ from __future__ import annotations
 import numpy as np
 
 from compensation.compensate import Compensator
+from trajectory.ramp import smoothstep
 
 # assumed: 0.1 s blend (1000 steps at 10 kHz): the largest correction (~5 um) then needs
 # < 1 mm/s and ~0.2 m/s^2 of the fine stage, far inside its limits.
 RAMP_TIME = 0.1
-
-
-def _smoothstep(x: np.ndarray):
-    """10x^3 - 15x^4 + 6x^5 on [0, 1] and its first two derivatives (zero at both ends)."""
-    x = np.clip(x, 0.0, 1.0)
-    return (x ** 3 * (10 - 15 * x + 6 * x * x), 30 * x * x * (1 - x) ** 2, 60 * x * (1 - x) * (1 - 2 * x))
 
 
 class CompensationStream:
@@ -48,7 +44,7 @@ class CompensationStream:
     def weights(self, steps: np.ndarray):
         """w, dw/dt, d2w/dt2 at the given control steps."""
         start, w0, w1 = self._ramp
-        s, ds, dds = _smoothstep((steps - start) / self.ramp_steps)
+        s, ds, dds = smoothstep((steps - start) / self.ramp_steps)
         duration = self.ramp_steps * self.period
         return w0 + (w1 - w0) * s, (w1 - w0) * ds / duration, (w1 - w0) * dds / duration ** 2
 

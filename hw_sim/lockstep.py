@@ -77,14 +77,30 @@ class RecorderGate:
     not advance from step k to k+1 while k - r > W, r = the step of the newest state the
     recorder reports written. Holding only delays a lock-step run, it never changes it.
     ``recorded`` is None until a recorder reports (then nothing is held) and again once it
-    has left the graph."""
+    has left the graph. The holds are counted and timed (wall s) for the diagnostics."""
     window: int = 0
     recorded: int | None = None
     refused: int = 0
     last_refusal: str = ''
+    hold_count: int = 0                  # holds begun
+    hold_time: float = 0.0               # wall s of the holds ended
+    hold_started: float | None = None    # wall time the current hold began
 
     def holds(self, step: int) -> bool:
         return self.window > 0 and self.recorded is not None and step - self.recorded > self.window
+
+    def track(self, holding: bool, now: float) -> None:
+        """Count a hold that begins at `now`, time one that ends."""
+        if holding and self.hold_started is None:
+            self.hold_started = now
+            self.hold_count += 1
+        elif not holding and self.hold_started is not None:
+            self.hold_time += now - self.hold_started
+            self.hold_started = None
+
+    def held_for(self, now: float) -> float:
+        """Wall s held in all, the current hold up to `now` included."""
+        return self.hold_time + (now - self.hold_started if self.hold_started is not None else 0.0)
 
     def refuse(self, reason: str) -> None:
         self.refused += 1

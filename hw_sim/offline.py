@@ -55,8 +55,8 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     for k in range(steps):
         measured = simulator.measurement
         ref_pos, ref_vel, ref_acc = reference.row(k)
-        offsets = coupling.update(ref_pos, measured.position).offsets
-        commands = servo.update(apply_offsets(ref_pos, fine_index, offsets), ref_vel, ref_acc,
+        offsets = coupling.step(ref_pos, measured.position).offsets
+        commands = servo.step(apply_offsets(ref_pos, fine_index, offsets), ref_vel, ref_acc,
                                 measured.position, measured.velocity)
         rec['reference'][k], rec['measured'][k] = ref_pos, measured.position
         rec['measured_velocity'][k], rec['effort'][k] = measured.velocity, measured.effort

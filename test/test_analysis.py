@@ -18,9 +18,9 @@ STEPS = 3000
 def recorded(micromill, tmp_path_factory):
     """circle, 3000 steps, SMC and DSFD: (stats from experiments, bag directory)."""
     os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-    from machine_ctrl.experiments import tracking as experiments
+    from machine_ctrl.app.cli.experiment import contouring     # writes the bags (run_bag)
     directory = tmp_path_factory.mktemp('exp')
-    stats = experiments.contouring(micromill, 'circle', steps=STEPS, record_dir=directory)
+    stats = contouring(micromill, 'circle', steps=STEPS, record_dir=directory)
     return stats, directory
 
 

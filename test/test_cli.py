@@ -70,3 +70,80 @@ def test_fk_on_the_trt_machine_exit_0_when_all_lines_are_good():
     assert result.returncode == 0, result.stderr
     row = np.array(result.stdout.split(), float)
     np.testing.assert_allclose(row, np.concatenate((eq7(q), eq4(q))), rtol=0, atol=1e-12)
+
+
+DOCUMENTED_COMMANDS = ['info', 'fk', 'experiment', 'plan', 'record', 'replay', 'analyze',
+                       'bringup', 'send', 'move', 'demo', 'fit-errors']
+EXPERIMENTS = ['circle', 'square', 'frf', 'contour', 'geometric']
+
+
+def _subcommands(parser):
+    import argparse
+    actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert len(actions) == 1
+    return actions[0].choices
+
+
+def test_every_command_group_registers_its_subcommands():
+    import argparse
+    from machine_ctrl.app import cli
+    names = []
+    for group in cli.COMMAND_GROUPS:              # each group on a root parser of its own
+        root = argparse.ArgumentParser(prog='machine-ctrl')
+        group.register(root.add_subparsers(dest='command', required=True))
+        registered = _subcommands(root)
+        assert registered, group.__name__
+        for name, parser in registered.items():
+            assert name not in names, f'{name} registered twice'
+            names.append(name)
+            if name != 'experiment':
+                assert callable(parser.get_default('run')), f'{name} has no handler'
+    assert names == DOCUMENTED_COMMANDS
+    commands = _subcommands(cli.build_parser())
+    assert list(commands) == DOCUMENTED_COMMANDS
+    experiments = _subcommands(commands['experiment'])
+    assert list(experiments) == EXPERIMENTS
+    assert all(callable(p.get_default('run')) for p in experiments.values())
+
+
+def test_importing_the_cli_imports_neither_ros_nor_the_cores():
+    code = ('import json, sys\n'
+            'from machine_ctrl.app import cli\n'
+            'cli.build_parser()\n'
+            'print(json.dumps(sorted(sys.modules)))\n')
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    loaded = {name.split('.')[0] for name in json.loads(result.stdout)}
+    assert not loaded & {'rclpy', 'rosbag2_py', 'numpy', 'pinocchio', 'trajectory', 'compensation', 'hw_sim'}
+
+
+def test_nothing_in_app_imports_the_cli_and_experiments_import_no_ros():
+    import ast
+    root = Path(__file__).resolve().parents[1] / 'machine_ctrl'
+
+    def imports(path):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                yield from (a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                yield node.module
+                yield from (f'{node.module}.{a.name}' for a in node.names)
+
+    for path in (root / 'app').rglob('*.py'):
+        if path.parent.name != 'cli':                # the CLI package itself
+            assert not [m for m in imports(path) if m == 'machine_ctrl.app.cli' or m.startswith('machine_ctrl.app.cli.')], path
+    for path in (root / 'experiments').rglob('*.py'):
+        bad = [m for m in imports(path) if m.split('.')[0] == 'rclpy' or m.startswith('machine_ctrl.ros')]
+        assert not bad, f'{path}: {bad}'
+
+
+def test_usage_errors_exit_2_with_one_error_line():
+    for args in (['bogus'], ['experiment', 'bogus'], ['analyze', 'a', 'b', 'c'], ['fit-errors', 'x.csv', '--bogus']):
+        result = run(*args)
+        assert result.returncode == 2 and result.stdout == ''
+        errors = [line for line in result.stderr.splitlines() if line.startswith('machine-ctrl')]
+        assert len(errors) == 1 and ': error: ' in errors[0], result.stderr
+    result = run('fit-errors', 'x.csv', '--bogus')
+    assert 'machine-ctrl fit-errors: error: unrecognized arguments: --bogus' in result.stderr
+    result = run('experiment', 'frf', '--record', 'nowhere')
+    assert result.returncode == 2 and result.stderr == 'machine-ctrl: experiment: --record is for circle and square\n'

@@ -1,9 +1,9 @@
 """Algorithm 2 (compensation/compensate.py), the chunked stream with its runtime switch
-(compensation/stream.py) and a short closed-loop run (compensation/cli.run_experiment)."""
+(compensation/stream.py) and a short closed-loop run (machine_ctrl/app/cli/errors.run_experiment)."""
 import numpy as np
 import pytest
 
-from machine_ctrl.app.compensation_cli import run_experiment
+from machine_ctrl.app.cli.errors import run_experiment
 from compensation.compensate import Compensator
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics

@@ -8,6 +8,7 @@ import numpy as np
 from compensation.compensate import Compensator
 from compensation.error_map import load_error_map
 from compensation.stream import CompensationStream
+from machine_ctrl import contract
 from machine_ctrl.ros.graph import NodeSpec
 from trajectory.contours import contour_reference
 
@@ -44,7 +45,7 @@ def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
         first, p, v, a = ros_io.parse_chunk(ros_io.StepClock(micromill.control_period), msg, micromill.axis_names)
         chunks[first] = (np.array(p), np.array(v), np.array(a))
 
-    node.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, on_chunk, ros_io.REFERENCE_QOS)
+    node.create_subscription(JointTrajectory, contract.REFERENCE.name, on_chunk, ros_io.REFERENCE_QOS)
     bad = node.create_publisher(JointTrajectory, '/trajectory/reference', ros_io.REFERENCE_QOS)
     clock = node.create_publisher(Clock, '/clock', 10)
     enable = node.create_client(SetBool, '/compensation/enable')

@@ -9,6 +9,7 @@ import time
 import numpy as np
 import pytest
 
+from machine_ctrl import contract
 from machine_ctrl.contour.estimation import ContourEstimator, ToolTrajectory
 from machine_ctrl.ros.graph import NodeSpec
 from machine_ctrl.model.kinematics import Kinematics
@@ -34,12 +35,12 @@ class Collector:
         qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
         self.states, self.tip, self.orientation = {}, {}, {}
         self.tip_magnitude, self.orientation_magnitude, self.frames = [], [], set()
-        node.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, qos)
-        node.create_subscription(Vector3Stamped, cen.TOPIC_TOOL_TIP, lambda m: self.on_vector(m, self.tip), qos)
-        node.create_subscription(Vector3Stamped, cen.TOPIC_ORIENTATION,
+        node.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state, qos)
+        node.create_subscription(Vector3Stamped, contract.CONTOUR_TOOL_TIP.name, lambda m: self.on_vector(m, self.tip), qos)
+        node.create_subscription(Vector3Stamped, contract.CONTOUR_ORIENTATION.name,
                                  lambda m: self.on_vector(m, self.orientation), qos)
-        node.create_subscription(Float64, cen.TOPIC_TOOL_TIP_MAGNITUDE, lambda m: self.tip_magnitude.append(m.data), qos)
-        node.create_subscription(Float64, cen.TOPIC_ORIENTATION_MAGNITUDE,
+        node.create_subscription(Float64, contract.CONTOUR_TOOL_TIP_MAGNITUDE.name, lambda m: self.tip_magnitude.append(m.data), qos)
+        node.create_subscription(Float64, contract.CONTOUR_ORIENTATION_MAGNITUDE.name,
                                  lambda m: self.orientation_magnitude.append(m.data), qos)
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)
@@ -77,7 +78,7 @@ def publish_reference(node, machine, reference):
 
     from machine_ctrl.ros import messages as ros_io
     clock = ros_io.StepClock(machine.control_period)
-    pub = node.create_publisher(JointTrajectory, ros_io.TOPIC_REFERENCE, ros_io.REFERENCE_QOS)
+    pub = node.create_publisher(JointTrajectory, contract.REFERENCE.name, ros_io.REFERENCE_QOS)
     for first in range(0, len(reference), CHUNK):
         rows = slice(first, first + CHUNK)
         pub.publish(ros_io.trajectory_chunk(clock, first, machine.axis_names, reference.position[rows],
@@ -102,8 +103,8 @@ def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node,
         contour_spec = specs.pop()
         ros_supervisor.start(contour_spec.name, contour_spec.argv())
         from machine_ctrl.ros import contour_error_node as cen
-        topics = (cen.TOPIC_TOOL_TIP, cen.TOPIC_TOOL_TIP_MAGNITUDE, cen.TOPIC_ORIENTATION,
-                  cen.TOPIC_ORIENTATION_MAGNITUDE)
+        topics = (contract.CONTOUR_TOOL_TIP.name, contract.CONTOUR_TOOL_TIP_MAGNITUDE.name, contract.CONTOUR_ORIENTATION.name,
+                  contract.CONTOUR_ORIENTATION_MAGNITUDE.name)
         deadline = time.monotonic() + 120
         while not all(node.count_publishers(t) for t in topics):
             assert time.monotonic() < deadline, 'contour_error publishers not discovered'

@@ -19,7 +19,7 @@ def test_sliding_mode_law_and_adaptation():
     x_r, v_r, a_r, x, v = 1e-3, 0.01, 0.2, 0.9e-3, 0.008
     sigma = (v_r - v) + 200.0 * (x_r - x)                                        # (4.47)
     expected = 0.4667 * (200.0 * (v_r - v) + a_r) + 0.55 * v + 0.0 + 50.0 * sigma  # (4.57), d_hat = 0
-    assert smc.update(x_r, v_r, a_r, x, v) == pytest.approx(expected, rel=1e-12)
+    assert smc.step(x_r, v_r, a_r, x, v) == pytest.approx(expected, rel=1e-12)
     assert smc.d_hat == pytest.approx(5e4 * sigma * T)                           # (4.49)
 
 
@@ -27,12 +27,12 @@ def test_sliding_mode_estimate_stops_at_its_bounds():
     gains = SlidingModeGains(bandwidth=200.0, gain=50.0, adaptation=5e4, disturbance_bounds=(-0.1, 0.1))
     smc = SlidingModeController(gains, 0.4667, 0.55, T)
     for _ in range(1000):
-        smc.update(1e-3, 0.0, 0.0, 0.0, 0.0)                                     # sigma > 0 always
+        smc.step(1e-3, 0.0, 0.0, 0.0, 0.0)                                     # sigma > 0 always
     assert 0.1 <= smc.d_hat < 0.1 + 5e4 * 0.2 * T                                # (4.50): kappa = 0 above d+
     held = smc.d_hat
-    smc.update(1e-3, 0.0, 0.0, 0.0, 0.0)
+    smc.step(1e-3, 0.0, 0.0, 0.0, 0.0)
     assert smc.d_hat == held
-    smc.update(-1e-3, 0.0, 0.0, 0.0, 0.0)                                        # sigma < 0: may decrease
+    smc.step(-1e-3, 0.0, 0.0, 0.0, 0.0)                                        # sigma < 0: may decrease
     assert smc.d_hat < held
 
 
@@ -40,17 +40,17 @@ def test_lugre_feedforward_reaches_the_friction_curve():
     curve = StribeckCurve.symmetric(26.67, 29.15, 0.0243)
     ff = LuGreFeedforward(curve, 9e5, 1500.0, gain=45.4, period=T)
     for _ in range(5000):
-        u = ff.update(0.01)
+        u = ff.step(0.01)
     assert u * 45.4 == pytest.approx(26.67 + (29.15 - 26.67) * math.exp(-0.01 / 0.0243), rel=1e-6)
     for _ in range(5000):
-        u = ff.update(-0.01)
+        u = ff.step(-0.01)
     assert u * 45.4 == pytest.approx(-curve(-0.01), rel=1e-6)
 
 
 def test_ppi_is_p_cascaded_with_pi():
     ppi = PPIController(PPIGains(position_gain=275.8, velocity_gain=175.0, velocity_integral_gain=61600.0), T)
     e_v = 275.8 * 2e-6 - 0.001
-    assert ppi.update(2e-6, 0.0, 0.0, 0.0, 0.001) == pytest.approx(175.0 * e_v + 61600.0 * e_v * T)
+    assert ppi.step(2e-6, 0.0, 0.0, 0.0, 0.001) == pytest.approx(175.0 * e_v + 61600.0 * e_v * T)
 
 
 def discrete_response(controller, frequencies):
@@ -59,7 +59,7 @@ def discrete_response(controller, frequencies):
     for f in frequencies:
         n = int(round(40 / (f * T)))
         t = np.arange(n) * T
-        y = np.array([controller.update(math.sin(2 * math.pi * f * ti), 0, 0, 0, 0) for ti in t])
+        y = np.array([controller.step(math.sin(2 * math.pi * f * ti), 0, 0, 0, 0) for ti in t])
         tail = slice(n // 2, None)
         out.append(2 * np.mean(y[tail] * np.exp(-2j * math.pi * f * t[tail])))
     return np.array(out) / -1j   # input was sin = Im(e^{jwt}): divide by the phasor of sin

@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from machine_ctrl import contract
 from machine_ctrl.ros.graph import default_graph
 from hw_sim.offline import run
 from trajectory.contours import circle
@@ -28,7 +29,7 @@ class StateRecorder:
         # deep reader queue: the graph may outrun this thread for a while, and a keep-last
         # reader overwrites what it has not taken yet
         qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
-        node.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, qos)
+        node.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state, qos)
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)
         self.thread = threading.Thread(target=self.spin, daemon=True)
@@ -111,7 +112,7 @@ def test_dual_stage_switches_off_and_on_at_runtime(micromill, ros_node, ros_supe
     from machine_ctrl.ros import messages as ros_io
     node = ros_node('switcher')
     offsets = []
-    node.create_subscription(JointState, ros_io.TOPIC_OFFSETS, lambda m: offsets.append(list(m.position)),
+    node.create_subscription(JointState, contract.DUAL_STAGE_OFFSETS.name, lambda m: offsets.append(list(m.position)),
                              ros_io.STEP_QOS)
     client = node.create_client(SetBool, '/dual_stage/enable')
     executor = SingleThreadedExecutor(context=node.context)

@@ -1,6 +1,7 @@
 """hw_sim faults over real DDS: a NaN command, a stroke violation and a missing command
 each stop the machine and are reported on /diagnostics; hw_sim keeps running and /hw_sim/reset
 recovers. The test node plays the servos."""
+from machine_ctrl import contract
 import math
 import sys
 import threading
@@ -28,9 +29,9 @@ class Commander:
         self.hold = None
         self.policy = self.servo_policy
         self.steps, self.hw_diag = [], None
-        self.pub = node.create_publisher(JointState, ros_io.TOPIC_COMMANDS, ros_io.STEP_QOS)
-        node.create_subscription(JointState, ros_io.TOPIC_JOINT_STATES, self.on_state, ros_io.STEP_QOS)
-        node.create_subscription(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, self.on_diag, 50)
+        self.pub = node.create_publisher(JointState, contract.SERVO_COMMANDS.name, ros_io.STEP_QOS)
+        node.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state, ros_io.STEP_QOS)
+        node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diag, 50)
         self.reset_client = node.create_client(Trigger, '/hw_sim/reset')
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)
@@ -43,7 +44,7 @@ class Commander:
         if self.hold is None:
             self.hold = position
         zeros = [0.0] * len(self.axes)
-        return self.servo.update(self.hold, zeros, zeros, position, velocity)
+        return self.servo.step(self.hold, zeros, zeros, position, velocity)
 
     def spin(self):
         while self.running:
@@ -183,12 +184,12 @@ def test_paced_mode_steps_on_the_wall_clock_and_counts_missed_deadlines(paced_co
 
 @pytest.mark.parametrize('args, message', [
     (['-p', 'mode:=turbo'], 'mode: must be lockstep or paced'),
-    (['-p', 'real_time_factor:=2.0'], 'real_time_factor must be in (0, 1]'),
+    (['-p', 'real_time_factor:=2.0'], 'real_time_factor: must be in (0, 1], got 2.0'),
     (['-p', 'initial_position:=[0.0,0.0]'], 'initial_position needs 9 finite values'),
     (['-p', 'initial_position:=[0.9,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0]'], 'outside the stroke of x_c'),
     (['-p', 'machine:=nosuch'], 'nosuch: unknown machine'),
-    (['-p', 'recorder_window:=-1'], 'recorder_window must be >= 0 and needs mode lockstep'),
-    (['-p', 'mode:=paced', '-p', 'recorder_window:=100'], 'recorder_window must be >= 0 and needs mode lockstep'),
+    (['-p', 'recorder_window:=-1'], 'recorder_window: must be >= 0 steps, got -1'),
+    (['-p', 'mode:=paced', '-p', 'recorder_window:=100'], 'recorder_window: needs mode lockstep'),
 ])
 def test_bad_parameters_stop_start_up_with_one_line(ros_env, args, message):
     import subprocess

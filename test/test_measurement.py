@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from machine_ctrl.app.compensation_cli import fit_errors_main
+from machine_ctrl.app import cli
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
 from compensation.fitting import fit_map
@@ -102,12 +102,12 @@ def test_bad_measurement_files_are_refused(tmp_path, micromill, body, problem):
 def test_fit_errors_command(tmp_path, measured, micromill, capsys):
     csv_path, model_path = tmp_path / 'm.csv', tmp_path / 'model.yaml'
     write_csv(csv_path, measured)
-    assert fit_errors_main([str(csv_path), '--out', str(model_path), '--json']) == 0
+    assert cli.main(['fit-errors', str(csv_path), '--out', str(model_path), '--json']) == 0
     out = json.loads(capsys.readouterr().out)
     assert len(out['residuals']) == 15
     reloaded = load_error_map(model_path, micromill.axis_names)
     assert reloaded.axes == fit_map(measured)[0].axes                    # written exactly
     bad = _write(tmp_path / 'bad.csv', 'axis,error\n')
-    assert fit_errors_main([str(bad)]) == 2
+    assert cli.main(['fit-errors', str(bad)]) == 2
     err = capsys.readouterr().err
     assert err.startswith('machine-ctrl: ') and err.count('\n') == 1 and 'missing column' in err

@@ -338,3 +338,24 @@ def test_five_kinematics_evaluations_per_step(micromill, micromill_kin, home_tip
     steps = len(res.s) - 1
     assert steps > 50
     assert counting.calls <= 5 * steps + 3
+
+
+def test_a_breakdown_is_named_out_of_stroke_or_singular(micromill):
+    from trajectory.redundancy import ResolutionFailed, _failure
+    s = np.arange(5) * 1e-3
+    inside = np.zeros((5, len(micromill.axes)))
+    inside[:, 0] = [0.0, 0.01, 0.02, 0.03, 0.04]          # x_c, stroke +-0.05 m
+    failure = _failure(micromill, s, inside)              # never left the strokes
+    assert isinstance(failure, ResolutionFailed) and isinstance(failure, ValueError)
+    assert failure.kind == 'singular' and failure.s == 4e-3 and 's = 4 mm' in str(failure)
+    runaway = inside.copy()
+    runaway[2:, 0] = [0.0497, 3e11, np.nan]                 # at the stroke end, then away
+    runaway[2, 3] = 50e-6                                    # x_f halfway to its +-100 um end: not named
+    failure = _failure(micromill, s, runaway)
+    assert failure.kind == 'out_of_stroke' and failure.s == 2e-3
+    assert 'x_c at 0.0497 m (stroke [-0.05, 0.05])' in failure.reason and 'x_f' not in failure.reason
+    start_outside = inside.copy()
+    start_outside[:, 1] = -0.2
+    failure = _failure(micromill, s, start_outside)
+    assert failure.kind == 'out_of_stroke' and failure.s == 0.0
+    assert 'y_c at -0.2 m, outside its stroke [-0.05, 0.05]' in failure.reason

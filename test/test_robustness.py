@@ -11,6 +11,7 @@ import threading
 import numpy as np
 import pytest
 
+from machine_ctrl import contract
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.app.client import MachineClient
 from machine_ctrl.ros.graph import default_graph
@@ -43,16 +44,16 @@ class Client(MachineClient):
         self.lock = threading.Lock()
         deep = QoSProfile(depth=100_000, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, deep)
-        node.create_subscription(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, self.on_diagnostics, 100)
-        node.create_subscription(JointState, ros_io.TOPIC_TRUE_JOINT_STATES, self.on_truth, 10)
+        node.create_subscription(JointTrajectory, contract.REFERENCE.name, self.on_reference, deep)
+        node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics, 100)
+        node.create_subscription(JointState, contract.TRUE_JOINT_STATES.name, self.on_truth, 10)
         super().__init__(node, machine)
         latched = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,    # matches every reader
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.rogue = {topic: node.create_publisher(kind, topic, latched) for topic, kind in (
-            (ros_io.TOPIC_REFERENCE, JointTrajectory), ('/trajectory/reference', JointTrajectory),
-            (ros_io.TOPIC_COMMANDS, JointState), (ros_io.TOPIC_JOINT_STATES, JointState),
-            (ros_io.TOPIC_OFFSETS, JointState), ('/clock', Clock), (ros_io.TOPIC_DIAGNOSTICS, DiagnosticArray),
+            (contract.REFERENCE.name, JointTrajectory), ('/trajectory/reference', JointTrajectory),
+            (contract.SERVO_COMMANDS.name, JointState), (contract.JOINT_STATES.name, JointState),
+            (contract.DUAL_STAGE_OFFSETS.name, JointState), ('/clock', Clock), (contract.DIAGNOSTICS.name, DiagnosticArray),
             ('/trajectory/feed_override', Float64))}
 
     def on_reference(self, msg):
@@ -227,29 +228,29 @@ SERVICE_CASES = [   # Trigger services that do not apply while idle
 GRID = 100_000      # ns, the micromill's control period
 # (topic, message, node whose /diagnostics counts it, counter, reason)
 ROGUE_CASES = [
-    (ros_io.TOPIC_REFERENCE, chunk(AXES, GRID, [[math.nan] * 9]), 'servo_coarse', 'rejected_messages', 'NaN'),
-    (ros_io.TOPIC_REFERENCE, chunk(['x_c', 'q'], GRID, [[0.0] * 2]), 'servo_coarse', 'rejected_messages',
+    (contract.REFERENCE.name, chunk(AXES, GRID, [[math.nan] * 9]), 'servo_coarse', 'rejected_messages', 'NaN'),
+    (contract.REFERENCE.name, chunk(['x_c', 'q'], GRID, [[0.0] * 2]), 'servo_coarse', 'rejected_messages',
      'missing joints y_c, z_c'),
-    (ros_io.TOPIC_REFERENCE, chunk(AXES, OFF_GRID, [HOME]), 'servo_fine', 'rejected_messages', 'control grid'),
-    (ros_io.TOPIC_REFERENCE, chunk(AXES, GRID, [HOME, HOME], [0, 7]), 'dual_stage', 'rejected_messages',
+    (contract.REFERENCE.name, chunk(AXES, OFF_GRID, [HOME]), 'servo_fine', 'rejected_messages', 'control grid'),
+    (contract.REFERENCE.name, chunk(AXES, GRID, [HOME, HOME], [0, 7]), 'dual_stage', 'rejected_messages',
      'consecutive control step'),
-    (ros_io.TOPIC_REFERENCE, chunk(AXES, GRID, [HOME], velocities=[0.0] * 3), 'contour_error',
+    (contract.REFERENCE.name, chunk(AXES, GRID, [HOME], velocities=[0.0] * 3), 'contour_error',
      'rejected_messages', '3 velocities for 9 joints'),
-    (ros_io.TOPIC_REFERENCE, chunk(AXES, GRID, []), 'servo_coarse', 'rejected_messages', 'no points'),
-    (ros_io.TOPIC_REFERENCE, chunk(AXES + ['x_c'], GRID, [HOME + [0.0]]), 'servo_fine', 'rejected_messages',
+    (contract.REFERENCE.name, chunk(AXES, GRID, []), 'servo_coarse', 'rejected_messages', 'no points'),
+    (contract.REFERENCE.name, chunk(AXES + ['x_c'], GRID, [HOME + [0.0]]), 'servo_fine', 'rejected_messages',
      'duplicate joint names'),
     ('/trajectory/reference', chunk(AXES, GRID, [[math.inf] * 9]), 'compensation', 'rejected_chunks', 'NaN or inf'),
     ('/trajectory/reference', chunk(AXES, OFF_GRID, [HOME]), 'compensation', 'rejected_chunks', 'control grid'),
-    (ros_io.TOPIC_COMMANDS, joint_state(['x_c', 'q'], FAR * GRID, effort=[0.0, 0.0]), 'hw_sim',
+    (contract.SERVO_COMMANDS.name, joint_state(['x_c', 'q'], FAR * GRID, effort=[0.0, 0.0]), 'hw_sim',
      'refused_commands', 'command for step'),
-    (ros_io.TOPIC_OFFSETS, joint_state(AXES[3:6], OFF_GRID, position=[0.0] * 3), 'servo_fine',
+    (contract.DUAL_STAGE_OFFSETS.name, joint_state(AXES[3:6], OFF_GRID, position=[0.0] * 3), 'servo_fine',
      'rejected_messages', 'control grid'),
-    (ros_io.TOPIC_JOINT_STATES, joint_state(AXES, OFF_GRID, position=HOME), 'servo_coarse', 'rejected_messages',
+    (contract.JOINT_STATES.name, joint_state(AXES, OFF_GRID, position=HOME), 'servo_coarse', 'rejected_messages',
      'control grid'),
-    (ros_io.TOPIC_JOINT_STATES, joint_state(AXES, OFF_GRID, position=HOME), 'contour_error', 'rejected_messages',
+    (contract.JOINT_STATES.name, joint_state(AXES, OFF_GRID, position=HOME), 'contour_error', 'rejected_messages',
      'control grid'),
     # a well-formed state from the future: taken, the servos would skip the real steps
-    (ros_io.TOPIC_JOINT_STATES, joint_state(AXES, FAR * GRID, position=HOME),
+    (contract.JOINT_STATES.name, joint_state(AXES, FAR * GRID, position=HOME),
      'servo_fine', 'rejected_messages', 'skips ahead'),
 ]
 
@@ -313,12 +314,12 @@ def fuzz_messages(machine, rng):
         return int(rng.choice([OFF_GRID, 0, 1, 2**30 * 10**9 + OFF_GRID]))
 
     for _ in range(6):
-        yield ros_io.TOPIC_JOINT_STATES, joint_state(names(), stamp(), garbage(rng.integers(0, 12)))
-        yield ros_io.TOPIC_OFFSETS, joint_state(names(), stamp(), garbage(rng.integers(0, 5)))
-        yield ros_io.TOPIC_COMMANDS, joint_state(names(), stamp(), effort=[float(rng.normal()) for _ in
+        yield contract.JOINT_STATES.name, joint_state(names(), stamp(), garbage(rng.integers(0, 12)))
+        yield contract.DUAL_STAGE_OFFSETS.name, joint_state(names(), stamp(), garbage(rng.integers(0, 5)))
+        yield contract.SERVO_COMMANDS.name, joint_state(names(), stamp(), effort=[float(rng.normal()) for _ in
                                                                            range(rng.integers(0, 12))])
         rows = [garbage(rng.integers(0, 12)) for _ in range(rng.integers(0, 4))]
-        yield ros_io.TOPIC_REFERENCE, chunk(names(), stamp(), rows, [OFF_GRID] * len(rows))   # never valid
+        yield contract.REFERENCE.name, chunk(names(), stamp(), rows, [OFF_GRID] * len(rows))   # never valid
         yield '/trajectory/reference', chunk(names(), stamp(), rows, [OFF_GRID] * len(rows))
         yield '/trajectory/path', raw_path(np.array(garbage(3 * rng.integers(0, 10))).reshape(-1, 3),
                                            [garbage(4) for _ in range(9)], rng.choice(['workpiece', '', 'x']))
@@ -330,7 +331,7 @@ def fuzz_messages(machine, rng):
         diag = DiagnosticArray(status=[DiagnosticStatus(name=str(rng.choice(['servo', 'x', ''])), hardware_id='rogue',
                                                         level=bytes([int(rng.integers(0, 4))]),
                                                         values=[KeyValue(key='step', value='not a step')])])
-        yield ros_io.TOPIC_DIAGNOSTICS, diag
+        yield contract.DIAGNOSTICS.name, diag
 
 
 def test_malformed_messages_on_every_topic_crash_no_node(micromill, graph, client):
@@ -378,7 +379,7 @@ def test_commands_while_faulted_then_reset(micromill, graph, client):
     n = len(client.statuses)
     step = int(client.diag('hw_sim', 'step'))
     # a rogue non-finite command (any stamp) is a fault by design: the drives go off
-    client.publish(ros_io.TOPIC_COMMANDS, joint_state(['x_c'], (step + 50) * GRID, effort=[math.nan]))
+    client.publish(contract.SERVO_COMMANDS.name, joint_state(['x_c'], (step + 50) * GRID, effort=[math.nan]))
     client.wait_states(n, ['fault'], check=graph.check)
     assert 'non-finite command for x_c' in client.status()['fault']
     held = client.truth.copy()

@@ -131,3 +131,48 @@ def test_local_slowdown_dips_only_around_the_violations():
     assert 0.01 * 1e-4 * np.abs(np.diff(factor, 2)).max() / h**2 / 2 <= 1.5 * 0.25 * 200.0
     assert np.all(local_slowdown(fake_sampling(s, np.full(4001, 0.9)), feed_s, feed_b,
                                  np.full(201, 200.0)) == 1.0)
+
+
+def straight_line(length=1e-3, nodes=11):
+    """One axis along s itself: q = s, q' = 1, q'' = q''' = 0."""
+    s = np.linspace(0.0, length, nodes)
+    one = np.ones((nodes, 1))
+    return SepticInterpolant(s, s[:, None], one, 0 * one, 0 * one)
+
+
+def axis_limits(velocity, acceleration=1e3, jerk=1e6):
+    from types import SimpleNamespace
+    return SimpleNamespace(velocity=np.array([velocity]), acceleration=np.array([acceleration]),
+                           jerk=np.array([jerk]))
+
+
+def test_the_sampling_loop_applies_the_rule_after_every_miss():
+    from trajectory.sampling import sample_within
+    line = straight_line()
+    feed_s = np.linspace(0.0, 1e-3, 11)
+    feed_b = np.full(11, 0.01 ** 2)                        # 10 mm/s
+    calls = []
+
+    def rule(result, b, scale):
+        calls.append((result.passes, scale))
+        return b, scale * 0.5
+
+    # within at once: one pass, the rule never asked
+    done = sample_within(line, feed_s, feed_b, axis_limits(1.0), 1e-4, ('x',), rule, 1.001, 4)
+    assert done.within and done.sampling.passes == 1 and calls == [] and done.scale == 1.0
+    # a tolerance no sampling meets: every pass misses, the rule runs after each one
+    missed = sample_within(line, feed_s, feed_b, axis_limits(1.0), 1e-4, ('x',), rule, 0.0, 4)
+    assert not missed.within and missed.sampling.passes == 4
+    assert calls == [(1, 1.0), (2, 0.5), (3, 0.25), (4, 0.125)] and missed.scale == 0.0625
+
+
+def test_the_global_stretch_meets_a_velocity_limit_below_the_feed():
+    from trajectory.sampling import LimitsExceeded
+    line = straight_line()
+    feed_s = np.linspace(0.0, 1e-3, 11)
+    feed_b = np.full(11, 0.01 ** 2)
+    result = sample(line, feed_s, feed_b, axis_limits(0.004), 1e-4, ('x',))   # 4 mm/s < 10 mm/s
+    assert result.passes >= 2 and np.max(result.peak_ratios) <= 1.001
+    assert np.abs(np.diff(result.reference.position[:, 0])).max() / 1e-4 <= 0.004 * 1.001
+    with pytest.raises(LimitsExceeded, match='exceed the limits'):
+        sample(line, feed_s, feed_b, axis_limits(0.004), 1e-4, ('x',), max_passes=1)

@@ -1,8 +1,104 @@
-"""StepResponder (node_common): one answer per step, re-sends answered from cache, and the
-input timeout counted from a step's first arrival (hw_sim re-sends while it waits)."""
-import time
-
+"""The per-step answerer of the servo and dual-stage nodes: one answer per step, re-sends
+answered from cache, the input timeout counted from a step's first arrival (hw_sim re-sends
+while it waits), stray future stamps refused. The rules (machine_ctrl.control.stepping) run
+on fake wall time passed in; the ROS wrapper (node_common.StepResponder) is checked to
+publish through them."""
 import pytest
+
+from machine_ctrl.control.stepping import StepAnswerer
+from machine_ctrl.model.errors import InvalidMessage
+
+
+@pytest.fixture
+def answerer():
+    inputs = {'ready': set(), 'streaming': True, 'computed': [], 'sent': []}
+
+    def compute(step, msg):
+        inputs['computed'].append(step)
+        return f'answer {step}'
+    a = StepAnswerer(inputs['sent'].append, lambda step: step in inputs['ready'], compute, 0.3,
+                     lambda: inputs['streaming'])
+    return a, inputs
+
+
+def test_each_step_is_computed_once_and_resends_get_the_cached_answer(answerer):
+    a, inputs = answerer
+    inputs['ready'].add(0)
+    a.on_state(0, 'state 0', now=0.0)
+    a.on_state(0, 'state 0 again', now=0.2)
+    assert inputs['computed'] == [0] and inputs['sent'] == ['answer 0', 'answer 0']
+    assert a.answered_step == 0 and not a.waiting
+
+
+def test_older_stamps_are_ignored(answerer):
+    a, inputs = answerer
+    inputs['ready'].update(range(5))
+    for step in (0, 1, 2):
+        a.on_state(step, f'state {step}', now=0.0)
+    a.on_state(1, 'state 1 late', now=0.1)
+    assert inputs['computed'] == [0, 1, 2] and inputs['sent'] == ['answer 0', 'answer 1', 'answer 2']
+
+
+def test_timeout_counts_from_the_first_arrival_despite_resends(answerer):
+    a, inputs = answerer
+    a.on_state(5, 'state 5', now=10.0)           # inputs of step 5 missing
+    for t in (10.1, 10.2, 10.25):                # hw_sim re-sends; 0.3 s not yet passed
+        a.on_state(5, 'state 5', now=t)
+        a.on_timer(now=t)
+    assert inputs['computed'] == [] and a.waiting
+    a.on_state(5, 'state 5', now=10.35)
+    a.on_timer(now=10.35)                        # 0.35 s after the first arrival
+    assert inputs['computed'] == [5] and inputs['sent'] == ['answer 5'] and not a.waiting
+
+
+def test_no_timeout_before_the_stream_ever_started(answerer):
+    a, inputs = answerer
+    inputs['streaming'] = False
+    a.on_state(3, 'state 3', now=0.0)
+    a.on_timer(now=100.0)
+    assert inputs['computed'] == [] and a.waiting
+    inputs['ready'].add(3)
+    a.poke()
+    assert inputs['computed'] == [3]
+
+
+def test_no_answer_when_compute_gives_none(answerer):
+    a, inputs = answerer
+    a.compute = lambda step, msg: None
+    inputs['ready'].add(0)
+    a.on_state(0, 'state 0', now=0.0)
+    assert inputs['sent'] == [] and a.answered is None and not a.waiting
+
+
+def test_a_stray_future_stamp_is_refused_once_and_the_real_steps_go_on(answerer):
+    a, inputs = answerer
+    inputs['ready'].update(range(10))
+    a.on_state(0, 'state 0', now=0.0)
+    with pytest.raises(InvalidMessage, match='state of step 500 skips ahead of step 1'):
+        a.on_state(500, 'stray', now=0.0)
+    a.on_state(1, 'state 1', now=0.0)
+    a.on_state(2, 'state 2', now=0.0)
+    assert inputs['computed'] == [0, 1, 2]
+
+
+def test_a_real_jump_is_taken_when_re_sent(answerer):
+    a, inputs = answerer
+    inputs['ready'].update([0, 7])
+    a.on_state(0, 'state 0', now=0.0)
+    with pytest.raises(InvalidMessage, match='skips ahead'):
+        a.on_state(7, 'state 7', now=0.0)
+    a.on_state(7, 'state 7 again', now=0.1)      # hw_sim re-sends what it waits on
+    assert inputs['computed'] == [0, 7]
+
+
+def test_states_arriving_while_one_waits_are_not_skips(answerer):
+    a, inputs = answerer
+    a.on_state(0, 'state 0', now=0.0)            # inputs of 0 missing: pending
+    a.on_state(1, 'state 1', now=0.0)            # paced mode: hw_sim went on
+    a.on_state(2, 'state 2', now=0.0)
+    inputs['ready'].add(2)
+    a.poke()
+    assert inputs['computed'] == [2]
 
 
 class FakePublisher:
@@ -13,77 +109,17 @@ class FakePublisher:
         self.sent.append(msg)
 
 
-@pytest.fixture
-def responder(ros_node):
+def test_the_ros_responder_publishes_through_the_rules(ros_node):
     from machine_ctrl.ros.node_common import StepResponder
-    inputs = {'ready': set(), 'streaming': True, 'computed': []}
-
-    def compute(step, msg):
-        inputs['computed'].append(step)
-        return f'answer {step}'
+    ready = set()
     pub = FakePublisher()
-    r = StepResponder(ros_node('responder'), pub, lambda step: step in inputs['ready'], compute, 0.3,
-                      lambda: inputs['streaming'])
-    return r, pub, inputs
-
-
-def test_each_step_is_computed_once_and_resends_get_the_cached_answer(responder):
-    r, pub, inputs = responder
-    inputs['ready'].add(0)
+    r = StepResponder(ros_node('responder'), pub, lambda step: step in ready, lambda step, msg: f'answer {step}',
+                      0.3, lambda: True)
     r.on_state(0, 'state 0')
+    assert r.waiting and pub.sent == []
+    ready.add(0)
+    r.poke()
     r.on_state(0, 'state 0 again')
-    assert inputs['computed'] == [0] and pub.sent == ['answer 0', 'answer 0']
-
-
-def test_timeout_counts_from_the_first_arrival_despite_resends(responder):
-    r, pub, inputs = responder
-    r.on_state(5, 'state 5')                 # inputs of step 5 missing
-    for _ in range(6):                       # hw_sim re-sends every 0.1 s
-        time.sleep(0.1)
-        r.on_state(5, 'state 5')
-        r._on_timer()
-    assert inputs['computed'] == [5]         # gave up after 0.3 s although re-sent
-
-
-def test_no_timeout_before_the_stream_ever_started(responder):
-    r, pub, inputs = responder
-    inputs['streaming'] = False
-    r.on_state(3, 'state 3')
-    time.sleep(0.4)
-    r._on_timer()
-    assert inputs['computed'] == []
-    inputs['ready'].add(3)
-    r.poke()
-    assert inputs['computed'] == [3]
-
-
-def test_a_stray_future_stamp_is_refused_once_and_the_real_steps_go_on(responder):
-    from machine_ctrl.ros.messages import InvalidMessage
-    r, pub, inputs = responder
-    inputs['ready'].update(range(10))
-    r.on_state(0, 'state 0')
+    assert pub.sent == ['answer 0', 'answer 0'] and r.answered_step == 0 and not r.waiting
     with pytest.raises(InvalidMessage, match='skips ahead'):
-        r.on_state(500, 'stray')
-    r.on_state(1, 'state 1')
-    r.on_state(2, 'state 2')
-    assert inputs['computed'] == [0, 1, 2]
-
-
-def test_a_real_jump_is_taken_when_re_sent(responder):
-    r, pub, inputs = responder
-    inputs['ready'].update([0, 7])
-    r.on_state(0, 'state 0')
-    with pytest.raises(Exception, match='skips ahead'):
-        r.on_state(7, 'state 7')
-    r.on_state(7, 'state 7 again')              # hw_sim re-sends what it waits on
-    assert inputs['computed'] == [0, 7]
-
-
-def test_states_arriving_while_one_waits_are_not_skips(responder):
-    r, pub, inputs = responder
-    r.on_state(0, 'state 0')                    # inputs of 0 missing: pending
-    r.on_state(1, 'state 1')                    # paced mode: hw_sim went on
-    r.on_state(2, 'state 2')
-    inputs['ready'].add(2)
-    r.poke()
-    assert inputs['computed'] == [2]
+        r.on_state(9, 'stray')

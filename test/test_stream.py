@@ -12,7 +12,8 @@ from machine_ctrl.model.kinematics import Kinematics
 from trajectory import toolpath
 from trajectory.moves import AxisState, move_to, through_waypoints
 from trajectory.planner import plan
-from trajectory.stream import ReferenceStream, smoothstep
+from trajectory.ramp import SMOOTHSTEP_PEAK_CURVATURE, SMOOTHSTEP_PEAK_RATE, smoothstep
+from trajectory.stream import ReferenceStream
 
 
 def limits(machine):
@@ -34,7 +35,7 @@ def arc_plan(micromill):
     """A planned 3 mm half circle at 10 mm/s (tool tips around the home tip)."""
     th = np.linspace(0.0, math.pi, 24)
     p = np.column_stack([1e-3 * (np.cos(th) - 1), 0.002 + 1e-3 * np.sin(th), np.full_like(th, 0.010)])
-    return plan(toolpath.from_arrays(p, np.tile([0.0, 0.0, 1.0], (24, 1))), micromill, 0.01)
+    return plan(toolpath.from_arrays(p, np.tile([0.0, 0.0, 1.0], (24, 1))), micromill, 0.01).unwrap()
 
 
 def test_smoothstep_ends_flat():
@@ -42,6 +43,22 @@ def test_smoothstep_ends_flat():
     u = np.linspace(0, 1, 1001)
     s = np.array([smoothstep(x)[0] for x in u])
     assert np.all(np.diff(s) >= 0)
+
+
+def test_smoothstep_is_the_quintic_on_floats_and_arrays_alike():
+    u = np.linspace(-0.5, 1.5, 2001)
+    c = np.clip(u, 0.0, 1.0)
+    expected = (6 * c**5 - 15 * c**4 + 10 * c**3, 30 * c**4 - 60 * c**3 + 30 * c**2,
+                120 * c**3 - 180 * c**2 + 60 * c)
+    on_array = smoothstep(u)
+    on_floats = np.array([smoothstep(float(x)) for x in u]).T
+    for k in range(3):
+        np.testing.assert_allclose(on_array[k], expected[k], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(on_floats[k], expected[k], rtol=0, atol=1e-13)
+    inside = (u > 0) & (u < 1)
+    assert np.abs(on_array[1][inside]).max() == pytest.approx(15 / 8, rel=1e-6)
+    assert np.abs(on_array[2][inside]).max() == pytest.approx(10 / math.sqrt(3), rel=1e-5)
+    assert SMOOTHSTEP_PEAK_RATE == 15 / 8 and SMOOTHSTEP_PEAK_CURVATURE == pytest.approx(5.773502691896258)
 
 
 def test_full_feed_plays_the_planned_rows_exactly_then_holds(micromill):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from limit_checks import assert_within_limits
 
+from machine_ctrl import contract
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.app.client import MachineClient
 from machine_ctrl.ros.graph import default_graph
@@ -37,9 +38,9 @@ class Client(MachineClient):
         self.clock = ros_io.StepClock(machine.control_period)
         deep = QoSProfile(depth=100_000, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(JointTrajectory, ros_io.TOPIC_REFERENCE, self.on_reference, deep)
-        node.create_subscription(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, self.on_diagnostics, 100)
-        node.create_subscription(JointState, ros_io.TOPIC_TRUE_JOINT_STATES, self.on_truth, 10)
+        node.create_subscription(JointTrajectory, contract.REFERENCE.name, self.on_reference, deep)
+        node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics, 100)
+        node.create_subscription(JointState, contract.TRUE_JOINT_STATES.name, self.on_truth, 10)
         super().__init__(node, machine)
 
     def on_reference(self, msg):
@@ -112,7 +113,7 @@ BAD_GOALS = [
     ('path', dict(nan=True), 'not finite'),
     ('path', dict(zero_axis=True), 'zero length'),
     ('path', dict(repeat=True), 'repeats point'),
-    ('path', dict(shift=0.2), 'planning failed'),
+    ('path', dict(shift=0.2), 'planning failed: the path starts out of reach inside the strokes: x_c at -0.19'),
     ('goal', (['x_c', 'q_z'], [[1e-3, 0.0]]), 'unknown joints q_z'),
     ('goal', (['x_c', 'x_c'], [[1e-3, 1e-3]]), 'duplicate joint names'),
     ('goal', (['x_c', 'y_c'], [[1e-3]]), '1 positions for 2 joints'),

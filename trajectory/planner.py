@@ -1,12 +1,21 @@
 """Path planning end to end (Yuen thesis Ch. 3): fit R(s) (Eq. 3.12) -> redundancy
 resolution (Algorithm 1) -> feed optimization (§3.9) -> septic interpolation and time
 sampling (§3.10, Eqs. 3.38-3.40), with the sampled references checked against the limits
-and the tool pose of the sampled q checked against R(s)."""
+and the strokes, and the tool pose of the sampled q checked against R(s).
+
+Results, not exceptions (in the spirit of Ruckig's Result): :func:`plan` returns a
+:class:`PlanResult` whose `status` (:class:`PlanStatus`) says whether it planned and, if
+not, which kind of problem stopped it, with `reason`, a sentence naming it (never a bare
+numpy message such as "Singular matrix"). The plan itself (:class:`PlannedPath`) is
+`result.plan`; `result.unwrap()` returns it or raises :class:`PlanError` (a ValueError)
+with the reason.
+"""
 from __future__ import annotations
 
 import math
 import time
 from dataclasses import dataclass, replace
+from enum import StrEnum
 
 import numpy as np
 
@@ -15,8 +24,10 @@ from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.model.reference import Reference
 from trajectory import toolpath
 from trajectory.feedrate import FeedLimits, FeedProfile, optimize_feed
-from trajectory.redundancy import RedundancySettings, Resolution, resolve
-from trajectory.sampling import SepticInterpolant, Sampling, local_slowdown, sample, sample_profile
+from trajectory.moves import stroke_violation
+from trajectory.redundancy import (RedundancySettings, Resolution, ResolutionFailed, initial_configuration,
+                                   resolve, stroke_problems)
+from trajectory.sampling import LimitsExceeded, SepticInterpolant, Sampling, local_rule, sample, sample_within
 from trajectory.spline import ArcLengthPath
 
 # assumed: process feed limit 10 mm/s. The thesis sets the process limit of its finishing
@@ -33,8 +44,28 @@ TOLERANCE = 1.001
 LOCAL_PASSES = 8
 
 
+class PlanStatus(StrEnum):
+    """What :func:`plan` came to (the value is the status's name in text and JSON)."""
+    OK = 'ok'
+    INVALID_INPUT = 'invalid_input'        # the feed, the machine, the tool path or the settings
+    UNREACHABLE = 'unreachable'            # the path's start pose cannot be reached by the axes
+    OUT_OF_STROKE = 'out_of_stroke'        # the path needs an axis beyond its stroke
+    SINGULAR = 'singular'                  # the kinematics lose rank along the path (inside the strokes)
+    EXCEEDS_LIMITS = 'exceeds_limits'      # no sampling within the velocity/acceleration/jerk limits
+    FAILED = 'failed'                      # a numerical stage failed (e.g. the feed optimizer)
+
+
+class PlanError(ValueError):
+    """A plan field read from a PlanResult that is not ok (PlanResult.unwrap)."""
+
+    def __init__(self, status: PlanStatus, reason: str):
+        super().__init__(reason)
+        self.status, self.reason = status, reason
+
+
 @dataclass(frozen=True)
-class PlanResult:
+class PlannedPath:
+    """A successful plan."""
     reference: Reference
     traversal_time: float            # s, first to last sample
     planning_time: float             # s, wall: fit + resolve + feed + sampling (not the pose check)
@@ -52,6 +83,26 @@ class PlanResult:
                 'max_orientation_deviation': self.max_orientation_deviation,
                 'samples': len(self.reference), 'control_period': self.reference.period,
                 'feed_scale': self.sampling.feed_scale, 'peak_ratios': self.peak_ratios}
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Outcome of :func:`plan`: `status`, `reason` ('' when ok), the wall time spent
+    (`planning_time`, up to the failure if any) and, when ok, the plan (`plan`)."""
+    status: PlanStatus
+    reason: str = ''
+    planning_time: float = 0.0
+    plan: PlannedPath | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.status == PlanStatus.OK
+
+    def unwrap(self) -> PlannedPath:
+        """The plan, or PlanError(status, reason) when there is none."""
+        if self.plan is None:
+            raise PlanError(self.status, self.reason or f'planning did not succeed ({self.status})')
+        return self.plan
 
 
 def load_toolpath(cl_or_name) -> toolpath.CLData:
@@ -91,13 +142,11 @@ def feed_and_sample(interp: SepticInterpolant, fs, derivatives, limits: FeedLimi
     profile = optimize_feed(fs, *derivatives, limits)
     with np.errstate(divide='ignore'):
         tangential = np.min(limits.jerk / np.abs(derivatives[0]), axis=1)
-    b = profile.b
-    for done in range(1, passes + 1):
-        result = sample_profile(interp, profile.s, b, limits, period, axis_names)
-        if np.max(result.peak_ratios) <= tolerance:
-            return profile, replace(result, passes=done)
-        b = b * local_slowdown(result, profile.s, b, tangential)
-    fallback = sample(interp, profile.s, b, limits, period, axis_names, tolerance)
+    local = sample_within(interp, profile.s, profile.b, limits, period, axis_names,
+                          local_rule(profile.s, tangential), tolerance, passes)
+    if local.within:
+        return profile, local.sampling
+    fallback = sample(interp, profile.s, local.feed_b, limits, period, axis_names, tolerance)
     return profile, replace(fallback, passes=passes + fallback.passes)
 
 
@@ -115,33 +164,69 @@ def pose_deviations(kinematics: Kinematics, q, p_path, o_path) -> tuple[float, f
 def plan(cl_or_name, machine, feed: float = DEFAULT_FEED, settings: RedundancySettings | None = None,
          q0=None, kinematics: Kinematics | None = None, max_feed_nodes: int = MAX_FEED_NODES) -> PlanResult:
     """Plan the toolpath (CLData, built-in name or CSV path) on `machine` (MachineConfig or
-    name) with the process feed limit `feed` (m/s)."""
-    if not (isinstance(feed, (int, float)) and math.isfinite(feed) and feed > 0):
-        raise ValueError(f'feed must be a positive finite speed in m/s, got {feed!r}')
-    if not isinstance(machine, MachineConfig):
-        machine = load_machine(machine)
-    kinematics = kinematics or Kinematics.from_config(machine)
-    cl = load_toolpath(cl_or_name)
+    name) with the process feed limit `feed` (m/s). Never raises for a path, feed or machine
+    it cannot plan: the PlanResult says why (module docstring)."""
     start = time.perf_counter()
-    path = ArcLengthPath.fit(cl)
-    res = resolve(path, kinematics, machine, settings, q0)
-    interp = SepticInterpolant.from_resolution(res)
-    limits = FeedLimits.from_machine(machine, feed)
-    n = len(res.s) - 1
-    stride = feed_subgrid(n, max_feed_nodes)
-    if stride is not None:
-        idx = np.arange(0, n + 1, stride)
-        fs, d1, d2, d3 = res.s[idx], res.dq[idx], res.ddq[idx], res.dddq[idx]
-    else:   # no uniform subgrid of the right size: derivatives of the septic interpolant
-        fs = np.linspace(res.s[0], res.s[-1], max_feed_nodes)
-        d1, d2, d3 = (interp.evaluate(fs, k) for k in (1, 2, 3))
-    profile, sampling = feed_and_sample(interp, fs, (d1, d2, d3), limits, machine.control_period,
-                                        machine.axis_names)
+
+    def failed(status: PlanStatus, reason: str) -> PlanResult:
+        return PlanResult(status, ' '.join(str(reason).split()), time.perf_counter() - start)
+
+    if not (isinstance(feed, (int, float)) and math.isfinite(feed) and feed > 0):
+        return failed(PlanStatus.INVALID_INPUT, f'feed must be a positive finite speed in m/s, got {feed!r}')
+    try:
+        if not isinstance(machine, MachineConfig):
+            machine = load_machine(machine)
+        kinematics = kinematics or Kinematics.from_config(machine)
+        cl = load_toolpath(cl_or_name)
+    except (ValueError, OSError) as exc:
+        return failed(PlanStatus.INVALID_INPUT, str(exc))
+    start = time.perf_counter()
+    try:
+        path = ArcLengthPath.fit(cl)
+    except ValueError as exc:
+        return failed(PlanStatus.INVALID_INPUT, f'tool path: {exc}')
+    try:
+        if q0 is None:
+            q0 = initial_configuration(path, kinematics, machine, settings)
+            problems = stroke_problems(machine, q0)
+            if problems:
+                return failed(PlanStatus.OUT_OF_STROKE,
+                              f'the path starts out of reach inside the strokes: {"; ".join(problems)}')
+        res = resolve(path, kinematics, machine, settings, q0)
+    except ResolutionFailed as exc:
+        return failed(PlanStatus(exc.kind), exc.reason)
+    except np.linalg.LinAlgError:
+        return failed(PlanStatus.SINGULAR, 'the kinematics are singular at the start of the path')
+    except ValueError as exc:          # settings, q0
+        return failed(PlanStatus.INVALID_INPUT, str(exc))
+    try:
+        interp = SepticInterpolant.from_resolution(res)
+        limits = FeedLimits.from_machine(machine, feed)
+        n = len(res.s) - 1
+        stride = feed_subgrid(n, max_feed_nodes)
+        if stride is not None:
+            idx = np.arange(0, n + 1, stride)
+            fs, d1, d2, d3 = res.s[idx], res.dq[idx], res.ddq[idx], res.dddq[idx]
+        else:   # no uniform subgrid of the right size: derivatives of the septic interpolant
+            fs = np.linspace(res.s[0], res.s[-1], max_feed_nodes)
+            d1, d2, d3 = (interp.evaluate(fs, k) for k in (1, 2, 3))
+        profile, sampling = feed_and_sample(interp, fs, (d1, d2, d3), limits, machine.control_period,
+                                            machine.axis_names)
+    except LimitsExceeded as exc:
+        return failed(PlanStatus.EXCEEDS_LIMITS, str(exc))
+    except np.linalg.LinAlgError:
+        return failed(PlanStatus.FAILED, 'the feed optimization or sampling met a singular system')
+    except ValueError as exc:
+        return failed(PlanStatus.FAILED, str(exc))
     planning_time = time.perf_counter() - start
 
     ref = sampling.reference
+    problem = stroke_violation(machine, ref)
+    if problem:
+        return PlanResult(PlanStatus.OUT_OF_STROKE, f'planned path leaves a stroke: {problem}', planning_time)
     ep, eo = pose_deviations(kinematics, ref.position, *path.evaluate(sampling.s))
     ratios = {name: {'velocity': float(r[0]), 'acceleration': float(r[1]), 'jerk': float(r[2])}
               for name, r in zip(machine.axis_names, sampling.peak_ratios)}
-    return PlanResult(ref, sampling.duration, planning_time, ep, eo, ratios, path, res, profile,
-                      sampling)
+    planned = PlannedPath(ref, sampling.duration, planning_time, ep, eo, ratios, path, res, profile,
+                          sampling)
+    return PlanResult(PlanStatus.OK, '', planning_time, planned)

@@ -63,6 +63,57 @@ from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 
 
+class ResolutionFailed(ValueError):
+    """:func:`resolve` could not follow the path. `kind` is 'unreachable' (R(0) cannot be
+    reached: :func:`initial_configuration`), 'out_of_stroke' (the axes left their strokes
+    before the integration broke down: the path is out of reach inside them) or 'singular'
+    (the task Jacobian lost rank inside the strokes); `s` the arc length (m) where; `reason`
+    a sentence naming the problem (also the exception text)."""
+
+    def __init__(self, kind: str, reason: str, s: float):
+        super().__init__(reason)
+        self.kind, self.reason, self.s = kind, reason, s
+
+
+def stroke_problems(machine: MachineConfig, q) -> list[str]:
+    """'<axis> at <value> <unit>, outside its stroke [lo, hi]' for each axis of q (one
+    configuration) outside its stroke; [] when every one is inside."""
+    return [f'{axis.name} at {value:.6g} {axis.unit}, outside its stroke '
+            f'[{axis.stroke[0]:g}, {axis.stroke[1]:g}]'
+            for axis, value in zip(machine.axes, q)
+            if axis.stroke is not None and not axis.stroke[0] <= value <= axis.stroke[1]]
+
+
+def _failure(machine: MachineConfig, s, qs) -> ResolutionFailed:
+    """Why the integration broke down (a numpy LinAlgError or a non-finite rate) after the
+    configurations qs (K, n) at the arc lengths s[:K]. When the path is out of the strokes'
+    reach, the stroke cost holds the axes inside until one reaches the end of its stroke;
+    then the resolution leaves the strokes, runs away and breaks down: out_of_stroke, named
+    by the axes at (>= 99 % of the way to) a stroke end in the last configuration inside
+    (or, if the first is outside already, its axes outside). Singular if none left."""
+    limited = [i for i, a in enumerate(machine.axes) if a.stroke is not None]
+    lo = np.array([machine.axes[i].stroke[0] for i in limited])
+    hi = np.array([machine.axes[i].stroke[1] for i in limited])
+    q = qs[:, limited]
+    outside = np.flatnonzero(np.any((q < lo) | (q > hi) | ~np.isfinite(q), axis=1))
+    if not len(outside):
+        j = len(qs) - 1
+        return ResolutionFailed('singular', f'the kinematics are singular at s = {s[j] * 1e3:.6g} mm of '
+                                'the path (the task Jacobian loses rank; the redundancy resolution cannot '
+                                'follow the path there)', float(s[j]))
+    j = int(outside[0])
+    if j == 0:
+        return ResolutionFailed('out_of_stroke', 'the path starts out of reach inside the strokes: '
+                                + '; '.join(stroke_problems(machine, qs[0])), 0.0)
+    last = q[j - 1]
+    share = np.abs(last - 0.5 * (lo + hi)) / (0.5 * (hi - lo))      # 1 at a stroke end
+    ends = np.flatnonzero(share >= 0.99) if np.any(share >= 0.99) else [int(np.argmax(share))]
+    named = '; '.join(f'{machine.axes[limited[k]].name} at {last[k]:.6g} {machine.axes[limited[k]].unit} '
+                      f'(stroke [{lo[k]:g}, {hi[k]:g}])' for k in ends)
+    return ResolutionFailed('out_of_stroke', f'the path leaves the reach of the strokes at s = '
+                            f'{s[j - 1] * 1e3:.6g} mm: {named}', float(s[j - 1]))
+
+
 @dataclass(frozen=True)
 class RedundancySettings:
     """Tuning of the resolution. Lengths in m, angles in rad."""
@@ -288,8 +339,8 @@ def initial_configuration(path, kinematics: Kinematics, machine: MachineConfig,
     """q0 matching R(0): Newton iterations from `start` (default: the machine's home) with
     the stroke-weighted least-norm step dq = W (J_t W)^+ e_t (W = diag of the half-strokes,
     `unlimited_scale` for c_f), so each active axis moves in proportion to its stroke and
-    the fine axes stay near home. Raises ValueError when R(0) cannot be reached with the
-    active axes (e.g. a z offset with only x-y axes active)."""
+    the fine axes stay near home. Raises ResolutionFailed('unreachable'), a ValueError, when
+    R(0) cannot be reached with the active axes (e.g. a z offset with only x-y axes active)."""
     settings = settings or RedundancySettings()
     res = _Resolver(kinematics, machine, settings)
     q = np.array(machine.home if start is None else start, dtype=float)
@@ -298,8 +349,8 @@ def initial_configuration(path, kinematics: Kinematics, machine: MachineConfig,
     q, ep, eo, _ = res.project(pd[0], od[0], q, settings.initial_iterations, 1e-14,
                                weighted=True)
     if ep > 1e-12 or eo > 1e-12:
-        raise ValueError(f'cannot reach R(0) with the active axes: residual {ep:.3g} m, '
-                         f'{eo:.3g} rad')
+        raise ResolutionFailed('unreachable', f'cannot reach R(0) with the active axes: residual '
+                               f'{ep:.3g} m, {eo:.3g} rad', 0.0)
     return q
 
 
@@ -312,7 +363,9 @@ def resolve(path, kinematics: Kinematics, machine: MachineConfig,
             settings: RedundancySettings | None = None, q0=None) -> Resolution:
     """Algorithm 1 of the thesis: integrate Eq. 3.27 with RK4 (Eq. 3.24) from q0 over
     s in [0, path.length] in N = max(6, ceil(S / settings.step)) equal steps; see the
-    module docstring for the rate, the projection and the derivative outputs."""
+    module docstring for the rate, the projection and the derivative outputs. Raises
+    ResolutionFailed (a ValueError naming the problem and where) when the integration breaks
+    down: the path leaves the reach of the strokes or a singular configuration."""
     settings = settings or RedundancySettings()
     length = float(path.length)
     if not (math.isfinite(length) and length > 0):
@@ -338,17 +391,25 @@ def resolve(path, kinematics: Kinematics, machine: MachineConfig,
     q, ep, eo, task = res.project(target[0][0], target[1][0], q, 0, 0.0)
     max_ep, max_eo = ep, eo
     qs[0] = q
-    for k in range(n_steps):
-        k1, dq[k] = res.rate(at(2 * k), q, task)
-        k2 = res.rate(at(2 * k + 1), q + 0.5 * ds * k1)[0]
-        k3 = res.rate(at(2 * k + 1), q + 0.5 * ds * k2)[0]
-        k4 = res.rate(at(2 * k + 2), q + ds * k3)[0]
-        q = q + (k1 + 2.0 * k2 + 2.0 * k3 + k4) * (ds / 6.0)
-        q, ep, eo, task = res.project(target[0][2 * k + 2], target[1][2 * k + 2], q,
-                                      settings.projection_iterations,
-                                      settings.projection_tolerance)
-        max_ep, max_eo = max(max_ep, ep), max(max_eo, eo)
-        qs[k + 1] = q
-    dq[-1] = res.rate(at(2 * n_steps), q, task)[1]
+    k = 0
+    try:
+        for k in range(n_steps):
+            k1, dq[k] = res.rate(at(2 * k), q, task)
+            k2 = res.rate(at(2 * k + 1), q + 0.5 * ds * k1)[0]
+            k3 = res.rate(at(2 * k + 1), q + 0.5 * ds * k2)[0]
+            k4 = res.rate(at(2 * k + 2), q + ds * k3)[0]
+            q = q + (k1 + 2.0 * k2 + 2.0 * k3 + k4) * (ds / 6.0)
+            q, ep, eo, task = res.project(target[0][2 * k + 2], target[1][2 * k + 2], q,
+                                          settings.projection_iterations,
+                                          settings.projection_tolerance)
+            max_ep, max_eo = max(max_ep, ep), max(max_eo, eo)
+            qs[k + 1] = q
+        k = n_steps
+        dq[-1] = res.rate(at(2 * n_steps), q, task)[1]
+    except np.linalg.LinAlgError:       # "Singular matrix": say why, and where
+        raise _failure(machine, s, qs[:k + 1]) from None
+    bad = ~(np.isfinite(qs).all(axis=1) & np.isfinite(dq).all(axis=1))
+    if bad.any():                       # the rate blew up without a LinAlgError
+        raise _failure(machine, s, qs[:int(np.argmax(bad)) + 1])
     return Resolution(s, qs, dq, _along_s(dq, ds, 1), _along_s(dq, ds, 2), max_ep, max_eo,
                       tuple(machine.axis_names))

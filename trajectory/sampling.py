@@ -39,9 +39,11 @@ sdot(s) = sqrt(b(s)), b the feed profile:
 **Verification.** The feed optimizer only checks its grid. The sampled positions, padded
 with three rest samples on either side (the machine holds before and after), are
 differenced at the control period (velocity, acceleration, jerk) by `sample_profile`.
-Where a sample exceeds its limit, :func:`local_slowdown` lowers b around it only (the
-planner iterates: planner.feed_and_sample); :func:`sample` is the global fallback, which
-scales b by the exact factor of a time stretch (v ~ c^(1/2), a ~ c, j ~ c^(3/2)) and
+Where a sample exceeds its limit, the profile is slowed down and sampled again: one loop,
+:func:`sample_within`, with the slow-down rule as a parameter. :func:`local_rule`
+(:func:`local_slowdown`) lowers b around the offending samples only (the planner's first
+stage: planner.feed_and_sample); :func:`global_stretch` scales b by the exact factor of a
+time stretch (v ~ c^(1/2), a ~ c, j ~ c^(3/2)) — :func:`sample`, the fallback, which
 resamples until every axis is within `tolerance` x its limit, at most `max_passes` times.
 """
 from __future__ import annotations
@@ -308,20 +310,64 @@ def sample_profile(interpolant: SepticInterpolant, feed_s, feed_b, limits, perio
     return Sampling(reference, s, sdot, scale / stretch**2, 1, ratios, need)
 
 
+class LimitsExceeded(ValueError):
+    """No slow-down within its passes brought every sampled reference within tolerance."""
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """Result of :func:`sample_within`: the last Sampling (with `passes` set), whether its
+    peaks are within the tolerance, and the feed nodes b and global scale after the last
+    slow-down (what a further stage would start from)."""
+    sampling: Sampling
+    within: bool
+    feed_b: np.ndarray
+    scale: float
+
+
+def sample_within(interpolant: SepticInterpolant, feed_s, feed_b, limits, period: float, axis_names,
+                  slow_down, tolerance: float, max_passes: int) -> Refinement:
+    """The sampling loop: :func:`sample_profile` of scale * b; while a finite-difference
+    peak exceeds `tolerance` x its limit, `slow_down(result, b, scale) -> (b, scale)` (a
+    slow-down rule: :func:`global_stretch`, :func:`local_rule`) and sample again, at most
+    `max_passes` samplings. The rule is applied after every pass that misses, the last one
+    too."""
+    b, scale = feed_b, 1.0
+    for passes in range(1, max_passes + 1):
+        result = replace(sample_profile(interpolant, feed_s, b, limits, period, axis_names, scale),
+                         passes=passes)
+        if np.max(result.peak_ratios) <= tolerance:
+            return Refinement(result, True, b, scale)
+        b, scale = slow_down(result, b, scale)
+    return Refinement(result, False, b, scale)
+
+
+def global_stretch(result: Sampling, feed_b, scale: float):
+    """Slow-down rule of a global time stretch: the whole profile scaled by the factor the
+    worst sample needs (v ~ c^(1/2), a ~ c, j ~ c^(3/2))."""
+    # assumed: aim 0.1 % below the limit so the next pass lands inside the tolerance
+    return feed_b, scale * 0.999 / float(np.max(result.need))
+
+
+def local_rule(feed_s, tangential_jerk):
+    """Slow-down rule of :func:`local_slowdown`: b lowered only around the samples that
+    exceed a limit."""
+    def slow_down(result: Sampling, feed_b, scale: float):
+        return feed_b * local_slowdown(result, feed_s, feed_b, tangential_jerk), scale
+    return slow_down
+
+
 def sample(interpolant: SepticInterpolant, feed_s, feed_b, limits, period: float,
            axis_names, tolerance: float = 1.001, max_passes: int = 6) -> Sampling:
     """:func:`sample_profile` with b scaled down globally until every finite-difference
     peak is within `tolerance` x its limit (module docstring, "Verification"); raises
-    ValueError when no scaling within `max_passes` meets `tolerance`."""
-    scale = 1.0
-    for passes in range(1, max_passes + 1):
-        result = sample_profile(interpolant, feed_s, feed_b, limits, period, axis_names, scale)
-        if np.max(result.peak_ratios) <= tolerance:
-            return replace(result, passes=passes)
-        # assumed: aim 0.1 % below the limit so the next pass lands inside the tolerance
-        scale = scale * 0.999 / float(np.max(result.need))
-    raise ValueError(f'sampled references exceed the limits by {np.max(result.peak_ratios):.4g}x '
-                     f'after {max_passes} passes')
+    LimitsExceeded (a ValueError) when no scaling within `max_passes` meets `tolerance`."""
+    outcome = sample_within(interpolant, feed_s, feed_b, limits, period, axis_names, global_stretch,
+                            tolerance, max_passes)
+    if not outcome.within:
+        raise LimitsExceeded(f'sampled references exceed the limits by '
+                             f'{np.max(outcome.sampling.peak_ratios):.4g}x after {max_passes} passes')
+    return outcome.sampling
 
 
 def local_slowdown(result: Sampling, feed_s, feed_b, tangential_jerk,

@@ -19,39 +19,30 @@ accelerations, and the row is
 (a tool path's q(s)), a slower k moves along the same path: feed hold is k -> 0 and stops
 on the path; resume is k -> back.
 
-A change of k is a quintic smoothstep ramp (k' and k'' zero at both ends) whose duration
-fits the added terms k' r' (acceleration), 3 k k' r'' and k'' r' (jerk) into the headroom
-the planned motion leaves over the stretch the ramp covers (RampPlanner). Caveat: where the
-planned motion is at a limit there, the ramp gets RAMP_LIMIT_SHARE of it, and since the
-planned part shrinks only as k^2 (k^3) while k'' r' grows linearly from the ramp's start,
-the sum can exceed the jerk limit by a few % in theory; the tests check holds by finite
-differences at the control period. A change takes effect `at` a step the caller chooses
-(beyond what the servos may have taken) but not before the ramp under way has ended; rows
-from there on are handed out again (a re-send).
+A change of k is a quintic smoothstep ramp (trajectory/ramp.py: k' and k'' zero at both
+ends) whose duration fits the added terms k' r' (acceleration), 3 k k' r'' and k'' r' (jerk)
+into the headroom the planned motion leaves over the stretch the ramp covers (RampPlanner).
+Caveat: where the planned motion is at a limit there, the ramp gets RAMP_LIMIT_SHARE of it,
+and since the planned part shrinks only as k^2 (k^3) while k'' r' grows linearly from the
+ramp's start, the sum can exceed the jerk limit by a few % in theory; the tests check holds
+by finite differences at the control period. A change takes effect `at` a step the caller
+chooses (beyond what the servos may have taken) but not before the ramp under way has
+ended; rows from there on are handed out again (a re-send).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from machine_ctrl.model.reference import Reference
+from trajectory.ramp import SMOOTHSTEP_PEAK_CURVATURE, SMOOTHSTEP_PEAK_RATE, smoothstep
 
 # assumed: where the planned motion leaves no headroom, a ramp's extra acceleration and jerk
 # terms may use 5 % of each axis's limit (see the module docstring).
 RAMP_LIMIT_SHARE = 0.05
 # assumed: no ramp shorter than 50 ms (a feed hold of a slow motion still looks smooth).
 MIN_RAMP_TIME = 0.05
-# peaks of the quintic smoothstep S(u) = 10u^3 - 15u^4 + 6u^5: max S' = 15/8, max |S''| = 10/sqrt(3)
-_S1, _S2 = 15.0 / 8.0, 10.0 / math.sqrt(3.0)
-
-
-def smoothstep(u: float) -> tuple[float, float, float]:
-    """S(u), S'(u), S''(u) of the quintic smoothstep, u clipped to [0, 1]."""
-    u = min(max(u, 0.0), 1.0)
-    return (u * u * u * (10.0 + u * (-15.0 + 6.0 * u)), 30.0 * u * u * (1.0 - u) ** 2,
-            60.0 * u * (1.0 - u) * (1.0 - 2.0 * u))
 
 
 class RampPlanner:
@@ -91,8 +82,9 @@ class RampPlanner:
         v, a, j = (x[first:last].max(axis=0) for x in (self.speed, self.accel, self.jerk))
         room_a = np.maximum(self.acc_limit - a, RAMP_LIMIT_SHARE * self.acc_limit)
         room_j = np.maximum(self.jerk_limit - j, RAMP_LIMIT_SHARE * self.jerk_limit)
-        by_acc = _S1 * dk * v / room_a
-        b, c = 3.0 * _S1 * dk * a, _S2 * dk * v       # b / D + c / D^2 <= room_j
+        by_acc = SMOOTHSTEP_PEAK_RATE * dk * v / room_a
+        b = 3.0 * SMOOTHSTEP_PEAK_RATE * dk * a           # b / D + c / D^2 <= room_j
+        c = SMOOTHSTEP_PEAK_CURVATURE * dk * v
         by_jerk = (b + np.sqrt(b * b + 4.0 * room_j * c)) / (2.0 * room_j)
         return float(max(MIN_RAMP_TIME, by_acc.max(), by_jerk.max()))
 

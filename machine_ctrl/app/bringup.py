@@ -21,8 +21,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from machine_ctrl import contract
 from machine_ctrl.model.config import MachineConfig
-from machine_ctrl.ros.graph import NodeSpec, default_graph
+from machine_ctrl.ros.graph import NodeSpec, default_graph, write_specs
 from machine_ctrl.app.processes import Supervisor
 
 READY_TIMEOUT = 120.0          # s (wall) for every node to come up
@@ -32,20 +33,9 @@ RECORDER_STOP_TIMEOUT = 60.0   # s the recorder may take to drain and close befo
 JOINT_STATE_READERS = {'ServoNode', 'DualStageNode', 'ContourErrorNode'}
 RECORDER_WINDOW = 100          # steps hw_sim may run ahead of the recorder (README: recommended)
 
-API = [   # (topic or service, type, what)
-    ('/trajectory/path', 'nav_msgs/Path', 'tool path, frame workpiece, m; pose z-axis = tool axis'),
-    ('/trajectory/joint_goal', 'trajectory_msgs/JointTrajectory', 'axis goals, m / rad, times s'),
-    ('/trajectory/feed_override', 'std_msgs/Float64', 'feed fraction 0..1, ramped'),
-    ('/trajectory/hold', 'std_srvs/Trigger', 'feed hold along the path (program kept)'),
-    ('/trajectory/resume', 'std_srvs/Trigger', 'resume after a hold'),
-    ('/trajectory/stop', 'std_srvs/Trigger', 'stop smoothly and drop the program'),
-    ('/trajectory/home', 'std_srvs/Trigger', 'move to home (when idle)'),
-    ('/hw_sim/reset', 'std_srvs/Trigger', 'clear a fault'),
-    ('/dual_stage/enable', 'std_srvs/SetBool', 'dual-stage coupling on/off'),
-    ('/compensation/enable', 'std_srvs/SetBool', 'geometric compensation on/off (with a model)'),
-    ('/trajectory/status', 'diagnostic_msgs/DiagnosticStatus', 'latched: state, progress, refusals'),
-    ('/diagnostics', 'diagnostic_msgs/DiagnosticArray', 'every node: faults, refusals, counters'),
-]
+# (topic or service, type, what) of the command API, as printed by bringup
+API = [(item.name, item.type.replace('/msg/', '/').replace('/srv/', '/'), item.description)
+       for item in contract.COMMAND_API]
 
 
 def graph_specs(machine: MachineConfig, dual_stage: bool = True, compensation: str | None = None,
@@ -61,20 +51,17 @@ def graph_specs(machine: MachineConfig, dual_stage: bool = True, compensation: s
     return [NodeSpec(s.name, s.module, s.cls, {**s.parameters, **hw}) if s.name == 'hw_sim' else s for s in specs]
 
 
-def single_process_argv(machine: MachineConfig, dual_stage: bool, compensation: str | None,
-                        hw_sim: dict) -> list[str]:
-    argv = [sys.executable, '-m', 'machine_ctrl.ros.graph', '--machine', str(machine.yaml_path), '--contour', 'none',
-            '--contour-error']
-    if not dual_stage:
-        argv.append('--no-dual-stage')
-    if compensation is not None:
-        argv += ['--compensation', str(compensation)]
-    return argv + [f'--hw-sim={key}={value}' for key, value in hw_sim.items()]
+def single_process_argv(specs: list[NodeSpec], directory) -> list[str]:
+    """Every node of `specs` in one process: the specs go to `directory`/graph.yaml as data
+    (names, classes, typed parameter values), and that process creates the nodes with
+    them as parameter overrides."""
+    path = write_specs(specs, Path(directory) / 'graph.yaml')
+    return [sys.executable, '-m', 'machine_ctrl.ros.graph', '--specs', str(path)]
 
 
-def recorder_argv(machine: MachineConfig, output: str) -> list[str]:
-    return [sys.executable, '-m', 'machine_ctrl.ros.recorder_node', '--ros-args', '-r', '__node:=recorder',
-            '-p', f'output:={output}', '-p', f'machine:={machine.yaml_path}']
+def recorder_spec(machine: MachineConfig, output: str) -> NodeSpec:
+    return NodeSpec('recorder', 'machine_ctrl.ros.recorder_node', 'RecorderNode',
+                    {'output': str(output), 'machine': str(machine.yaml_path)})
 
 
 class Bringup:
@@ -97,14 +84,13 @@ class Bringup:
         return {spec.name for spec in self.specs} | ({'recorder'} if self.record else set())
 
     def start(self) -> None:
-        if self.record is not None:
-            self.recorder.start('recorder', recorder_argv(self.machine, self.record))
+        if self.record is not None:      # parameter files beside the logs
+            self.recorder.start('recorder', recorder_spec(self.machine, self.record).argv(self.log_dir))
         if self.single_process:
-            hw = next(s for s in self.specs if s.name == 'hw_sim').parameters
-            extra = {k: v for k, v in hw.items() if k != 'machine'}
-            self.graph.start('graph', single_process_argv(self.machine, self.dual_stage, self.compensation, extra))
+            self.graph.start('graph', single_process_argv(self.specs, self.log_dir))
             return
-        self.graph.start_nodes(self.specs)
+        for spec in self.specs:
+            self.graph.start(spec.name, spec.argv(self.log_dir))
 
     def check(self) -> None:
         """Raise processes.ChildExited when a node process has ended on its own."""

@@ -9,17 +9,15 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from nav_msgs.msg import Path
 from std_msgs.msg import Float64
 
+from machine_ctrl import contract
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.model.config import MachineConfig
 
-LATCHED_READER = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class Timeout(RuntimeError):
@@ -29,12 +27,13 @@ class Timeout(RuntimeError):
 class MachineClient:
     def __init__(self, node, machine: MachineConfig):
         self.node, self.machine = node, machine
-        self.clock = ros_io.StepClock(machine.control_period)
+        self.clock = ros_io.StepClock.of(machine)
         self.statuses: list[DiagnosticStatus] = []
-        node.create_subscription(DiagnosticStatus, '/trajectory/status', self.statuses.append, LATCHED_READER)
-        self.pub_path = node.create_publisher(Path, '/trajectory/path', 10)
-        self.pub_goal = node.create_publisher(JointTrajectory, '/trajectory/joint_goal', 10)
-        self.pub_override = node.create_publisher(Float64, '/trajectory/feed_override', 10)
+        node.create_subscription(DiagnosticStatus, contract.TRAJECTORY_STATUS.name, self.statuses.append,
+                                 ros_io.qos(contract.LATCHED_READER_QOS))
+        self.pub_path = node.create_publisher(Path, contract.PATH.name, ros_io.qos(contract.PATH.qos))
+        self.pub_goal = node.create_publisher(JointTrajectory, contract.JOINT_GOAL.name, ros_io.qos(contract.JOINT_GOAL.qos))
+        self.pub_override = node.create_publisher(Float64, contract.FEED_OVERRIDE.name, ros_io.qos(contract.FEED_OVERRIDE.qos))
         self._services = {}
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)

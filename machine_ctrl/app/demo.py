@@ -18,6 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from machine_ctrl import contract
+
 DEFAULT_TURNS = 1.0     # of the 5 mm-radius helix: ~3.2 s of machine time at 10 mm/s
 
 
@@ -86,8 +88,8 @@ def run(args) -> int:
 def run_graph(machine, path, out: Path, model: Path, clock: Clock) -> int:
     """Bring up, send the path, follow it, stop; the exit status."""
     from machine_ctrl.app.bringup import Bringup, Stopped, listening, monitor, signals_ignored
-    from machine_ctrl.app.cli import follow_goal
     from machine_ctrl.app.client import Timeout
+    from machine_ctrl.app.goals import follow_goal
     from machine_ctrl.app.processes import ChildExited, isolated_ros_env, reserve_ros_domain
     with reserve_ros_domain() as lease:
         env = isolated_ros_env(lease.domain_id)
@@ -101,7 +103,7 @@ def run_graph(machine, path, out: Path, model: Path, clock: Clock) -> int:
                     waited = bringup.wait_ready(client)
                     print(f'all nodes ready after {waited:.1f} s', flush=True)
                     clock.lap('bringup')
-                    print(f'sending the helix ({len(path)} points) on /trajectory/path', flush=True)
+                    print(f'sending the helix ({len(path)} points) on {contract.PATH.name}', flush=True)
                     client.wait(lambda: listening(client, client.pub_path), 'the path subscriber', 30)
                     status = follow_goal(client, lambda: client.send_path(path), 3600.0)
                     clock.lap('motion')

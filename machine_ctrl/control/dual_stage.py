@@ -11,11 +11,15 @@ coarse error (a start far from the reference, a coarse fault) does not kick the 
 its end stop. A clipped or slewed step is reported as saturated and the coupling keeps
 going — the fine stage then compensates only part of the error, it never faults. In normal
 operation (um-level coarse errors) neither limit is active.
+
+Same shape as a control law (machine_ctrl/control/law.py), over all axes at once:
+``step(ref_pos, pos)`` -> offsets, ``reset()``, declared ``parameters``.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from machine_ctrl.control.law import Parameter
 from machine_ctrl.model.config import MachineConfig
 
 
@@ -26,6 +30,11 @@ class CouplingResult:
 
 
 class DualStageCoupling:
+    parameters = (
+        Parameter('margin', '1', 'fraction of the fine stroke kept free at each end'),
+        Parameter('enabled', 'bool', 'coupling on (off: zero offsets)'),
+    )
+
     def __init__(self, machine: MachineConfig, enabled: bool = True, margin: float = 0.10):
         index = {name: i for i, name in enumerate(machine.axis_names)}
         self.pairs = []
@@ -36,10 +45,15 @@ class DualStageCoupling:
             self.pairs.append((index[pair.coarse], index[pair.fine], pair.sign, lo + shrink, hi - shrink, slew))
         self.fine_axes = tuple(p.fine for p in machine.dual_stage)
         self.enabled = enabled
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the last fine references (no slew limit on the next step) and the
+        saturation count; `enabled` stays as it is."""
         self.saturation_count = 0
         self._last_total: list[float | None] = [None] * len(self.pairs)
 
-    def update(self, ref_pos, pos) -> CouplingResult:
+    def step(self, ref_pos, pos) -> CouplingResult:
         """ref_pos, pos: reference and measured position of every axis (machine order)."""
         if not self.enabled:
             self._last_total = [None] * len(self.pairs)

@@ -15,38 +15,24 @@ from __future__ import annotations
 
 import math
 
-from scipy import signal
-
-from machine_ctrl.model.config import LeadLagGains
-
-
-class Biquad:
-    """y/x = (b0 + b1 z^-1 + b2 z^-2) / (1 + a1 z^-1 + a2 z^-2), transposed direct form II."""
-
-    def __init__(self, b, a):
-        b = list(b) + [0.0] * (3 - len(b))
-        a = list(a) + [0.0] * (3 - len(a))
-        self.b0, self.b1, self.b2 = (bi / a[0] for bi in b)
-        self.a1, self.a2 = a[1] / a[0], a[2] / a[0]
-        self.s1 = self.s2 = 0.0
-
-    def update(self, x: float) -> float:
-        y = self.b0 * x + self.s1
-        self.s1 = self.b1 * x - self.a1 * y + self.s2
-        self.s2 = self.b2 * x - self.a2 * y
-        return y
-
-
-def tustin(num, den, period: float, prewarp: float | None = None) -> Biquad:
-    """Bilinear transform of num(s)/den(s) (order <= 2), pre-warped at `prewarp` rad/s."""
-    fs = 1.0 / period
-    if prewarp is not None:
-        fs = prewarp / (2.0 * math.tan(prewarp * period / 2.0))
-    b, a = signal.bilinear(num, den, fs)
-    return Biquad(b, a)
+from machine_ctrl.control.filters import tustin
+from machine_ctrl.control.law import Parameter
+from machine_ctrl.model.config import AxisConfig, LeadLagGains
 
 
 class LeadLagController:
+    parameters = (                      # the symbols of C(s) above
+        Parameter('gain', 'command unit/m (/rad)', 'K_f, lead-lag gain'),
+        Parameter('alpha', '1', 'alpha, lead ratio (phase lead at 1/(T sqrt(alpha)))'),
+        Parameter('time_constant', 's', 'T, lead-lag time constant'),
+        Parameter('integral', 'rad/s', 'K_i, integrator corner (0: no integrator)'),
+        Parameter('notches', 'rad/s, 1, 1', 'notches N(s): omega, zeta_num, zeta_den each, Eq. (4.76)'),
+    )
+
+    @classmethod
+    def from_axis(cls, gains: LeadLagGains, axis: AxisConfig, period: float) -> LeadLagController:
+        return cls(gains, period)
+
     def __init__(self, gains: LeadLagGains, period: float):
         k, alpha, t = gains.gain, gains.alpha, gains.time_constant
         sections = [tustin([k * alpha * t, k], [t, 1.0], period, prewarp=1.0 / (t * math.sqrt(alpha)))]
@@ -58,8 +44,12 @@ class LeadLagController:
                                    [1.0, 2.0 * notch.zeta_den * w, w * w], period, prewarp=w))
         self.sections = sections
 
-    def update(self, x_r: float, v_r: float, a_r: float, x: float, v: float) -> float:
+    def reset(self) -> None:
+        for section in self.sections:
+            section.reset()
+
+    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float) -> float:
         y = x_r - x
         for section in self.sections:
-            y = section.update(y)
+            y = section.step(y)
         return y

@@ -19,6 +19,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from machine_ctrl.control.law import Parameter
+from machine_ctrl.model.config import AxisConfig, LuGreFeedforwardGains
+
 
 @dataclass(frozen=True)
 class StribeckCurve:
@@ -47,14 +50,32 @@ def bristle_rate(v: float, eps: float, sigma0: float, g: float) -> float:
 
 class LuGreFeedforward:
     """u_ff = (sigma0 eps + sigma1 d eps/dt) / (K_a K_t), Eqs. (4.66)-(4.67), driven by the
-    reference velocity (feed-forward acts before the error occurs, thesis section 4.2.4)."""
+    reference velocity (feed-forward acts before the error occurs, thesis section 4.2.4).
+    The servo adds it to the laws registered with friction feed-forward
+    (machine_ctrl/control/registry.py); its gains: ``control.lugre_feedforward``."""
+
+    parameters = (
+        Parameter('sigma0', 'N/m', 'sigma_0, bristle stiffness, Eq. (4.58)'),
+        Parameter('sigma1', 'N*s/m', 'sigma_1, bristle damping, Eq. (4.66)'),
+        Parameter('coulomb', 'N', 'F_c, Coulomb friction of g(v)'),
+        Parameter('static', 'N', 'F_s, static friction of g(v)'),
+        Parameter('stribeck_velocity', 'm/s', 'Omega_s, Stribeck velocity of g(v)'),
+    )
+
+    @classmethod
+    def from_axis(cls, gains: LuGreFeedforwardGains, axis: AxisConfig, period: float) -> LuGreFeedforward:
+        curve = StribeckCurve.symmetric(gains.coulomb, gains.static, gains.stribeck_velocity)
+        return cls(curve, gains.sigma0, gains.sigma1, axis.drive.gain, period)
 
     def __init__(self, curve: StribeckCurve, sigma0: float, sigma1: float, gain: float, period: float):
         self.curve, self.sigma0, self.sigma1 = curve, sigma0, sigma1
         self.gain, self.period = gain, period
+        self.reset()
+
+    def reset(self) -> None:
         self.eps = 0.0
 
-    def update(self, v: float) -> float:
+    def step(self, v: float) -> float:
         rate = bristle_rate(v, self.eps, self.sigma0, self.curve(v))
         self.eps += rate * self.period
         return (self.sigma0 * self.eps + self.sigma1 * rate) / self.gain

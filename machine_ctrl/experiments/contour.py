@@ -108,7 +108,7 @@ def helix_run(progress) -> dict:
     from trajectory.planner import plan
     machine = load_machine('micromill_9axis')
     progress('micromill_9axis: planning the helix')
-    reference = plan('helix', machine).reference
+    reference = plan('helix', machine).unwrap().reference
     progress(f'micromill_9axis: helix run, {len(reference)} steps')
     record = run(machine, reference, progress=lambda k, n: progress(f'  step {k}/{n}'))
     kinematics = Kinematics.from_config(machine)

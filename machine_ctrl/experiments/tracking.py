@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -50,9 +49,10 @@ def contour_statistics(record, reference: Reference, contour: contours.Contour,
 
 
 def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | None = None,
-               record_dir=None) -> dict:
-    """{'smc': stats, 'dsfd': stats} for kind 'circle' or 'square'. With `record_dir`, each
-    run is also written as a bag, <record_dir>/smc and <record_dir>/dsfd (machine_ctrl.ros.run_bag)."""
+               on_run=None) -> dict:
+    """{'smc': stats, 'dsfd': stats} for kind 'circle' or 'square'. `on_run(label, reference,
+    record)` is called after each run ('smc', then 'dsfd'), e.g. to write it as a bag
+    (``machine-ctrl experiment circle|square --record DIR`` does)."""
     reference, contour = getattr(contours, kind)(machine)
     result = {}
     for label, dual in (('smc', False), ('dsfd', True)):
@@ -61,9 +61,8 @@ def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | No
         if record.fault:
             raise RuntimeError(f'{kind} {label}: the simulated machine faulted: {record.fault}')
         result[label] = contour_statistics(record, reference, contour)
-        if record_dir is not None:
-            from machine_ctrl.ros.run_bag import write_run_bag     # imports rclpy: only when recording
-            write_run_bag(Path(record_dir) / label, machine, reference, record, f'experiment {kind} {label}')
+        if on_run is not None:
+            on_run(label, reference, record)
     return result
 
 

@@ -143,16 +143,30 @@ class LeadLagGains:
     notches: tuple[NotchConfig, ...] = ()
 
 
-CONTROL_LAWS = ('sliding_mode', 'ppi', 'lead_lag')
+def _law_gains():
+    """A gains section of ControlConfig whose field name is a control law's name."""
+    return field(default=None, metadata={'law': True})
 
 
 @dataclass(frozen=True)
 class ControlConfig:
-    law: str = field(metadata={'choices': CONTROL_LAWS})
-    sliding_mode: SlidingModeGains | None = None
-    lugre_feedforward: LuGreFeedforwardGains | None = None   # used with sliding_mode and ppi
-    ppi: PPIGains | None = None
-    lead_lag: LeadLagGains | None = None
+    """One axis's servo: `law` names the gains section in use. The _law_gains() fields are the
+    one list of law names (CONTROL_LAWS); machine_ctrl/control/registry.py maps each name to
+    its implementation. A new law adds its gains dataclass and a field here."""
+    law: str                                 # one of CONTROL_LAWS, checked by _control
+    sliding_mode: SlidingModeGains | None = _law_gains()
+    lugre_feedforward: LuGreFeedforwardGains | None = None   # friction feed-forward, added to the
+                                                             # laws registered with it (sliding_mode, ppi)
+    ppi: PPIGains | None = _law_gains()
+    lead_lag: LeadLagGains | None = _law_gains()
+
+    @property
+    def gains(self):
+        """The gains of the law in use."""
+        return getattr(self, self.law)
+
+
+CONTROL_LAWS = tuple(f.name for f in fields(ControlConfig) if f.metadata.get('law'))
 
 
 @dataclass(frozen=True)
@@ -331,8 +345,9 @@ def _value(s: _Section, f, hint):
 
 
 def _control(s: _Section) -> ControlConfig:
+    s.string('law', choices=CONTROL_LAWS)           # first: a bad law name is the error reported
     control = _read(s, ControlConfig)
-    if getattr(control, control.law) is None:
+    if control.gains is None:
         s.fail(f'law {control.law} needs its gains section {control.law!r}')
     return control
 

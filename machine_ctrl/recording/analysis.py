@@ -31,14 +31,15 @@ from dataclasses import dataclass
 import numpy as np
 from mcap_ros2._dynamic import generate_dynamic
 
+from machine_ctrl import contract
 from machine_ctrl.recording.bag import Bag, BagError
 from machine_ctrl.model.config import MachineConfig, load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.recording.recorder import MACHINE_FILE_KEY, MACHINE_KEY
 
-STATES = '/joint_states'
-REFERENCE = '/reference'
+STATES = contract.JOINT_STATES.name
+REFERENCE = contract.REFERENCE.name
 REQUIRED = {STATES: 'sensor_msgs/msg/JointState', REFERENCE: 'trajectory_msgs/msg/JointTrajectory'}
 # assumed: the tool tip lags its reference by far less than 50 ms at the feeds we run
 # (10 mm/s: 0.5 mm of path), so the nearest reference point lies within this window.
@@ -68,7 +69,7 @@ def _decoder(bag: Bag, topic: str):
 
 
 def _stamp_ns(header) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    return int(header.stamp.sec) * contract.NS_PER_SECOND + int(header.stamp.nanosec)
 
 
 def machine_of(bag: Bag, machine: str | MachineConfig | None) -> MachineConfig:
@@ -99,13 +100,13 @@ def load(path, machine: str | MachineConfig | None = None) -> Run:
             if info.type != type_name:
                 raise AnalysisError(f'{bag.path}: {topic} is {info.type}, expected {type_name}')
         config = machine_of(bag, machine)
-        period_ns = int(round(config.control_period * 1e9))
+        period_ns = contract.StepClock.of(config).period_ns
         names = list(config.axis_names)
         states = _states(bag, period_ns, names)
         reference = _reference(bag, period_ns, names)
     steps = np.array(sorted(set(states) & set(reference)), dtype=np.int64)
     if len(steps) == 0:
-        raise AnalysisError(f'{path}: no control step has both a /joint_states and a /reference row')
+        raise AnalysisError(f'{path}: no control step has both a {STATES} and a {REFERENCE} row')
     return Run(config, steps, np.array([states[k] for k in steps]), np.array([reference[k] for k in steps]),
                str(path))
 

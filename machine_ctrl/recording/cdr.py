@@ -38,6 +38,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from machine_ctrl import contract
 from machine_ctrl.model.errors import InvalidMessage
 
 LITTLE_ENDIAN = b'\x00\x01\x00\x00'
@@ -86,9 +87,7 @@ def stamp_ns(data: bytes) -> int:
     bytes cannot hold one."""
     order = byte_order(data, 'stamped message')
     sec, nanosec = struct.unpack_from(order + 'iI', data, _HEADER)
-    if nanosec >= 1_000_000_000:
-        raise InvalidMessage(f'stamp nanosec {nanosec} is not in [0, 1e9)')
-    return sec * 1_000_000_000 + nanosec
+    return contract.join_ns(sec, nanosec)
 
 
 def read_string(data: bytes, offset: int, order: str) -> tuple[bytes, int]:
@@ -318,7 +317,7 @@ class ChunkDecoder:
         duration = field('duration_at') // 4
         seconds = words[duration].view(order + 'i4').astype(np.int64)
         return ChunkData(sec, nanosec, frame_id, names, *arrays,
-                         seconds * 1_000_000_000 + words[duration + 1].astype(np.int64))
+                         seconds * contract.NS_PER_SECOND + words[duration + 1].astype(np.int64))
 
 
 def encode_chunk(sec: int, nanosec: int, names, positions, velocities, accelerations, period_ns: int,
@@ -345,6 +344,6 @@ def encode_chunk(sec: int, nanosec: int, names, positions, velocities, accelerat
             doubles[first_value[:, None] + np.arange(count)] = rows[k]
     duration = field('duration_at') // 4
     offsets = np.arange(points, dtype=np.int64) * period_ns
-    words[duration] = (offsets // 1_000_000_000).astype('<i4').view('<u4')
-    words[duration + 1] = offsets % 1_000_000_000
+    words[duration] = (offsets // contract.NS_PER_SECOND).astype('<i4').view('<u4')
+    words[duration + 1] = offsets % contract.NS_PER_SECOND
     return bytes(buffer[:size])

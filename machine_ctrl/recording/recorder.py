@@ -26,25 +26,25 @@ import math
 import re
 import struct
 
+from machine_ctrl import contract
 from machine_ctrl.recording import cdr
 from machine_ctrl.recording import msgdefs
 from machine_ctrl.recording.bag import BagWriter
 from machine_ctrl.model.errors import InvalidMessage
 
-PROGRESS_TOPIC = '/recorder/progress'
-STATES_TOPIC = '/joint_states'
-CLOCK_TOPIC = '/clock'
+PROGRESS_TOPIC = contract.RECORDER_PROGRESS.name
+STATES_TOPIC = contract.JOINT_STATES.name
+CLOCK_TOPIC = contract.CLOCK.name
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 # ROS's log and parameter traffic, and our own flow-control reports
-DEFAULT_EXCLUDED = ('/rosout', '/parameter_events', PROGRESS_TOPIC)
+DEFAULT_EXCLUDED = (contract.ROSOUT, contract.PARAMETER_EVENTS, PROGRESS_TOPIC)
 # assumed: a report every 10 states costs the recorder < 1 % (one small publish per ~40
 # messages of the graph) and keeps hw_sim's view of it at most 10 steps (+ transit) stale,
 # small beside the windows that make sense (~100 steps: README).
 PROGRESS_EVERY = 10
 PROGRESS_PERIOD = 0.005    # s (wall): a newer progress goes out at least this often
 # the per-step topics of the machine_ctrl graph; each publisher on them is a stream (Progress)
-PROGRESS_STREAM_TOPICS = ('/joint_states', '/servo_commands', '/dual_stage/offsets', '/clock',
-                          '/hw_sim/ground_truth/joint_states', '/hw_sim/ground_truth/tool_pose')
+PROGRESS_STREAM_TOPICS = tuple(topic.name for topic in contract.PER_STEP_TOPICS)
 # assumed: DDS repairs a lost sample within a few seconds (the writers' periodic heartbeat,
 # 3 s by default in Fast DDS); a stream silent for longer has lost its publisher (a node
 # that left) and must no longer hold the graph.

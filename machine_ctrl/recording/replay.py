@@ -13,10 +13,11 @@ from __future__ import annotations
 import math
 import struct
 
+from machine_ctrl import contract
 from machine_ctrl.recording import cdr
 from machine_ctrl.recording.bag import Bag, BagError, BagMessage
 
-CLOCK_TOPIC = '/clock'
+CLOCK_TOPIC = contract.CLOCK.name
 CLOCK_TYPE = 'rosgraph_msgs/msg/Clock'
 DERIVED_CLOCK_PERIOD = 10_000_000   # ns; assumed: 100 Hz, the usual rate of a bag player's clock
 
@@ -29,7 +30,7 @@ def clock_ns(data: bytes) -> int:
 
 def clock_bytes(ns: int) -> bytes:
     """A serialized rosgraph_msgs/Clock carrying `ns`."""
-    return cdr.LITTLE_ENDIAN + struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000)
+    return cdr.LITTLE_ENDIAN + struct.pack('<iI', *contract.split_ns(ns))
 
 
 def check_options(rate: float, start_offset: float) -> None:
@@ -49,7 +50,7 @@ def select(bag: Bag, topics=None, start_offset: float = 0.0) -> list[BagMessage]
     first = min((m.log_time for m in bag.messages(topics)), default=None)
     if first is None:
         raise BagError(f'{bag.path}: no messages to replay')
-    start = first + int(round(start_offset * 1e9))
+    start = first + contract.seconds_to_ns(start_offset)
     messages = [m for m in bag.messages(topics, start_time=start)]
     if not messages:
         raise BagError(f'{bag.path}: no messages after the start offset of {start_offset:g} s')

@@ -22,34 +22,31 @@ from trajectory_msgs.msg import JointTrajectory
 from compensation.compensate import Compensator
 from compensation.error_map import load_error_map
 from compensation.stream import CompensationStream
+from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.model.errors import ConfigError
-from machine_ctrl.ros.node_common import Rejections, declare, machine_parameter, main_for, subscribe_reference, wall_timer
+from machine_ctrl.ros.node_common import Rejections, declare_parameters, machine_parameter, main_for, subscribe_reference, wall_timer
 
 
 class CompensationNode(Node):
     def __init__(self, name: str = 'compensation', **kwargs):
         super().__init__(name, **kwargs)
         self.machine = machine_parameter(self)
-        model = declare(self, 'model', '', 'geometric error model YAML (machine-ctrl fit-errors --out)')
-        enabled = declare(self, 'enabled', True, 'compensation on at start')
-        input_topic = declare(self, 'input_topic', '/trajectory/reference', 'uncompensated reference chunks')
-        output_topic = declare(self, 'output_topic', ros_io.TOPIC_REFERENCE, 'compensated reference chunks')
+        values = declare_parameters(self, parameters.COMPENSATION)
+        model, enabled, input_topic, output_topic = values.model, values.enabled, values.input_topic, values.output_topic
         try:
-            if not model:
-                raise ConfigError('parameter model: missing (path of a geometric error model YAML)')
             compensator = Compensator.from_map(self.machine, load_error_map(model, self.machine.axis_names))
         except ConfigError as exc:
             self.get_logger().fatal(str(exc))
             raise SystemExit(2) from None
         self.stream = CompensationStream(compensator, self.machine.control_period, enabled)
-        self.clock = ros_io.StepClock(self.machine.control_period)
+        self.clock = ros_io.StepClock.of(self.machine)
         self.rejections = Rejections(self)
         self.pub = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
         subscribe_reference(self, input_topic, self.clock, self.machine.axis_names, self.on_chunk,
                             lambda reason: self.rejections.add('reference chunk', reason))
-        self.create_service(SetBool, '/compensation/enable', self.on_enable)
+        self.create_service(SetBool, contract.COMPENSATION_ENABLE.name, self.on_enable)
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: {input_topic} -> {output_topic}, model {model}, '
                                f'{"on" if enabled else "off"}')

@@ -28,17 +28,14 @@ from geometry_msgs.msg import Vector3Stamped
 from rclpy.node import Node
 from std_msgs.msg import Float64
 
+from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData
-from machine_ctrl.contour.estimation import ESTIMATORS, MAX_SHIFT, ContourEstimator, ToolTrajectory, tool_reference
+from machine_ctrl.contour.estimation import MAX_SHIFT, ContourEstimator, ToolTrajectory, tool_reference
 from machine_ctrl.model.kinematics import Kinematics
-from machine_ctrl.ros.node_common import (Rejections, declare, machine_parameter, main_for, subscribe_joint_states,
+from machine_ctrl.ros.node_common import (Rejections, declare_parameters, machine_parameter, main_for, subscribe_joint_states,
                                       subscribe_reference, use_sim_time, wall_timer)
 
-TOPIC_TOOL_TIP = '/contour_error/tool_tip'
-TOPIC_TOOL_TIP_MAGNITUDE = '/contour_error/tool_tip_magnitude'
-TOPIC_ORIENTATION = '/contour_error/orientation'
-TOPIC_ORIENTATION_MAGNITUDE = '/contour_error/orientation_magnitude'
 
 
 class ContourErrorNode(Node):
@@ -46,14 +43,14 @@ class ContourErrorNode(Node):
         super().__init__(name, **kwargs)
         use_sim_time(self)
         self.machine = machine_parameter(self)
-        method = declare(self, 'estimator', 'compensated', ' | '.join(ESTIMATORS))
+        method = declare_parameters(self, parameters.CONTOUR_ERROR).estimator
         self.kinematics = Kinematics.from_config(self.machine)
         try:
             self.estimator = ContourEstimator(self.kinematics, method)
         except ValueError as exc:
             self.get_logger().fatal(f'parameter estimator: {exc}')
             raise SystemExit(2) from None
-        self.clock = ros_io.StepClock(self.machine.control_period)
+        self.clock = ros_io.StepClock.of(self.machine)
         self.trajectory = ToolTrajectory(self.machine.control_period)
         self.history = int(math.ceil(MAX_SHIFT / self.machine.control_period)) + 2
         self.last_step = -1
@@ -62,12 +59,12 @@ class ContourErrorNode(Node):
         self.rejections = Rejections(self)
         self.frame = self.machine.workpiece_frame
         self.pubs = [self.create_publisher(kind, topic, ros_io.STEP_QOS) for kind, topic in (
-            (Vector3Stamped, TOPIC_TOOL_TIP), (Float64, TOPIC_TOOL_TIP_MAGNITUDE),
-            (Vector3Stamped, TOPIC_ORIENTATION), (Float64, TOPIC_ORIENTATION_MAGNITUDE))]
-        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
-        subscribe_reference(self, ros_io.TOPIC_REFERENCE, self.clock, self.machine.axis_names, self.on_reference,
+            (Vector3Stamped, contract.CONTOUR_TOOL_TIP.name), (Float64, contract.CONTOUR_TOOL_TIP_MAGNITUDE.name),
+            (Vector3Stamped, contract.CONTOUR_ORIENTATION.name), (Float64, contract.CONTOUR_ORIENTATION_MAGNITUDE.name))]
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
+        subscribe_reference(self, contract.REFERENCE.name, self.clock, self.machine.axis_names, self.on_reference,
                             lambda reason: self.rejections.add('reference', reason))
-        subscribe_joint_states(self, ros_io.TOPIC_JOINT_STATES, self.on_state,
+        subscribe_joint_states(self, contract.JOINT_STATES.name, self.on_state,
                                lambda reason: self.rejections.add('state', reason))
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: {method} estimator')

@@ -13,10 +13,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
+from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.control.dual_stage import DualStageCoupling
-from machine_ctrl.ros.node_common import declare, machine_parameter, main_for, wall_timer
+from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, wall_timer
 from machine_ctrl.ros.step_node import StepNode
 
 
@@ -27,16 +28,16 @@ class DualStageNode(StepNode):
         if not self.machine.dual_stage:
             self.get_logger().fatal(f'{self.machine.name}: the machine config has no dual_stage pairs')
             raise SystemExit(2)
-        enabled = declare(self, 'enabled', True, 'coupling on at start')
+        enabled = declare_parameters(self, parameters.DUAL_STAGE).dual_stage
         self.coupling = DualStageCoupling(self.machine, enabled=enabled)
         self.axes = self.machine.axis_names
         self.make_buffer(self.axes)
         self.encoder = JointStateEncoder(self.coupling.fine_axes)
-        self.pub = self.create_publisher(JointState, ros_io.TOPIC_OFFSETS, ros_io.STEP_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
+        self.pub = self.create_publisher(JointState, contract.DUAL_STAGE_OFFSETS.name, ros_io.STEP_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
         self.start_stepping(self.machine, self.axes, self.pub, self.buffer.has, self.compute,
                             streaming=lambda: self.buffer.started)
-        self.create_service(SetBool, '/dual_stage/enable', self.on_enable)
+        self.create_service(SetBool, contract.DUAL_STAGE_ENABLE.name, self.on_enable)
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: fine axes {" ".join(self.coupling.fine_axes)}')
 
@@ -51,7 +52,7 @@ class DualStageNode(StepNode):
         if position is None:
             return None
         ref_pos, _, _, _ = self.buffer.take(step, position)
-        result = self.coupling.update(ref_pos, position)
+        result = self.coupling.step(ref_pos, position)
         return self.encoder.encode(msg.sec, msg.nanosec, position=result.offsets)
 
     def publish_diagnostics(self) -> None:

@@ -12,45 +12,137 @@ on /trajectory/reference) and the servos (reading /reference).
 """
 from __future__ import annotations
 
+import atexit
+import shutil
 import sys
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import rclpy
+import yaml
 from rclpy.parameter import Parameter
 
+from machine_ctrl import contract, parameters
 from machine_ctrl.model.config import MachineConfig
 from trajectory.contours import contour_reference
 
 
 @dataclass(frozen=True)
 class NodeSpec:
+    """One node of a graph, as data: its name, where its class is, and its parameter
+    values — typed by the node's table (machine_ctrl.parameters), checked when the spec is
+    made (ValueError naming the node and the parameter)."""
     name: str
     module: str                       # python -m <module>
     cls: str                          # class in that module
     parameters: dict = field(default_factory=dict)
 
-    def argv(self) -> list[str]:
-        """Command line of this node as its own process."""
-        args = [sys.executable, '-m', self.module, '--ros-args', '-r', f'__node:={self.name}']
+    def __post_init__(self):
+        table = self.table
+        values = {}
         for key, value in self.parameters.items():
-            args += ['-p', f'{key}:={_param_text(value)}']
+            try:
+                values[key] = parameters.coerce(table.spec(key), value)
+            except KeyError:
+                raise ValueError(f'{self.name}: {table.executable} has no parameter {key!r}') from None
+        problems = parameters.check_values(table, {**table.defaults(), **values})
+        if problems:
+            raise ValueError(f'{self.name}: ' + '; '.join(f'parameter {n}: {r}' for n, r in problems))
+        object.__setattr__(self, 'parameters', values)
+
+    @property
+    def table(self) -> parameters.NodeParameters:
+        return parameters.table(self.module.rsplit('.', 1)[-1])
+
+    def params_document(self) -> dict:
+        """This node's section of a ROS parameters file."""
+        return {f'/{self.name}': {'ros__parameters': dict(self.parameters)}}
+
+    def argv(self, params_dir=None) -> list[str]:
+        """Command line of this node as its own process: the parameters go in a ROS
+        parameters file (`params_dir`/<name>.params.yaml, or a temporary file kept until
+        this process exits)."""
+        args = [sys.executable, '-m', self.module, '--ros-args', '-r', f'__node:={self.name}']
+        if self.parameters:
+            args += ['--params-file', str(write_params_file([self], params_dir, self.name))]
         return args
 
-    def create(self):
-        """The node, in this process (rclpy must be initialized)."""
+    def create(self, context=None):
+        """The node, in this process (rclpy must be initialized), with its parameters as
+        overrides."""
         module = __import__(self.module, fromlist=[self.cls])
         overrides = [Parameter(k, value=v) for k, v in self.parameters.items()]
-        return getattr(module, self.cls)(name=self.name, parameter_overrides=overrides)
+        kwargs = {'context': context} if context is not None else {}
+        return getattr(module, self.cls)(name=self.name, parameter_overrides=overrides, **kwargs)
+
+    def to_data(self) -> dict:
+        return {'name': self.name, 'module': self.module, 'class': self.cls, 'parameters': dict(self.parameters)}
+
+    @classmethod
+    def from_data(cls, data: dict) -> NodeSpec:
+        return cls(data['name'], data['module'], data['class'], dict(data.get('parameters') or {}))
 
 
-def _param_text(value) -> str:
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, (list, tuple)):
-        if any(isinstance(v, float) for v in value):     # ROS parameter arrays have one type
-            value = [float(v) for v in value]
-        return '[' + ','.join(_param_text(v) for v in value) + ']'
-    return str(value)
+class _QuotedDumper(yaml.SafeDumper):
+    """Strings always quoted: rcl's parameter file parser takes an unquoted 1e3 or true as
+    a number or bool; a quoted scalar is always a string."""
+
+    def ignore_aliases(self, data) -> bool:
+        return True
+
+
+_QuotedDumper.add_representer(str, lambda dumper, value: dumper.represent_scalar('tag:yaml.org,2002:str', value,
+                                                                                  style="'"))
+_temporary: list[Path] = []
+
+
+def _dump(document) -> str:
+    return yaml.dump(document, Dumper=_QuotedDumper, sort_keys=False, default_flow_style=None)
+
+
+def _output_dir(directory) -> Path:
+    if directory is not None:
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        return Path(directory)
+    if not _temporary:
+        _temporary.append(Path(tempfile.mkdtemp(prefix='machine_ctrl_params_')))
+        atexit.register(shutil.rmtree, _temporary[0], True)
+    return _temporary[0]
+
+
+def write_params_file(specs, directory=None, stem: str = 'graph') -> Path:
+    """A ROS parameters file (`<directory>/<stem>.params.yaml`; a fresh temporary one
+    without a directory) with a section per node spec; the values as typed by the tables
+    (an empty array cannot be written: ROS cannot type it)."""
+    document = {}
+    for spec in specs:
+        for key, value in spec.parameters.items():
+            if isinstance(value, list) and not value:
+                raise ValueError(f'{spec.name}: parameter {key}: an empty list cannot go into a parameters file')
+        document.update(spec.params_document())
+    if directory is None:
+        handle = tempfile.NamedTemporaryFile('w', suffix='.params.yaml', prefix=f'{stem}-', delete=False,
+                                             dir=_output_dir(None))
+        with handle:
+            handle.write(_dump(document))
+        return Path(handle.name)
+    path = _output_dir(directory) / f'{stem}.params.yaml'
+    path.write_text(_dump(document))
+    return path
+
+
+def write_specs(specs, path) -> Path:
+    """The node specs of a graph as a YAML file (`python -m machine_ctrl.ros.graph --specs`)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(_dump({'nodes': [spec.to_data() for spec in specs]}))
+    return path
+
+
+def read_specs(path) -> list[NodeSpec]:
+    data = yaml.safe_load(Path(path).read_text()) or {}
+    return [NodeSpec.from_data(item) for item in data.get('nodes') or []]
 
 
 def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_stage: bool = True,
@@ -66,7 +158,7 @@ def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_s
         sources.append(NodeSpec('compensation', 'machine_ctrl.ros.compensation_node', 'CompensationNode',
                                 {**common, 'model': str(compensation_model)}))
     if contour is None:
-        output = '/trajectory/reference' if compensation_model is not None else '/reference'
+        output = contract.reference_topics(compensation_model is not None)[0].name
         sources.append(NodeSpec('trajectory', 'machine_ctrl.ros.trajectory_node', 'TrajectoryNode', {**common, 'output_topic': output}))
         hw = {**common, **(hw_sim or {})}
     else:   # a contour has no approach move: the machine starts where the contour starts
@@ -81,7 +173,7 @@ def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_s
     if fine:
         specs.append(NodeSpec('servo_fine', 'machine_ctrl.ros.servo_node', 'ServoNode', {**common, 'axes': fine}))
         specs.append(NodeSpec('dual_stage', 'machine_ctrl.ros.dual_stage_node', 'DualStageNode',
-                              {**common, 'enabled': dual_stage}))
+                              {**common, 'dual_stage': dual_stage}))
     if contour_error:
         sources.append(NodeSpec('contour_error', 'machine_ctrl.ros.contour_error_node', 'ContourErrorNode', common))
     return specs + sources
@@ -94,29 +186,40 @@ def create_nodes(specs: list[NodeSpec]) -> list:
 
 
 def main(argv=None) -> int:
-    """All nodes of the default graph in this one process: python -m machine_ctrl.ros.graph."""
+    """All nodes of a graph in this one process: python -m machine_ctrl.ros.graph — the
+    default graph of a machine from the options, or the node specs of a file (--specs,
+    written by write_specs: how `machine-ctrl bringup --single-process` starts it)."""
     import argparse
 
     from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
     from machine_ctrl.ros.node_common import spin
 
     parser = argparse.ArgumentParser(prog='python -m machine_ctrl.ros.graph', description=main.__doc__)
+    parser.add_argument('--specs', metavar='FILE', help='node specs (YAML); no other option then')
     parser.add_argument('--machine', default=DEFAULT_MACHINE)
     parser.add_argument('--contour', default='circle',
                         help="test contour of the reference node, or 'none' for the trajectory node")
-    parser.add_argument('--no-dual-stage', action='store_true')
+    parser.add_argument('--no-dual-stage', dest='dual_stage', action='store_false',
+                        help='start with the dual-stage coupling off')
     parser.add_argument('--hw-sim', action='append', default=[], metavar='KEY=VALUE',
                         help='hw_sim parameter (value as YAML), e.g. min_subscribers=4')
     parser.add_argument('--compensation', metavar='MODEL', help='geometric error model: add the compensation node')
     parser.add_argument('--contour-error', action='store_true', help='add the contour error node')
     args = parser.parse_args(argv)
-    import yaml
-    hw = {k: yaml.safe_load(v) for k, v in (item.split('=', 1) for item in args.hw_sim)}
-    contour = None if args.contour == 'none' else args.contour
-    specs = default_graph(load_machine(args.machine), contour, not args.no_dual_stage, hw, args.compensation,
-                          args.contour_error)
+    if args.specs is not None:
+        specs = read_specs(args.specs)
+    else:
+        hw = {k: yaml.safe_load(v) for k, v in (item.split('=', 1) for item in args.hw_sim)}
+        contour = None if args.contour == 'none' else args.contour
+        specs = default_graph(load_machine(args.machine), contour, args.dual_stage, hw, args.compensation,
+                              args.contour_error)
     rclpy.init()
-    spin(create_nodes(specs))
+    try:
+        nodes = create_nodes(specs)
+    except SystemExit as exc:              # a node refused its parameters (one line logged)
+        rclpy.try_shutdown()
+        return int(exc.code or 1)
+    spin(nodes)
     return 0
 
 

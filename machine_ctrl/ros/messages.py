@@ -22,52 +22,35 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
+from machine_ctrl import contract
 from machine_ctrl.recording.cdr import ChunkData, ChunkDecoder, NotUniform, encode_chunk
 from machine_ctrl.model.errors import InvalidMessage
 
-# Per-step traffic must never be dropped silently: reliable, and deep enough for bursts.
-STEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
-# References are streamed ahead in chunks; a node that joins late still gets the last
-# chunks (transient local), so no step's reference depends on discovery timing.
-REFERENCE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
-TOPIC_JOINT_STATES = '/joint_states'
-TOPIC_COMMANDS = '/servo_commands'
-TOPIC_REFERENCE = '/reference'
-TOPIC_OFFSETS = '/dual_stage/offsets'
-TOPIC_TRUE_JOINT_STATES = '/hw_sim/ground_truth/joint_states'
-TOPIC_TRUE_TOOL_POSE = '/hw_sim/ground_truth/tool_pose'
-TOPIC_DIAGNOSTICS = '/diagnostics'
+def qos(spec: contract.Qos) -> QoSProfile:
+    """The rclpy profile of a contract QoS."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=spec.depth,
+                      reliability=ReliabilityPolicy.RELIABLE if spec.reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if spec.transient_local else DurabilityPolicy.VOLATILE)
 
 
-class StepClock:
-    def __init__(self, period: float):
-        self.period_ns = int(round(period * 1e9))
-        if self.period_ns <= 0 or abs(self.period_ns - period * 1e9) > 1e-6:
-            raise ValueError(f'control period {period!r} s is not a whole number of nanoseconds')
+STEP_QOS = qos(contract.STEP_QOS)
+REFERENCE_QOS = qos(contract.REFERENCE_QOS)
+
+
+class StepClock(contract.StepClock):
+    """The contract's step clock, with stamps and durations as builtin_interfaces messages."""
 
     def stamp(self, step: int) -> Time:
-        ns = step * self.period_ns
-        return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+        sec, nanosec = self.split(step)
+        return Time(sec=sec, nanosec=nanosec)
 
     def step(self, stamp: Time) -> int:
         return self.step_at(stamp.sec, stamp.nanosec)
 
-    def step_at(self, sec: int, nanosec: int) -> int:
-        """The step of the stamp (sec, nanosec); InvalidMessage if it is off the grid."""
-        if not 0 <= nanosec < 1_000_000_000:
-            raise InvalidMessage(f'stamp nanosec {nanosec} is not in [0, 1e9)')
-        ns = sec * 1_000_000_000 + nanosec
-        step, rest = divmod(ns, self.period_ns)
-        if rest:
-            raise InvalidMessage(f'stamp {ns} ns is not on the {self.period_ns} ns control grid')
-        return step
-
     def duration(self, steps: int) -> Duration:
-        ns = steps * self.period_ns
-        return Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+        sec, nanosec = self.split(steps)
+        return Duration(sec=sec, nanosec=nanosec)
 
 
 def all_finite(values) -> bool:
@@ -148,7 +131,7 @@ def parse_chunk(clock: StepClock, msg: JointTrajectory, wanted):
     zeros = [0.0] * len(names)
     positions, velocities, accelerations = [], [], []
     for i, point in enumerate(msg.points):
-        offset = point.time_from_start.sec * 1_000_000_000 + point.time_from_start.nanosec
+        offset = point.time_from_start.sec * contract.NS_PER_SECOND + point.time_from_start.nanosec
         if offset != i * clock.period_ns:
             raise InvalidMessage(f'point {i} is not at consecutive control step {i}')
         rows = []

@@ -35,19 +35,20 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
+from machine_ctrl import contract, parameters
+from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording import recorder
 from machine_ctrl.recording.bag import qos_profile
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.recording.msgdefs import DefinitionNotFound, split_type
-from machine_ctrl.ros.node_common import DefaultExecutor, declare, wall_timer
+from machine_ctrl.ros.node_common import DefaultExecutor, declare_parameters, wall_timer
 
 DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
 DRAIN_LIMIT = 30.0     # s: the drain never takes longer
 # the latest progress only matters; transient local so that an hw_sim that starts later
 # learns at once that a recorder is there and how far it is
-PROGRESS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+PROGRESS_QOS = ros_io.qos(contract.PROGRESS_QOS)
 
 
 def message_class(type_name: str):
@@ -63,7 +64,8 @@ def offered_profile(qos) -> dict:
     """An rclpy QoSProfile as the bag's profile mapping."""
     def duration(d):
         ns = d.nanoseconds
-        return {'sec': ns // 1_000_000_000, 'nsec': ns % 1_000_000_000}
+        sec, nsec = contract.split_ns(ns)
+        return {'sec': sec, 'nsec': nsec}
     return qos_profile(reliability=qos.reliability.name.lower(), durability=qos.durability.name.lower(),
                        history=qos.history.name.lower(), depth=qos.depth, deadline=duration(qos.deadline),
                        lifespan=duration(qos.lifespan), liveliness=qos.liveliness.name.lower(),
@@ -74,20 +76,14 @@ def offered_profile(qos) -> dict:
 class RecorderNode(Node):
     def __init__(self, name: str = 'recorder', **kwargs):
         super().__init__(name, **kwargs)
-        output = declare(self, 'output', '', 'bag directory to create')
-        topics = declare(self, 'topics', [''], 'topics (NAME or NAME:pkg/msg/Type); empty: all')
-        machine = declare(self, 'machine', '', 'machine name or YAML path stored with the bag')
-        self.discovery_period = declare(self, 'discovery_period', 0.2, 's (wall) between topic discovery')
-        self.duration = declare(self, 'duration', 0.0, 's (wall) to record; 0: until stopped')
+        values = declare_parameters(self, parameters.RECORDER)
+        output, topics, machine = values.output, values.topics, values.machine
+        self.discovery_period, self.duration = values.discovery_period, values.duration
         try:
-            if not output:
-                raise ValueError('parameter output: the bag directory is required')
             self.wanted = recorder.wanted_topics([t for t in topics if t]) or None
-            if self.duration < 0 or self.discovery_period <= 0:
-                raise ValueError('parameters: duration must be >= 0 and discovery_period > 0')
             config = load_machine(machine) if machine else None
             self.recording = recorder.Recording(output, self._machine_data(config),
-                                                round(config.control_period * 1e9) if config else None)
+                                                contract.StepClock.of(config).period_ns if config else None)
         except (ValueError, ConfigError) as exc:      # BagError is a ValueError
             self.get_logger().fatal(str(exc))
             raise SystemExit(2) from None
@@ -115,7 +111,8 @@ class RecorderNode(Node):
     def publish_progress(self) -> None:
         stamp = self.recording.progress.take(time.monotonic())
         if stamp is not None:
-            self.pub_progress.publish(Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000))
+            sec, nanosec = contract.split_ns(stamp)
+            self.pub_progress.publish(Time(sec=sec, nanosec=nanosec))
 
     def discover(self) -> None:
         available = {name: list(types) for name, types in self.get_topic_names_and_types()}

@@ -10,8 +10,9 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from trajectory_msgs.msg import JointTrajectory
 
+from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
-from machine_ctrl.ros.node_common import declare, machine_parameter, main_for, use_sim_time
+from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, use_sim_time
 from trajectory.contours import contour_reference
 
 
@@ -20,18 +21,17 @@ class ReferenceNode(Node):
         super().__init__(name, **kwargs)
         use_sim_time(self)
         self.machine = machine_parameter(self)
-        contour = declare(self, 'contour', 'circle', 'circle | square | hold')
-        self.chunk_steps = max(1, declare(self, 'chunk_steps', 500, 'rows per message'))
-        self.lookahead = max(self.chunk_steps, declare(self, 'lookahead_steps', 3000, 'rows kept ahead'))
+        values = declare_parameters(self, parameters.REFERENCE)
+        contour, self.chunk_steps, self.lookahead = values.contour, values.chunk_steps, values.lookahead_steps
         try:
             self.reference = contour_reference(self.machine, contour)
         except ValueError as exc:
             self.get_logger().fatal(f'parameter contour: {exc}')
             raise SystemExit(2) from None
-        self.clock = ros_io.StepClock(self.machine.control_period)
+        self.clock = ros_io.StepClock.of(self.machine)
         self.next_step = 0
-        self.pub = self.create_publisher(JointTrajectory, ros_io.TOPIC_REFERENCE, ros_io.REFERENCE_QOS)
-        self.create_subscription(Clock, '/clock', self.on_clock, 10)
+        self.pub = self.create_publisher(JointTrajectory, contract.REFERENCE.name, ros_io.REFERENCE_QOS)
+        self.create_subscription(Clock, contract.CLOCK.name, self.on_clock, ros_io.qos(contract.CLOCK_READER_QOS))
         self.fill(0)
         self.get_logger().info(f'ready: {contour}, {len(self.reference)} steps')
 

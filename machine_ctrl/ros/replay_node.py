@@ -17,9 +17,11 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from machine_ctrl import contract
 from machine_ctrl.recording import replay
 from machine_ctrl.recording.bag import Bag
-from machine_ctrl.ros.node_common import declare
+from machine_ctrl import parameters
+from machine_ctrl.ros.node_common import declare_parameters
 from machine_ctrl.ros.recorder_node import message_class
 
 MIN_DEPTH = 1000     # assumed: a burst at a high rate factor outruns a 10-deep queue
@@ -46,17 +48,11 @@ def recorded_offers(bag: Bag) -> dict[str, list]:
 class ReplayNode(Node):
     def __init__(self, name: str = 'replay', **kwargs):
         super().__init__(name, **kwargs)
-        path = declare(self, 'bag', '', 'bag directory or .mcap file')
-        self.rate = declare(self, 'rate', 1.0, 'factor on the recorded timing')
-        topics = [t for t in declare(self, 'topics', [''], 'topics to replay; empty: all') if t]
-        start_offset = declare(self, 'start_offset', 0.0, 's into the bag to start at')
-        self.loop = declare(self, 'loop', False, 'replay again and again')
-        self.wait_for = declare(self, 'wait_for_subscribers', 0, 'matched subscriptions to wait for')
-        self.wait_timeout = declare(self, 'wait_timeout', 30.0, 's to wait for them')
+        values = declare_parameters(self, parameters.REPLAY)
+        path, self.rate, start_offset, self.loop = values.bag, values.rate, values.start_offset, values.loop
+        topics = [t for t in values.topics if t]
+        self.wait_for, self.wait_timeout = values.wait_for_subscribers, values.wait_timeout
         try:
-            replay.check_options(self.rate, start_offset)
-            if not path:
-                raise ValueError('parameter bag: the bag to replay is required')
             with Bag(path) as bag:
                 self.messages = replay.select(bag, topics or None, start_offset)
                 offers = recorded_offers(bag)
@@ -93,7 +89,7 @@ class ReplayNode(Node):
         first = self.messages[0].log_time
         started = time.monotonic()
         for message in self.messages:
-            due = (message.log_time - first) / 1e9 / self.rate
+            due = (message.log_time - first) / contract.NS_PER_SECOND / self.rate
             while (ahead := due - (time.monotonic() - started)) > 0:
                 if not rclpy.ok():
                     return False

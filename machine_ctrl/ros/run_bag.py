@@ -19,6 +19,7 @@ from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
 from hw_sim.simulator import true_geometry
+from machine_ctrl import contract
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.bag import BagWriter, qos_profile
 from machine_ctrl.model.config import MachineConfig
@@ -30,14 +31,14 @@ DECIMATION = 10        # hw_sim's default clock_decimation and ground_truth_deci
 
 _STEP = qos_profile(depth=200)                                     # ros_io.STEP_QOS
 _TOPICS = {
-    ros_io.TOPIC_JOINT_STATES: ('sensor_msgs/msg/JointState', _STEP),
-    ros_io.TOPIC_COMMANDS: ('sensor_msgs/msg/JointState', _STEP),
-    ros_io.TOPIC_OFFSETS: ('sensor_msgs/msg/JointState', _STEP),
-    ros_io.TOPIC_REFERENCE: ('trajectory_msgs/msg/JointTrajectory',
+    contract.JOINT_STATES.name: ('sensor_msgs/msg/JointState', _STEP),
+    contract.SERVO_COMMANDS.name: ('sensor_msgs/msg/JointState', _STEP),
+    contract.DUAL_STAGE_OFFSETS.name: ('sensor_msgs/msg/JointState', _STEP),
+    contract.REFERENCE.name: ('trajectory_msgs/msg/JointTrajectory',
                              qos_profile(depth=50, durability='transient_local')),   # ros_io.REFERENCE_QOS
-    '/clock': ('rosgraph_msgs/msg/Clock', qos_profile(depth=10)),
-    ros_io.TOPIC_TRUE_JOINT_STATES: ('sensor_msgs/msg/JointState', _STEP),
-    ros_io.TOPIC_TRUE_TOOL_POSE: ('geometry_msgs/msg/PoseStamped', _STEP),
+    contract.CLOCK.name: ('rosgraph_msgs/msg/Clock', qos_profile(depth=10)),
+    contract.TRUE_JOINT_STATES.name: ('sensor_msgs/msg/JointState', _STEP),
+    contract.TRUE_TOOL_POSE.name: ('geometry_msgs/msg/PoseStamped', _STEP),
 }
 
 
@@ -51,9 +52,9 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
     writer = BagWriter(directory)
     has_offsets = bool(machine.dual_stage)
     for topic, (type_name, qos) in _TOPICS.items():
-        if topic != ros_io.TOPIC_OFFSETS or has_offsets:
+        if topic != contract.DUAL_STAGE_OFFSETS.name or has_offsets:
             writer.add_topic(topic, type_name, [qos])
-    clock = ros_io.StepClock(machine.control_period)
+    clock = ros_io.StepClock.of(machine)
     axes = list(machine.axis_names)
     groups = [(g, [axes.index(a) for a in g]) for g in servo_groups(machine)]
     true_tool_pose = true_geometry(machine)     # what hw_sim publishes (its error map included)
@@ -67,18 +68,18 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
         ns = k * clock.period_ns
         if k % CHUNK_STEPS == 0:
             rows = [reference.row(i) for i in range(k, k + CHUNK_STEPS)]
-            put(ros_io.TOPIC_REFERENCE, ros_io.trajectory_chunk(clock, k, axes, *zip(*rows)), ns)
+            put(contract.REFERENCE.name, ros_io.trajectory_chunk(clock, k, axes, *zip(*rows)), ns)
         if k % DECIMATION == 0:
-            put('/clock', Clock(clock=stamp), ns)
-            put(ros_io.TOPIC_TRUE_JOINT_STATES, ros_io.joint_state(stamp, axes, record.true[k]), ns)
-            put(ros_io.TOPIC_TRUE_TOOL_POSE, ros_io.pose_message(stamp, machine.workpiece_frame,
+            put(contract.CLOCK.name, Clock(clock=stamp), ns)
+            put(contract.TRUE_JOINT_STATES.name, ros_io.joint_state(stamp, axes, record.true[k]), ns)
+            put(contract.TRUE_TOOL_POSE.name, ros_io.pose_message(stamp, machine.workpiece_frame,
                                                                      true_tool_pose(record.true[k])), ns)
-        put(ros_io.TOPIC_JOINT_STATES, ros_io.joint_state(stamp, axes, record.measured[k],
+        put(contract.JOINT_STATES.name, ros_io.joint_state(stamp, axes, record.measured[k],
                                                           record.measured_velocity[k], record.effort[k]), ns)
         if has_offsets:
-            put(ros_io.TOPIC_OFFSETS, ros_io.joint_state(stamp, record.fine_axes, record.offsets[k]), ns)
+            put(contract.DUAL_STAGE_OFFSETS.name, ros_io.joint_state(stamp, record.fine_axes, record.offsets[k]), ns)
         for names, index in groups:
-            put(ros_io.TOPIC_COMMANDS, ros_io.joint_state(stamp, names, effort=record.commands[k, index]), ns)
+            put(contract.SERVO_COMMANDS.name, ros_io.joint_state(stamp, names, effort=record.commands[k, index]), ns)
     custom = {MACHINE_KEY: machine.name, MACHINE_FILE_KEY: str(machine.yaml_path)}
     if label:
         custom['machine_ctrl.run'] = label

@@ -17,10 +17,11 @@ from __future__ import annotations
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
 
+from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.control.dual_stage import apply_offsets
-from machine_ctrl.ros.node_common import declare, machine_parameter, main_for, subscribe_joint_states, wall_timer
+from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, subscribe_joint_states, wall_timer
 from machine_ctrl.control.servo import ServoGroup
 from machine_ctrl.ros.step_node import StepNode
 
@@ -30,8 +31,8 @@ class ServoNode(StepNode):
         super().__init__(name, **kwargs)
         self.machine = machine_parameter(self)
         controlled = [a.name for a in self.machine.axes if a.control is not None]
-        axes = declare(self, 'axes', controlled, 'axes this node controls (machine axis names)')
-        self.feedforward = declare(self, 'feedforward', True, 'velocity/acceleration/friction feed-forward')
+        values = declare_parameters(self, parameters.SERVO, {'axes': controlled}, names=('axes', 'feedforward'))
+        axes, self.feedforward = values.axes, values.feedforward
         try:
             self.servo = ServoGroup(self.machine, axes, feedforward=self.feedforward)
         except ValueError as exc:
@@ -41,7 +42,8 @@ class ServoNode(StepNode):
         fine = {p.fine for p in self.machine.dual_stage}
         self.fine_slots = [i for i, a in enumerate(self.axes) if a in fine]
         self.fine_names = [self.axes[i] for i in self.fine_slots]
-        coupled = declare(self, 'dual_stage', bool(self.fine_slots), 'wait for /dual_stage/offsets')
+        coupled = declare_parameters(self, parameters.SERVO, {'wait_for_offsets': bool(self.fine_slots)},
+                                     names=('wait_for_offsets',)).wait_for_offsets
         self.wait_for_offsets = coupled and bool(self.fine_slots)
         self.offsets: dict[int, list[float]] = {}
         self.offsets_started = False
@@ -49,11 +51,11 @@ class ServoNode(StepNode):
 
         self.make_buffer(self.axes)
         self.encoder = JointStateEncoder(self.axes)
-        self.pub = self.create_publisher(JointState, ros_io.TOPIC_COMMANDS, ros_io.STEP_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, ros_io.TOPIC_DIAGNOSTICS, 10)
+        self.pub = self.create_publisher(JointState, contract.SERVO_COMMANDS.name, ros_io.STEP_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
         self.start_stepping(self.machine, self.axes, self.pub, self.ready, self.compute, self.streaming)
         if self.wait_for_offsets:
-            subscribe_joint_states(self, ros_io.TOPIC_OFFSETS, self.on_offsets,
+            subscribe_joint_states(self, contract.DUAL_STAGE_OFFSETS.name, self.on_offsets,
                                    lambda reason: self.rejections.add('offsets', reason))
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: axes {" ".join(self.axes)}')
@@ -86,15 +88,15 @@ class ServoNode(StepNode):
             ref_pos = apply_offsets(ref_pos, self.fine_slots, offsets)
         elif self.wait_for_offsets:
             self.missing_offsets += 1
-        commands = self.servo.update(ref_pos, ref_vel, ref_acc, position, velocity)
+        commands = self.servo.step(ref_pos, ref_vel, ref_acc, position, velocity)
         return self.encoder.encode(msg.sec, msg.nanosec, effort=commands)
 
     def waiting_for(self) -> str:
         if not self.responder.waiting:
             return ''
-        missing = [] if self.buffer.started else ['/reference (never received)']
+        missing = [] if self.buffer.started else [f'{contract.REFERENCE.name} (never received)']
         if self.wait_for_offsets and not self.offsets_started:
-            missing.append('/dual_stage/offsets (never received)')
+            missing.append(f'{contract.DUAL_STAGE_OFFSETS.name} (never received)')
         return ', '.join(missing) or 'inputs of the current step'
 
     def publish_diagnostics(self) -> None:

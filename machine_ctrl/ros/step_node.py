@@ -6,9 +6,10 @@ from __future__ import annotations
 
 from rclpy.node import Node
 
+from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData
-from machine_ctrl.ros.node_common import (Rejections, StepResponder, declare, subscribe_joint_states,
+from machine_ctrl.ros.node_common import (Rejections, StepResponder, declare_parameters, subscribe_joint_states,
                                       subscribe_reference, use_sim_time)
 from machine_ctrl.model.reference import ReferenceBuffer
 
@@ -17,19 +18,18 @@ class StepNode(Node):
     def __init__(self, name: str, **kwargs):
         super().__init__(name, **kwargs)
         use_sim_time(self)
-        self.input_timeout = declare(self, 'input_timeout', 0.5,
-                                     's (wall) to wait for a missing reference row or offsets')
+        self.input_timeout = declare_parameters(self, (parameters.INPUT_TIMEOUT,)).input_timeout
         self.rejections = Rejections(self)
 
     def start_stepping(self, machine, reference_axes, publisher, ready, compute, streaming) -> None:
         """Subscribe /joint_states and /reference; `ready`, `compute`, `streaming` as in
         StepResponder."""
-        self.clock = ros_io.StepClock(machine.control_period)
+        self.clock = ros_io.StepClock.of(machine)
         self.reference_axes = tuple(reference_axes)
         self.responder = StepResponder(self, publisher, ready, compute, self.input_timeout, streaming)
-        subscribe_joint_states(self, ros_io.TOPIC_JOINT_STATES, self.on_state,
+        subscribe_joint_states(self, contract.JOINT_STATES.name, self.on_state,
                                lambda reason: self.rejections.add('state', reason))
-        subscribe_reference(self, ros_io.TOPIC_REFERENCE, self.clock, self.reference_axes, self.on_reference,
+        subscribe_reference(self, contract.REFERENCE.name, self.clock, self.reference_axes, self.on_reference,
                             lambda reason: self.rejections.add('reference', reason))
 
     def make_buffer(self, axes) -> ReferenceBuffer:

@@ -1,30 +1,46 @@
-"""Command-line entry points of the compensation package, wired into `machine-ctrl`:
+"""The geometric error model (compensation/): ``machine-ctrl fit-errors`` and
+``machine-ctrl experiment geometric`` (registered into the experiment group).
 
-* ``machine-ctrl fit-errors CSV [--machine M] [--out MODEL] [--json]``: fit quintics
-  (thesis Eqs. 5.9-5.13) to a measurement CSV (measurement.py), print the residuals, write
-  the model (error_map.py format) to MODEL.
-* ``machine-ctrl experiment geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis
-  Tables 6.3 and 6.4 on the simulated machine (experiment.py); DIR receives the measurement
-  CSV, the fitted model and the PNG plots.
+* ``fit-errors CSV [--machine M] [--out MODEL] [--json]``: fit quintics (thesis Eqs.
+  5.9-5.13) to a measurement CSV (compensation/measurement.py), print the residuals, write
+  the model (compensation/error_map.py format) to MODEL.
+* ``experiment geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis Tables 6.3 and
+  6.4 on the simulated machine (machine_ctrl/experiments/compensation.py); DIR receives the
+  measurement CSV, the fitted model and the PNG plots.
 
 Bad input (CSV, config, model) prints one line ``machine-ctrl: <file>: ...`` and exits 2.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
 from pathlib import Path
 
-from compensation import experiment as exp
-from compensation.compensate import Compensator
-from compensation.error_map import dump_error_map, load_error_map
-from compensation.error_model import ErrorKinematics
-from compensation.fitting import fit_map, measure_and_fit
-from compensation.measurement import MeasurementError, read_csv
 from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
 from machine_ctrl.model.errors import ConfigError
+
+
+def register(subparsers) -> None:
+    fit = subparsers.add_parser('fit-errors', help='fit quintic geometric error models to a measurement CSV',
+                                description='fit quintic geometric error models to a measurement CSV')
+    fit.add_argument('csv')
+    fit.add_argument('--machine', default=DEFAULT_MACHINE)
+    fit.add_argument('--out', metavar='MODEL', help='write the fitted model (YAML) here')
+    fit.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    fit.set_defaults(run=cmd_fit_errors, usage_parser=fit)
+
+
+def register_experiment(experiments) -> None:
+    """``experiment geometric`` into the experiment group's subparsers."""
+    geometric = experiments.add_parser('geometric', help='thesis Tables 6.3/6.4: geometric error compensation',
+                                       description='thesis Tables 6.3/6.4: geometric error compensation')
+    geometric.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
+    geometric.add_argument('--out', metavar='DIR',
+                           help='measurement CSV, fitted model and plots (default: a temp dir)')
+    geometric.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    geometric.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    geometric.set_defaults(run=cmd_experiment_geometric, usage_parser=geometric)
 
 
 def _fail(message: str) -> int:
@@ -32,14 +48,10 @@ def _fail(message: str) -> int:
     return 2
 
 
-def fit_errors_main(argv) -> int:
-    parser = argparse.ArgumentParser(prog='machine-ctrl fit-errors',
-                                     description='fit quintic geometric error models to a measurement CSV')
-    parser.add_argument('csv')
-    parser.add_argument('--machine', default=DEFAULT_MACHINE)
-    parser.add_argument('--out', metavar='MODEL', help='write the fitted model (YAML) here')
-    parser.add_argument('--json', action='store_true', help='one JSON object on stdout')
-    args = parser.parse_args(argv)
+def cmd_fit_errors(args) -> int:
+    from compensation.error_map import dump_error_map
+    from compensation.fitting import fit_map
+    from compensation.measurement import MeasurementError, read_csv
     try:
         machine = load_machine(args.machine)
         model, residuals = fit_map(read_csv(args.csv, machine.axis_names))
@@ -62,14 +74,9 @@ def fit_errors_main(argv) -> int:
     return 0
 
 
-def experiment_main(argv) -> int:
-    parser = argparse.ArgumentParser(prog='machine-ctrl experiment geometric',
-                                     description='thesis Tables 6.3/6.4: geometric error compensation')
-    parser.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
-    parser.add_argument('--out', metavar='DIR', help='measurement CSV, fitted model and plots (default: a temp dir)')
-    parser.add_argument('--json', action='store_true', help='one JSON object on stdout')
-    parser.add_argument('--quiet', action='store_true', help='no progress on stderr')
-    args = parser.parse_args(argv)
+def cmd_experiment_geometric(args) -> int:
+    from compensation.error_map import load_error_map
+    from compensation.measurement import MeasurementError
     progress = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     try:
         machine = load_machine(args.machine)
@@ -91,6 +98,10 @@ def experiment_main(argv) -> int:
 
 def run_experiment(machine, true_map, out: Path, progress, reference=None) -> dict:
     """Measure, fit, Table 6.3, Table 6.4 (the planned spiral unless `reference` is given)."""
+    from machine_ctrl.experiments import compensation as exp
+    from compensation.compensate import Compensator
+    from compensation.error_model import ErrorKinematics
+    from compensation.fitting import measure_and_fit
     truth = ErrorKinematics.from_config(machine, true_map)
     csv_path, model_path, model, residuals = measure_and_fit(
         truth, true_map, machine.simulation.seed, out, f'{machine.name}, machine-ctrl experiment geometric')
@@ -99,7 +110,7 @@ def run_experiment(machine, true_map, out: Path, progress, reference=None) -> di
     if reference is None:
         from trajectory.planner import plan
         progress('planning the spiral ...')
-        reference = plan('spiral', machine).reference
+        reference = plan('spiral', machine).unwrap().reference
     runs = []
     for label, compensator in (('uncompensated', None), ('compensated', fitted),
                                ('true map', Compensator.from_map(machine, true_map))):

@@ -1,0 +1,306 @@
+"""What the simulated machine does on each event, without ROS (design.md "Time").
+
+The events: a command message (stamp, axis names, values) from some axes, a recorder's
+progress report, a tick of the node's wall-clock timer, a reset. The hw_sim node
+(machine_ctrl/ros/hw_sim_node.py) converts messages, passes every event in with the wall
+time `now` (s, monotonic) and publishes what the session tells it through
+:class:`SessionIO`; the session decides when to advance, re-send, hold, refuse or fault.
+Everything here runs on the times passed in, so tests drive it with fake time.
+
+Modes:
+* lock-step (:class:`LockStepSession`): step k -> k+1 once every axis has its step-k
+  command (:class:`hw_sim.lockstep.LockStep`). While waiting, the current state is re-sent
+  every `republish_period` s so nodes that joined late still answer. `min_subscribers` > 0
+  holds the machine at step 0 until that many state subscribers are matched (then step 0
+  is sent once more and the run begins). `recorder_window` W > 0 (steps) is flow control
+  for a recorder (:class:`hw_sim.lockstep.RecorderGate`): once a recorder reports progress,
+  the session does not advance from step k while k minus the reported step exceeds W; a
+  recorder that leaves the graph releases the hold. Holding delays a run, it never changes
+  it.
+* paced (:class:`PacedSession`): one step per timer tick (period = control period /
+  `real_time_factor`), applying the latest step-k command of each axis and, for an axis
+  without one, the command applied before (zero-order hold), counting those as missed
+  deadlines.
+
+Faults (the simulator stops: drives off, axes held; the session keeps running and
+reporting): a non-finite command, a stroke violation (found by the simulator), a command
+missing for `command_timeout` s (lock-step, from step 1 on: at step 0 the graph is still
+coming up; never while every command is in hand and the session holds for the recorder).
+Malformed commands (unknown or duplicate axes, length mismatch, off-grid or future stamps)
+and progress reports (off-grid, not a published step) are refused with a reason and change
+nothing. A reset clears a fault and restarts the current step from where the axes are
+(clipped into their strokes).
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Protocol
+
+from hw_sim.lockstep import LockStep, RecorderGate
+from hw_sim.simulator import MachineSimulator
+from machine_ctrl.contract import StepClock
+from machine_ctrl.model.errors import InvalidMessage
+
+
+class SessionIO(Protocol):
+    """What a session asks of its node: publishing, logging and two questions about the graph."""
+
+    def publish_state(self, step: int) -> None:
+        """Send the state of `step`: the simulator's current measurement (a re-send when the
+        step was sent before)."""
+
+    def report_fault(self, reason: str) -> None:
+        """The machine has just stopped: say so at once (log, diagnostics)."""
+
+    def refuse_command(self, reason: str) -> None:
+        """A command message was refused (nothing changed)."""
+
+    def refuse_progress(self, reason: str) -> None:
+        """A recorder progress report was refused (nothing changed)."""
+
+    def log_info(self, text: str) -> None:
+        """A change worth a line in the log."""
+
+    def state_subscribers(self) -> int:
+        """How many subscribers the states have (asked only while holding at step 0)."""
+
+    def recorder_connected(self) -> bool:
+        """Whether the recorder still reports (asked only while holding for it)."""
+
+
+class Status(NamedTuple):
+    """The diagnostics of a session: fault (None when running), one-line message, key values."""
+    fault: str | None
+    message: str
+    values: dict
+
+
+def all_finite(values) -> bool:
+    """True if no value is NaN or inf: one C-level sum, through which NaN and inf propagate."""
+    try:
+        return math.isfinite(math.fsum(values))
+    except (ValueError, OverflowError):
+        return False
+
+
+class Session:
+    """What lock-step and paced mode share: the simulator, the step (:class:`LockStep`),
+    faults, reset, decimation of the clock and ground-truth streams, the diagnostics."""
+    mode = ''
+
+    def __init__(self, sim: MachineSimulator, clock: StepClock, io: SessionIO, *,
+                 clock_decimation: int = 1, truth_decimation: int = 0):
+        self.sim, self.clock, self.io = sim, clock, io
+        self.clock_decimation, self.truth_decimation = clock_decimation, truth_decimation
+        self.lockstep = LockStep(tuple(sim.machine.axis_names))
+        self.missed_deadlines = 0
+        self._state_sent_at = self._step_started_at = 0.0
+
+    @property
+    def step(self) -> int:
+        return self.lockstep.step
+
+    @property
+    def timer_period(self) -> float:
+        """Wall s between the node's calls of :meth:`on_timer`."""
+        raise NotImplementedError
+
+    def clock_due(self, step: int) -> bool:
+        """Whether the sim time goes out (on /clock) with the state of `step`."""
+        return step % self.clock_decimation == 0
+
+    def truth_due(self, step: int) -> bool:
+        """Whether the ground truth goes out with the state of `step`."""
+        return self.truth_decimation > 0 and step % self.truth_decimation == 0
+
+    def start(self, now: float) -> None:
+        """Send the state of the first step."""
+        self._send(now)
+
+    # -- events ------------------------------------------------------------------------
+    def on_command(self, sec: int, nanosec: int, names, values, now: float) -> None:
+        """A command message: `values` for the axes `names`, answering the state stamped
+        (sec, nanosec)."""
+        try:
+            step = self.clock.step_at(sec, nanosec)
+        except InvalidMessage as exc:
+            self.io.refuse_command(str(exc))
+            return
+        if len(values) == len(names) and not all_finite(values):
+            bad = [n for n, v in zip(names, values) if not math.isfinite(v)]
+            self.fault(f'non-finite command for {", ".join(bad)}', now)
+            return
+        self._take(step, names, values, now)
+
+    def on_timer(self, now: float) -> None:
+        """The node's wall-clock timer (every :attr:`timer_period` s)."""
+        raise NotImplementedError
+
+    def fault(self, reason: str, now: float) -> None:
+        """Stop the machine (unless it is stopped already) and report it."""
+        if self.sim.fault is None:
+            self.sim.stop(reason)
+            self.io.report_fault(self.sim.fault)
+            self._send(now)
+
+    def reset(self, now: float) -> str:
+        """Clear a fault: fresh plants where the axes are (clipped into their strokes), the
+        current step taken again. Returns the answer for the caller."""
+        held = self.sim.true_position
+        clipped = [min(max(q, a.stroke[0]), a.stroke[1]) if a.stroke else q
+                   for q, a in zip(held, self.sim.machine.axes)]
+        previous = self.sim.fault
+        self.sim.reset(initial_position=clipped)
+        self.lockstep.restart(self.lockstep.step)
+        message = f'reset at step {self.lockstep.step}' + (f' (cleared: {previous})' if previous else '')
+        self._send(now)
+        return message
+
+    def status(self, now: float) -> Status:
+        fault = self.sim.fault
+        stats = self.lockstep.stats
+        values = {'step': self.lockstep.step, 'mode': self.mode, 'fault': fault or '',
+                  'waiting_for': self._waiting_for(),
+                  'stale_commands': stats.stale, 'refused_commands': stats.refused,
+                  'last_refusal': stats.last_refusal, 'missed_deadlines': self.missed_deadlines}
+        message = f'FAULT: {fault}' if fault else f'running, step {self.lockstep.step}'
+        return Status(fault, message, values)
+
+    # -- inside ------------------------------------------------------------------------
+    def _take(self, step: int, names, values, now: float) -> None:
+        raise NotImplementedError
+
+    def _waiting_for(self) -> str:
+        return ''
+
+    def _advance(self, commands, now: float) -> None:
+        was_ok = self.sim.fault is None
+        self.sim.step(commands)
+        if was_ok and self.sim.fault is not None:
+            self.io.report_fault(self.sim.fault)
+        self._send(now)
+
+    def _send(self, now: float, resend: bool = False) -> None:
+        self.io.publish_state(self.lockstep.step)
+        self._state_sent_at = now
+        if not resend:
+            self._step_started_at = now          # the command timeout counts from here
+
+
+class LockStepSession(Session):
+    """Lock-step mode: advance once every axis has answered the current step."""
+    mode = 'lockstep'
+
+    def __init__(self, sim: MachineSimulator, clock: StepClock, io: SessionIO, *, command_timeout: float = 2.0,
+                 republish_period: float = 0.2, min_subscribers: int = 0, recorder_window: int = 0, **common):
+        super().__init__(sim, clock, io, **common)
+        self.command_timeout, self.republish_period = command_timeout, republish_period
+        self.min_subscribers = min_subscribers
+        self.gate = RecorderGate(recorder_window)
+        self._start_announced = False
+
+    @property
+    def timer_period(self) -> float:
+        return min(self.republish_period, self.command_timeout / 4)
+
+    def on_progress(self, sec: int, nanosec: int, now: float) -> None:
+        """The recorder has written every state up to the one stamped (sec, nanosec)."""
+        try:
+            step = self.clock.step_at(sec, nanosec)
+            if not 0 <= step <= self.lockstep.step:
+                raise ValueError(f'progress for step {step}, but the published steps are 0..{self.lockstep.step}')
+        except ValueError as exc:
+            self.gate.refuse(str(exc))
+            self.io.refuse_progress(str(exc))
+            return
+        if self.gate.recorded is None:
+            self.io.log_info(f'recorder reports progress: holding at most {self.gate.window} steps ahead')
+        self.gate.recorded = step
+        self.advance_if_ready(now)
+
+    def on_timer(self, now: float) -> None:
+        """Watchdog: fault on a command missing too long, else re-send a state waited on;
+        then advance if a hold has ended meanwhile."""
+        if (self.sim.fault is None and self.lockstep.step > 0 and not self.lockstep.complete()
+                and now - self._step_started_at > self.command_timeout):
+            self.fault(f'missing command for {" ".join(self.lockstep.missing)} '
+                       f'(no answer to step {self.lockstep.step} within {self.command_timeout:g} s)', now)
+        elif now - self._state_sent_at > self.republish_period:
+            self._send(now, resend=True)         # late joiners; idempotent for the nodes
+        self.advance_if_ready(now)               # e.g. a recorder matched meanwhile
+
+    def advance_if_ready(self, now: float) -> None:
+        if not (self.lockstep.complete() and self.sim.fault is None):
+            return
+        if self.lockstep.step == 0 and not self._start_announced:
+            if self.io.state_subscribers() < self.min_subscribers:
+                return                           # hold at step 0 until e.g. a recorder is matched
+            self._start_announced = True
+            self._send(now, resend=True)         # step 0 again, now that every subscriber is there
+        if self.holding_for_recorder(now):
+            return
+        self._advance(self.lockstep.take(), now)
+
+    def holding_for_recorder(self, now: float) -> bool:
+        """Whether the recorder is more than recorder_window steps behind (and still there)."""
+        holds = self.gate.holds(self.lockstep.step)
+        if not holds and self.gate.hold_started is None:
+            return False                         # the usual case, every step
+        if holds and not self.io.recorder_connected():
+            self.io.log_info('recorder left the graph: no longer holding for it')
+            self.gate.recorded = None
+            holds = False
+        self.gate.track(holds, now)
+        return holds
+
+    def status(self, now: float) -> Status:
+        status = super().status(now)
+        gate = self.gate
+        if gate.window > 0:
+            status.values.update({'recorder_window': gate.window,
+                                  'recorder_step': '' if gate.recorded is None else gate.recorded,
+                                  'holding_for_recorder': gate.hold_started is not None,
+                                  'recorder_holds': gate.hold_count, 'recorder_hold_time': f'{gate.held_for(now):.3f}',
+                                  'refused_progress': gate.refused, 'last_progress_refusal': gate.last_refusal})
+        return status
+
+    def _take(self, step: int, names, values, now: float) -> None:
+        reason = self.lockstep.offer(step, names, values)
+        if reason is not None:
+            self.io.refuse_command(reason)
+            return
+        self.advance_if_ready(now)
+
+    def _waiting_for(self) -> str:
+        return ' '.join(self.lockstep.missing)
+
+
+class PacedSession(Session):
+    """Paced mode: one step per timer tick whatever has arrived (the contract a driver for
+    real hardware implements)."""
+    mode = 'paced'
+
+    def __init__(self, sim: MachineSimulator, clock: StepClock, io: SessionIO, *, real_time_factor: float = 0.1,
+                 **common):
+        super().__init__(sim, clock, io, **common)
+        self.real_time_factor = real_time_factor
+        self._latest: dict[str, float] = {}      # the current step's command per axis
+
+    @property
+    def timer_period(self) -> float:
+        return self.clock.period / self.real_time_factor
+
+    def on_timer(self, now: float) -> None:
+        """Take a step with the commands in hand; hold the previous one for axes without."""
+        axes = self.lockstep.axis_names
+        missed = [a for a in axes if a not in self._latest]
+        self.missed_deadlines += len(missed)
+        held = dict(zip(axes, self.sim.applied))
+        commands = [self._latest.get(a, held[a]) for a in axes]
+        self._latest.clear()
+        self.lockstep.restart(self.lockstep.step + 1)
+        self._advance(commands, now)
+
+    def _take(self, step: int, names, values, now: float) -> None:
+        if step == self.lockstep.step and len(values) == len(names):
+            self._latest.update((n, v) for n, v in zip(names, values) if n in self.lockstep.axis_names)

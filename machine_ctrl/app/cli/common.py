@@ -1,0 +1,17 @@
+"""Helpers shared by the command groups: one-line errors, output-directory checks."""
+from __future__ import annotations
+
+import os
+import sys
+
+
+def error(command: str, exc) -> int:
+    """Print ``machine-ctrl: COMMAND: problem`` (one line) on stderr; exit status 2."""
+    print(f'machine-ctrl: {command}: {" ".join(str(exc).split())}', file=sys.stderr)
+    return 2
+
+
+def fresh_directory(path: str) -> None:
+    """ValueError unless `path` is absent or an empty directory (a bag goes there)."""
+    if os.path.exists(path) and (not os.path.isdir(path) or os.listdir(path)):
+        raise ValueError(f'{path}: exists and is not an empty directory')

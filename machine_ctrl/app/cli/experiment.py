@@ -1,0 +1,143 @@
+"""``machine-ctrl experiment NAME ...``: the experiments on the simulated machine (offline
+runner, machine_ctrl.experiments and compensation/), one subcommand each; progress on stderr.
+
+* ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR]``: thesis section 6.3 /
+  Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}}`` with
+  mean_x_tracking, mean_y_tracking, mean_contour, max_x_tracking, max_y_tracking,
+  max_contour in um; frf prints ``{"bandwidth_hz": {"x_c": ..., "x_f": ..., "x_dual": ...,
+  ...}, "frequencies_hz": [...], "gain": {...}}``. circle/square ``--record DIR`` also
+  write each run as a bag, DIR/smc and DIR/dsfd (machine_ctrl.ros.run_bag, called here: the
+  experiments layer is ROS-free).
+* ``contour [--json] [--plots DIR] [--quiet] [--no-helix]``: Sencer Figs. 9-10
+  (machine_ctrl.experiments.contour).
+* ``geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis Tables 6.3/6.4, registered
+  by the error-model group (errors.py).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+from machine_ctrl.app.cli import errors
+from machine_ctrl.app.cli.common import error, fresh_directory
+from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
+
+EXPERIMENT_TITLES = {
+    'circle': 'Circle R = 30 mm at 600 mm/min on x-y (thesis Table 6.1)',
+    'square': 'Square, side 20 mm (assumed), 600 mm/min on x-y (thesis Table 6.2)',
+}
+STAT_LABELS = ('Mean x-axis tracking', 'Mean y-axis tracking', 'Mean contour',
+               'Max x-axis tracking', 'Max y-axis tracking', 'Max contour')
+# the first line of machine_ctrl.experiments.contour's docstring (not imported: numpy, Pinocchio)
+CONTOUR_DESCRIPTION = ('Sencer Figs. 9-10 on the simulated machines: the Frenet-frame contour-error '
+                       'estimates')
+
+
+def register(subparsers) -> None:
+    experiment = subparsers.add_parser('experiment', help='thesis experiments on the simulated machine',
+                                       description='experiments on the simulated machine (offline runner)')
+    names = experiment.add_subparsers(dest='name', required=True)
+    for name, help_text in (('circle', 'thesis Table 6.1: circle, sliding mode vs dual stage'),
+                            ('square', 'thesis Table 6.2: square, sliding mode vs dual stage'),
+                            ('frf', 'thesis Fig. 4.10: closed-loop frequency responses')):
+        parser = names.add_parser(name, help=help_text)
+        parser.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
+        parser.add_argument('--json', action='store_true', help='one JSON object on stdout')
+        parser.add_argument('--quiet', action='store_true', help='no progress on stderr')
+        parser.add_argument('--record', metavar='DIR',
+                            help=('also write each run as a bag, DIR/smc and DIR/dsfd' if name != 'frf'
+                                  else argparse.SUPPRESS))     # frf: refused with one line, as before
+        parser.set_defaults(run=cmd_experiment)
+    contour = names.add_parser('contour', help='Sencer Figs. 9-10: contour-error estimates vs true errors',
+                               description=CONTOUR_DESCRIPTION)
+    contour.add_argument('--json', action='store_true', help='print one JSON object')
+    contour.add_argument('--plots', metavar='DIR', help='write fig9_tool_tip.png and fig10_orientation.png')
+    contour.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    contour.add_argument('--no-helix', action='store_true', help='skip the micromill helix run')
+    contour.set_defaults(run=cmd_contour, usage_parser=contour)
+    errors.register_experiment(names)
+
+
+def _progress(label: str, done: int, total: int) -> None:
+    print(f'\r{label}: {100 * done // max(total, 1):3d} %', end='' if done < total else '\n',
+          file=sys.stderr, flush=True)
+
+
+def _print_contouring(kind: str, machine: str, result: dict) -> None:
+    from machine_ctrl.experiments.tracking import STAT_KEYS, THESIS
+    print(f'{EXPERIMENT_TITLES[kind]}; {machine} simulation; errors in um')
+    print(f'{"":22s} {"SMC sim":>9s} {"thesis":>9s} {"DSFD sim":>9s} {"thesis":>9s}')
+    for key, label in zip(STAT_KEYS, STAT_LABELS):
+        i = STAT_KEYS.index(key)
+        print(f'{label:22s} {result["smc"][key]:9.3f} {THESIS[kind]["smc"][i]:9.3f} '
+              f'{result["dsfd"][key]:9.3f} {THESIS[kind]["dsfd"][i]:9.3f}')
+    for key, label in (('max_contour', 'max contour'), ('max_y_tracking', 'max y tracking')):
+        i = STAT_KEYS.index(key)
+        ours = result['smc'][key] / result['dsfd'][key]
+        theirs = THESIS[kind]['smc'][i] / THESIS[kind]['dsfd'][i]
+        print(f'SMC/DSFD {label}: {ours:.2f}x (thesis {theirs:.2f}x)')
+
+
+def _print_frf(machine: str, result: dict) -> None:
+    names = list(result['gain'])
+    print(f'Closed-loop frequency responses, servo loop alone (thesis Fig. 4.10); {machine} simulation')
+    print('   f/Hz ' + ' '.join(f'{n:>8s}' for n in names) + '   (gain, dB)')
+    for i, f in enumerate(result['frequencies_hz']):
+        print(f'{f:7.1f} ' + ' '.join(f'{20 * math.log10(max(result["gain"][n][i], 1e-12)):8.2f}' for n in names))
+    print('-3 dB bandwidth/Hz ' + ' '.join(
+        f'{n}={"n/a" if b is None else f"{b:.1f}"}' for n, b in result['bandwidth_hz'].items()))
+
+
+def contouring(machine, kind: str, progress=None, steps: int | None = None, record_dir=None) -> dict:
+    """machine_ctrl.experiments.tracking.contouring; with `record_dir`, each run is also
+    written as a bag, <record_dir>/smc and <record_dir>/dsfd, right after it ran."""
+    from machine_ctrl.experiments import tracking
+    on_run = None
+    if record_dir is not None:
+        def on_run(label, reference, record):
+            from machine_ctrl.ros.run_bag import write_run_bag     # imports rclpy: only when recording
+            write_run_bag(Path(record_dir) / label, machine, reference, record, f'experiment {kind} {label}')
+    return tracking.contouring(machine, kind, progress=progress, steps=steps, on_run=on_run)
+
+
+def cmd_experiment(args) -> int:
+    machine = load_machine(args.machine)
+    progress = None if args.quiet else _progress
+    if args.record is not None:
+        try:
+            if args.name == 'frf':
+                raise ValueError('--record is for circle and square')
+            for label in ('smc', 'dsfd'):
+                fresh_directory(os.path.join(args.record, label))
+        except ValueError as exc:
+            return error('experiment', exc)
+    if args.name == 'frf':
+        from machine_ctrl.experiments import tracking
+        result = tracking.frf(machine, progress=progress)
+        if args.json:
+            print(json.dumps({'bandwidth_hz': result['bandwidth_hz'],
+                              'frequencies_hz': result['frequencies_hz'], 'gain': result['gain']}))
+        else:
+            _print_frf(machine.name, result)
+        return 0
+    result = contouring(machine, args.name, progress=progress, record_dir=args.record)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        _print_contouring(args.name, machine.name, result)
+    return 0
+
+
+def cmd_contour(args) -> int:
+    from machine_ctrl.experiments import contour
+    progress = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    summary, series = contour.experiment(progress, helix=not args.no_helix)
+    if args.plots:
+        for path in contour.plots(series, args.plots):
+            progress(f'wrote {path}')
+    print(json.dumps(contour._jsonable(summary)) if args.json else contour.table(summary))
+    return 0

@@ -1,0 +1,112 @@
+"""``machine-ctrl bringup|send|move|demo``: the running node graph (machine_ctrl.app.bringup
+starts it; send and move are clients of its trajectory node, machine_ctrl.app.goals follows
+their goals; demo is machine_ctrl.app.demo)."""
+from __future__ import annotations
+
+import math
+
+from machine_ctrl.app.cli.common import error, fresh_directory
+from machine_ctrl.app.demo import DEFAULT_TURNS as DEMO_TURNS
+from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
+from machine_ctrl.model.errors import ConfigError
+
+
+def register(subparsers) -> None:
+    bring = subparsers.add_parser('bringup', help='start the whole node graph and wait for commands')
+    bring.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
+    bring.add_argument('--single-process', action='store_true', help='every node in one process')
+    bring.add_argument('--record', metavar='DIR', help='record the session into this bag directory')
+    bring.add_argument('--no-dual-stage', action='store_true', help='start with the dual-stage coupling off')
+    bring.add_argument('--compensation', metavar='MODEL', help='geometric error model: compensation on')
+    bring.set_defaults(run=cmd_bringup)
+    send = subparsers.add_parser('send', help='send a tool path to the running graph and follow it')
+    send.add_argument('path', help='CSV file (px,py,pz,oi,oj,ok, SI) or built-in toolpath name')
+    send.add_argument('--machine', default=DEFAULT_MACHINE)
+    send.add_argument('--timeout', type=float, default=3600.0, metavar='S', help='give up after S s (wall)')
+    send.set_defaults(run=cmd_send)
+    move = subparsers.add_parser('move', help='send a joint goal (AXIS=VALUE ..., m / rad) and follow it')
+    move.add_argument('goal', nargs='+', metavar='AXIS=VALUE')
+    move.add_argument('--machine', default=DEFAULT_MACHINE)
+    move.add_argument('--timeout', type=float, default=600.0, metavar='S', help='give up after S s (wall)')
+    move.set_defaults(run=cmd_move)
+    demo = subparsers.add_parser('demo', help='the main job: helix on the 9-axis machine, recorded and analysed')
+    demo.add_argument('--out', metavar='DIR', help='output directory (default: a new temporary directory)')
+    demo.add_argument('--turns', type=float, default=DEMO_TURNS, help=f'helix turns (default {DEMO_TURNS:g})')
+    demo.set_defaults(run=cmd_demo)
+
+
+def cmd_bringup(args) -> int:
+    from machine_ctrl.app import bringup
+    machine = load_machine(args.machine)
+    try:
+        if args.record is not None:
+            fresh_directory(args.record)
+        if args.compensation is not None:
+            _readable_model(args.compensation, machine)
+    except (ValueError, ConfigError) as exc:
+        return error('bringup', exc)
+    return bringup.run(args, machine)
+
+
+def _readable_model(path: str, machine) -> None:
+    """ConfigError (one line) unless `path` is a geometric error model for `machine`."""
+    from compensation.error_map import load_error_map
+    load_error_map(path, machine.axis_names)
+
+
+def parse_joint_goal(items) -> tuple[list[str], list[float]]:
+    """``name=value`` words -> names, values; ValueError names the bad word."""
+    names, values = [], []
+    for item in items:
+        name, sep, text = item.partition('=')
+        if not sep or not name:
+            raise ValueError(f'{item!r}: expected AXIS=VALUE (m or rad), e.g. x_c=0.01')
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f'{item!r}: {text!r} is not a number') from None
+        if not math.isfinite(value):
+            raise ValueError(f'{item!r}: the value is not finite')
+        names.append(name)
+        values.append(value)
+    return names, values
+
+
+def _run_goal(command: str, machine, timeout: float, send) -> int:
+    from machine_ctrl.app.client import Timeout
+    if not (math.isfinite(timeout) and timeout > 0):
+        return error(command, ValueError(f'--timeout must be > 0 s, got {timeout}'))
+    from machine_ctrl.app.bringup import client_session, listening
+    from machine_ctrl.app.goals import follow_goal
+    with client_session(machine, 'machine_ctrl_cli') as client:
+        try:
+            client.wait(lambda: client.statuses and listening(client, client.pub_path)
+                        and listening(client, client.pub_goal),
+                        'the trajectory node (is the graph up? machine-ctrl bringup)', min(timeout, 30.0))
+        except Timeout as exc:
+            return error(command, exc)
+        return follow_goal(client, lambda: send(client), timeout)
+
+
+def cmd_send(args) -> int:
+    from trajectory import toolpath
+    machine = load_machine(args.machine)
+    try:
+        cl = toolpath.builtin(args.path) if args.path in toolpath.BUILTIN else toolpath.read_csv(args.path)
+    except (ValueError, OSError) as exc:
+        return error('send', exc)
+    return _run_goal('send', machine, args.timeout, lambda client: client.send_path(cl))
+
+
+def cmd_move(args) -> int:
+    machine = load_machine(args.machine)
+    try:
+        names, values = parse_joint_goal(args.goal)
+    except ValueError as exc:
+        return error('move', exc)
+    return _run_goal('move', machine, args.timeout, lambda client: client.send_goal(names, [values]))
+
+
+def cmd_demo(args) -> int:
+    from machine_ctrl.app import demo
+    return demo.run(args)

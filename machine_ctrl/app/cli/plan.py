@@ -1,0 +1,58 @@
+"""``machine-ctrl plan PATH --machine M --out DIR [--json] [--feed F]``: plan a tool path
+(CSV or built-in name; trajectory.planner) without running it, write DIR/references.csv
+(``time,<axes>``, SI: time, then each axis position in info order) and print traversal
+time, planning time, max tool-pose deviation and per-axis peak |v|, |a|, |j| over the
+limits (``--json``: one object)."""
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
+
+
+def register(subparsers) -> None:
+    plan = subparsers.add_parser('plan', help='plan a toolpath and write the sampled references')
+    plan.add_argument('path', help='CSV file (px,py,pz,oi,oj,ok, SI) or built-in toolpath name')
+    plan.add_argument('--machine', default=DEFAULT_MACHINE)
+    plan.add_argument('--out', required=True, help='directory for references.csv')
+    plan.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    plan.add_argument('--feed', type=float, help='process feed limit, m/s (default: the planner\'s, 10 mm/s)')
+    plan.set_defaults(run=cmd_plan)
+
+
+def write_references(directory: str, reference, axis_names) -> None:
+    """DIR/references.csv: ``time,<axes>`` header, then one row per sample (SI)."""
+    import numpy as np
+    os.makedirs(directory, exist_ok=True)
+    table = np.column_stack((np.arange(len(reference)) * reference.period, reference.position))
+    np.savetxt(os.path.join(directory, 'references.csv'), table, fmt='%.17g', delimiter=',',
+               header='time,' + ','.join(axis_names), comments='')
+
+
+def cmd_plan(args) -> int:
+    from trajectory.planner import DEFAULT_FEED, plan
+    machine = load_machine(args.machine)
+    try:
+        result = plan(args.path, machine, feed=DEFAULT_FEED if args.feed is None else args.feed)
+        if result.ok:
+            write_references(args.out, result.plan.reference, machine.axis_names)
+    except OSError as exc:
+        print(f'machine-ctrl: plan: {" ".join(str(exc).split())}', file=sys.stderr)
+        return 2
+    if not result.ok:
+        print(f'machine-ctrl: plan: {" ".join(result.reason.split())}', file=sys.stderr)
+        return 2
+    summary = result.plan.summary()
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print(f"traversal time   {summary['traversal_time']:.4f} s ({summary['samples']} samples)")
+    print(f"planning time    {summary['planning_time']:.3f} s")
+    print(f"max deviation    {summary['max_position_deviation']:.3g} m, "
+          f"{summary['max_orientation_deviation']:.3g} rad")
+    print('axis  |v|/v_max  |a|/a_max  |j|/j_max')
+    for name, r in summary['peak_ratios'].items():
+        print(f"{name:5s} {r['velocity']:9.4f}  {r['acceleration']:9.4f}  {r['jerk']:9.4f}")
+    return 0

@@ -1,0 +1,205 @@
+"""The contract between the nodes, and with anyone outside: every topic and service name,
+its standard message type and QoS, the message layout choices, and the step clock.
+
+ROS-free on purpose (README "Architecture"): it sits just above the machine model, so the
+cores that meet these names — the recorder and the bag analysis read topics by name, the
+simulator's lock-step core counts steps on the clock — need no ROS import, and the nodes
+(machine_ctrl/ros) turn :class:`Qos` into rclpy profiles in one place
+(:func:`machine_ctrl.ros.messages.qos`). No other module writes a topic or service name, nor
+recomputes the control period in nanoseconds; `test/test_architecture.py` checks both.
+
+Units on every topic are SI (m, rad, s, N, N*m; REP 103); joint names are the machine's axis
+names. Names are absolute today (one machine per ROS domain).
+
+Time (design.md "Time"): control step k of a machine with period T happens at sim time
+t_k = k*T, carried in stamps as integer nanoseconds; T must be a whole number of
+nanoseconds, so step <-> stamp is exact both ways (:class:`StepClock`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from machine_ctrl.model.errors import InvalidMessage
+
+NS_PER_SECOND = 1_000_000_000
+
+
+# --- QoS, as data -----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Qos:
+    """A QoS profile: keep-last `depth`, reliable or best effort, volatile or transient local
+    (late joiners get the last `depth` messages). Deadline, lifespan and liveliness are the
+    ROS defaults."""
+    depth: int
+    reliable: bool = True
+    transient_local: bool = False
+
+
+# Per-step traffic must never be dropped silently: reliable, and deep enough for bursts.
+STEP_QOS = Qos(depth=200)
+# References are streamed ahead in chunks; a node that joins late still gets the last
+# chunks (transient local), so no step's reference depends on discovery timing.
+REFERENCE_QOS = Qos(depth=50, transient_local=True)
+# Goals, overrides and the like from other programs.
+COMMAND_QOS = Qos(depth=10)
+# A status whose last value a late joiner must see (the trajectory status).
+LATCHED_QOS = Qos(depth=1, transient_local=True)
+# What a client keeps of a latched status stream while it follows a motion.
+LATCHED_READER_QOS = Qos(depth=1000, transient_local=True)
+# The recorder's progress: one value, latched, so hw_sim learns at once that a recorder is
+# there and how far it is.
+PROGRESS_QOS = Qos(depth=1, transient_local=True)
+# /clock for timers and tools (the per-step nodes take time from the stamps they answer).
+CLOCK_READER_QOS = Qos(depth=10)
+# /diagnostics: every node, 1 Hz and at once on a fault.
+DIAGNOSTICS_QOS = Qos(depth=10)
+DIAGNOSTICS_READER_QOS = Qos(depth=50)
+
+
+# --- Topics and services ----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Topic:
+    name: str
+    type: str                  # 'pkg/msg/Type'
+    qos: Qos
+    description: str = ''
+
+
+@dataclass(frozen=True)
+class Service:
+    name: str
+    type: str                  # 'pkg/srv/Type'
+    description: str = ''
+
+
+CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock', STEP_QOS, "hw_sim's simulated time")
+JOINT_STATES = Topic('/joint_states', 'sensor_msgs/msg/JointState', STEP_QOS,
+                     'measured position and velocity of every axis, one per control step')
+SERVO_COMMANDS = Topic('/servo_commands', 'sensor_msgs/msg/JointState', STEP_QOS,
+                       'actuator commands (effort), stamped with the state they answer')
+REFERENCE = Topic('/reference', 'trajectory_msgs/msg/JointTrajectory', REFERENCE_QOS,
+                  'reference chunks the servos follow (one point per step)')
+TRAJECTORY_REFERENCE = Topic('/trajectory/reference', 'trajectory_msgs/msg/JointTrajectory', REFERENCE_QOS,
+                             'uncompensated reference chunks (when compensation runs)')
+DUAL_STAGE_OFFSETS = Topic('/dual_stage/offsets', 'sensor_msgs/msg/JointState', STEP_QOS,
+                           'fine-stage reference offsets (position), one per step')
+TRUE_JOINT_STATES = Topic('/hw_sim/ground_truth/joint_states', 'sensor_msgs/msg/JointState', STEP_QOS,
+                          'true axis positions (published only while subscribed)')
+TRUE_TOOL_POSE = Topic('/hw_sim/ground_truth/tool_pose', 'geometry_msgs/msg/PoseStamped', STEP_QOS,
+                       'true tool pose in the workpiece frame (published only while subscribed)')
+DIAGNOSTICS = Topic('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray', DIAGNOSTICS_QOS,
+                    'every node: faults, refusals, counters')
+PATH = Topic('/trajectory/path', 'nav_msgs/msg/Path', COMMAND_QOS,
+             'tool path, frame workpiece, m; pose z-axis = tool axis')
+JOINT_GOAL = Topic('/trajectory/joint_goal', 'trajectory_msgs/msg/JointTrajectory', COMMAND_QOS,
+                   'axis goals, m / rad, times s')
+FEED_OVERRIDE = Topic('/trajectory/feed_override', 'std_msgs/msg/Float64', COMMAND_QOS,
+                      'feed fraction 0..1, ramped')
+TRAJECTORY_STATUS = Topic('/trajectory/status', 'diagnostic_msgs/msg/DiagnosticStatus', LATCHED_QOS,
+                          'latched: state, progress, refusals')
+CONTOUR_TOOL_TIP = Topic('/contour_error/tool_tip', 'geometry_msgs/msg/Vector3Stamped', STEP_QOS,
+                         'tool-tip contour error vector, m, workpiece frame')
+CONTOUR_TOOL_TIP_MAGNITUDE = Topic('/contour_error/tool_tip_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
+                                   'tool-tip contour error magnitude, m')
+CONTOUR_ORIENTATION = Topic('/contour_error/orientation', 'geometry_msgs/msg/Vector3Stamped', STEP_QOS,
+                            'tool-orientation contour error vector, rad')
+CONTOUR_ORIENTATION_MAGNITUDE = Topic('/contour_error/orientation_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
+                                      'tool-orientation contour error magnitude, rad')
+RECORDER_PROGRESS = Topic('/recorder/progress', 'builtin_interfaces/msg/Time', PROGRESS_QOS,
+                          "the newest step every per-step publisher's stream has reached in the bag")
+
+HOLD = Service('/trajectory/hold', 'std_srvs/srv/Trigger', 'feed hold along the path (program kept)')
+RESUME = Service('/trajectory/resume', 'std_srvs/srv/Trigger', 'resume after a hold')
+STOP = Service('/trajectory/stop', 'std_srvs/srv/Trigger', 'stop smoothly and drop the program')
+HOME = Service('/trajectory/home', 'std_srvs/srv/Trigger', 'move to home (when idle)')
+RESET = Service('/hw_sim/reset', 'std_srvs/srv/Trigger', 'clear a fault')
+DUAL_STAGE_ENABLE = Service('/dual_stage/enable', 'std_srvs/srv/SetBool', 'dual-stage coupling on/off')
+COMPENSATION_ENABLE = Service('/compensation/enable', 'std_srvs/srv/SetBool',
+                              'geometric compensation on/off (with a model)')
+
+# ROS's own topics, which a recording leaves out by default.
+ROSOUT = '/rosout'
+PARAMETER_EVENTS = '/parameter_events'
+
+# The command API a user of the running graph sees (machine-ctrl bringup prints it).
+COMMAND_API = (PATH, JOINT_GOAL, FEED_OVERRIDE, HOLD, RESUME, STOP, HOME, RESET, DUAL_STAGE_ENABLE,
+               COMPENSATION_ENABLE, TRAJECTORY_STATUS, DIAGNOSTICS)
+# The per-step streams of the lock-step graph: each publisher of these answers every step,
+# so the recorder's progress is the minimum over them.
+PER_STEP_TOPICS = (JOINT_STATES, SERVO_COMMANDS, DUAL_STAGE_OFFSETS, CLOCK, TRUE_JOINT_STATES, TRUE_TOOL_POSE)
+TOPICS = (CLOCK, JOINT_STATES, SERVO_COMMANDS, REFERENCE, TRAJECTORY_REFERENCE, DUAL_STAGE_OFFSETS,
+          TRUE_JOINT_STATES, TRUE_TOOL_POSE, DIAGNOSTICS, PATH, JOINT_GOAL, FEED_OVERRIDE, TRAJECTORY_STATUS,
+          CONTOUR_TOOL_TIP, CONTOUR_TOOL_TIP_MAGNITUDE, CONTOUR_ORIENTATION, CONTOUR_ORIENTATION_MAGNITUDE,
+          RECORDER_PROGRESS)
+SERVICES = (HOLD, RESUME, STOP, HOME, RESET, DUAL_STAGE_ENABLE, COMPENSATION_ENABLE)
+
+
+def reference_topics(compensated: bool) -> tuple[Topic, Topic]:
+    """(where the trajectory node publishes, where the servos read): with geometric
+    compensation the compensation node sits between them."""
+    return (TRAJECTORY_REFERENCE if compensated else REFERENCE), REFERENCE
+
+
+# --- Message layout choices ---------------------------------------------------------------
+# States and commands are sensor_msgs/JointState with the axis names of the machine config
+# as joint names: position/velocity for states, effort for servo commands, position for the
+# dual-stage offsets. A reference chunk is a trajectory_msgs/JointTrajectory whose header
+# stamp is the sim time of its first step and whose point i is step first+i
+# (time_from_start = i*T), with positions, velocities and accelerations of every named axis.
+# Poses are in the machine's workpiece frame; the tool axis is the pose's z-axis.
+
+
+# --- The step clock -----------------------------------------------------------------------
+
+def split_ns(ns: int) -> tuple[int, int]:
+    """(sec, nanosec) of a time in integer nanoseconds."""
+    return divmod(ns, NS_PER_SECOND)
+
+
+def join_ns(sec: int, nanosec: int) -> int:
+    """Integer nanoseconds of (sec, nanosec); InvalidMessage if nanosec is not in [0, 1e9)."""
+    if not 0 <= nanosec < NS_PER_SECOND:
+        raise InvalidMessage(f'stamp nanosec {nanosec} is not in [0, 1e9)')
+    return sec * NS_PER_SECOND + nanosec
+
+
+def seconds_to_ns(seconds: float) -> int:
+    return int(round(seconds * NS_PER_SECOND))
+
+
+class StepClock:
+    """Control step <-> sim time of a machine (its control period), exact in integer ns."""
+
+    def __init__(self, period: float):
+        self.period = period
+        self.period_ns = seconds_to_ns(period)
+        if self.period_ns <= 0 or abs(self.period_ns - period * NS_PER_SECOND) > 1e-6:
+            raise ValueError(f'control period {period!r} s is not a whole number of nanoseconds')
+
+    @classmethod
+    def of(cls, machine) -> StepClock:
+        """The clock of a machine config (anything with `control_period`)."""
+        return cls(machine.control_period)
+
+    def ns(self, step: int) -> int:
+        return step * self.period_ns
+
+    def split(self, step: int) -> tuple[int, int]:
+        """(sec, nanosec) of step k."""
+        return split_ns(step * self.period_ns)
+
+    def step_at(self, sec: int, nanosec: int) -> int:
+        """The step of the stamp (sec, nanosec); InvalidMessage if it is off the grid."""
+        return self.step_of_ns(join_ns(sec, nanosec))
+
+    def step_of_ns(self, ns: int) -> int:
+        step, rest = divmod(ns, self.period_ns)
+        if rest:
+            raise InvalidMessage(f'stamp {ns} ns is not on the {self.period_ns} ns control grid')
+        return step
+
+    def steps(self, seconds: float) -> int:
+        """The whole number of steps nearest to a duration in seconds."""
+        return int(round(seconds / self.period))

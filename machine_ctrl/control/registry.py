@@ -1,0 +1,57 @@
+"""The control laws by name: what ``axes.<axis>.control.law`` in a machine YAML selects.
+
+Each entry names the class implementing :class:`~machine_ctrl.control.law.ControlLaw`, the
+gains dataclass of its YAML section (``ControlConfig.<name>`` in machine_ctrl/model/config.py,
+whose law fields are the one list of law names; test/test_control_interface.py checks that
+both agree) and whether the servo adds the LuGre friction feed-forward
+(``control.lugre_feedforward``) to its command. A new law is one module, one entry here and
+its gains in the config schema; no other code branches on a law's name.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from machine_ctrl.control.law import ControlLaw
+from machine_ctrl.control.lead_lag import LeadLagController
+from machine_ctrl.control.ppi import PPIController
+from machine_ctrl.control.sliding_mode import SlidingModeController
+from machine_ctrl.model.config import AxisConfig, LeadLagGains, PPIGains, SlidingModeGains
+
+
+@dataclass(frozen=True)
+class LawEntry:
+    law: type                           # implements ControlLaw
+    gains: type                         # the dataclass of its gains section
+    friction_feedforward: bool = False  # the servo adds the LuGre feed-forward, when configured
+
+
+LAWS: dict[str, LawEntry] = {
+    'sliding_mode': LawEntry(SlidingModeController, SlidingModeGains, friction_feedforward=True),
+    'ppi': LawEntry(PPIController, PPIGains, friction_feedforward=True),
+    'lead_lag': LawEntry(LeadLagController, LeadLagGains),
+}
+
+
+def law_entry(name: str) -> LawEntry:
+    """The registered law `name`; ValueError naming the known laws otherwise."""
+    entry = LAWS.get(name)
+    if entry is None:
+        raise ValueError(f'unknown control law {name!r} (known: {", ".join(sorted(LAWS))})')
+    return entry
+
+
+def make_law(axis: AxisConfig, period: float, law: str | None = None) -> ControlLaw:
+    """The law of `axis` (its configured one, or `law` by name) with the gains of its
+    machine config. ValueError, one line naming the axis, when it cannot be built."""
+    control = axis.control
+    if control is None:
+        raise ValueError(f'axis {axis.name}: no control section in the machine config')
+    name = law or control.law
+    try:
+        entry = law_entry(name)
+    except ValueError as exc:
+        raise ValueError(f'axis {axis.name}: {exc}') from None
+    gains = getattr(control, name, None)
+    if gains is None:
+        raise ValueError(f'axis {axis.name}: law {name!r} has no gains in the machine config')
+    return entry.law.from_axis(gains, axis, period)

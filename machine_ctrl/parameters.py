@@ -1,0 +1,416 @@
+"""The parameters of every node, declared once, as data (in the spirit of ros2_controllers'
+generate_parameter_library): name, type, default, unit, range, read-only or live, and a
+description. ROS-free, beside :mod:`machine_ctrl.contract`.
+
+From these tables
+
+* each node declares its parameters with rcl_interfaces ParameterDescriptors (type,
+  description with the unit, FloatingPointRange / IntegerRange, read_only) and validates
+  every value — overrides at start (a bad one ends the node with one line, exit 2) and
+  every later set (refused with the reason): :func:`machine_ctrl.ros.node_common.declare_parameters`;
+* node specs for bringup are typed data (:class:`machine_ctrl.ros.graph.NodeSpec` coerces
+  and checks its values here, and writes them to ROS parameter files);
+* the README table "Node parameters" is printed by ``python -m machine_ctrl.parameters``
+  (and `test/test_parameters.py` checks the README against the tables).
+
+A value is never clamped: it is accepted as given or refused with the reason. Read-only
+parameters are read once at start; a live one takes effect while the node runs (the node
+names what it does with a new value).
+"""
+from __future__ import annotations
+
+import array
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+from machine_ctrl import contract
+from machine_ctrl.model.config import DEFAULT_MACHINE
+
+# ROS parameter types (rcl_interfaces/ParameterType names, lower case)
+BOOL, INTEGER, DOUBLE, STRING = 'bool', 'integer', 'double', 'string'
+DOUBLE_ARRAY, STRING_ARRAY = 'double_array', 'string_array'
+TYPES = (BOOL, INTEGER, DOUBLE, STRING, DOUBLE_ARRAY, STRING_ARRAY)
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One declared parameter. `default` None: the node supplies it (it depends on the
+    machine), `default_text` says what it is. `low`/`high` bound numbers (closed, or open
+    with `low_open`/`high_open`); `choices` lists the allowed strings; `required`: a
+    string that must not be empty."""
+    name: str
+    type: str
+    default: object
+    unit: str = ''
+    description: str = ''
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple[str, ...] = ()
+    required: bool = False
+    live: bool = False
+    default_text: str = ''
+
+    def __post_init__(self):
+        if self.type not in TYPES:
+            raise ValueError(f'{self.name}: unknown parameter type {self.type!r}')
+        if self.default is not None and (problem := type_problem(self.type, self.default)):
+            raise ValueError(f'{self.name}: default {problem}')
+        if self.default is None and not self.default_text:
+            raise ValueError(f'{self.name}: a default given by the node needs default_text')
+
+    @property
+    def read_only(self) -> bool:
+        return not self.live
+
+    @property
+    def numeric(self) -> bool:
+        return self.type in (INTEGER, DOUBLE)
+
+
+@dataclass(frozen=True)
+class Check:
+    """A condition between parameters of one node: `test(values)` -> reason or None,
+    reported for parameter `name` (the values hold every name in `names`)."""
+    name: str
+    names: tuple[str, ...]
+    test: Callable[[Mapping], str | None]
+    text: str                         # what it requires, for descriptors and the README
+
+
+@dataclass(frozen=True)
+class NodeParameters:
+    """The parameter table of one node executable."""
+    executable: str                   # e.g. hw_sim_node
+    node: str                         # default node name
+    parameters: tuple[ParameterSpec, ...]
+    checks: tuple[Check, ...] = field(default=())
+
+    def __iter__(self):
+        return iter(self.parameters)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.parameters)
+
+    def spec(self, name: str) -> ParameterSpec:
+        for p in self.parameters:
+            if p.name == name:
+                return p
+        raise KeyError(f'{self.executable}: no parameter {name!r}')
+
+    def defaults(self) -> dict:
+        """The defaults that do not depend on the machine."""
+        return {p.name: p.default for p in self.parameters if p.default is not None}
+
+
+# --- validation -----------------------------------------------------------------------
+
+def _kind(value) -> str:
+    if isinstance(value, bool):
+        return 'bool'
+    if isinstance(value, int):
+        return 'integer'
+    if isinstance(value, float):
+        return 'double'
+    if isinstance(value, str):
+        return 'string'
+    if isinstance(value, (list, tuple, array.array)):
+        return 'array'
+    return type(value).__name__
+
+
+def type_problem(kind: str, value) -> str | None:
+    """Why `value` is not of ROS parameter type `kind`, or None."""
+    if kind == BOOL and isinstance(value, bool):
+        return None
+    if kind == INTEGER and isinstance(value, int) and not isinstance(value, bool):
+        return None
+    if kind == DOUBLE and isinstance(value, float):
+        return None
+    if kind == STRING and isinstance(value, str):
+        return None
+    if kind in (DOUBLE_ARRAY, STRING_ARRAY) and isinstance(value, (list, tuple, array.array)):
+        item = float if kind == DOUBLE_ARRAY else str
+        if all(isinstance(v, item) for v in value):
+            return None
+        return f'must be a list of {"floating-point numbers" if item is float else "strings"}, got {_show(value)}'
+    wanted = {BOOL: 'true or false', INTEGER: 'an integer', DOUBLE: 'a floating-point number (e.g. 1.0, not 1)',
+              STRING: 'a string', DOUBLE_ARRAY: 'a list of floating-point numbers',
+              STRING_ARRAY: 'a list of strings'}[kind]
+    return f'must be {wanted}, got {_kind(value)} {_show(value)}'
+
+
+def _show(value) -> str:
+    if isinstance(value, array.array):
+        value = list(value)
+    return repr(value)
+
+
+def range_text(spec: ParameterSpec) -> str:
+    """The allowed values in words: `(0, 1]`, `>= 1`, `one of a, b`, `non-empty`, or ''."""
+    if spec.choices:
+        return 'one of ' + ', '.join(spec.choices)
+    if spec.required:
+        return 'non-empty'
+    lo, hi = spec.low, spec.high
+    if lo is not None and hi is not None:
+        return f'{"(" if spec.low_open else "["}{lo:g}, {hi:g}{")" if spec.high_open else "]"}'
+    if lo is not None:
+        return f'{">" if spec.low_open else ">="} {lo:g}'
+    if hi is not None:
+        return f'{"<" if spec.high_open else "<="} {hi:g}'
+    if spec.type in (DOUBLE, DOUBLE_ARRAY):
+        return 'finite'
+    return ''
+
+
+def _choice_words(choices) -> str:
+    return choices[0] if len(choices) == 1 else f'{", ".join(choices[:-1])} or {choices[-1]}'
+
+
+def validate(spec: ParameterSpec, value) -> str | None:
+    """Why `value` is not allowed for `spec` (without the parameter name), or None."""
+    if (problem := type_problem(spec.type, value)) is not None:
+        return problem
+    if spec.type in (DOUBLE, DOUBLE_ARRAY):
+        values = [value] if spec.type == DOUBLE else list(value)
+        if not all(math.isfinite(v) for v in values):
+            return f'must be finite, got {_show(value)}'
+    if spec.numeric:
+        too_low = spec.low is not None and (value <= spec.low if spec.low_open else value < spec.low)
+        too_high = spec.high is not None and (value >= spec.high if spec.high_open else value > spec.high)
+        if too_low or too_high:
+            unit = f' {spec.unit}' if spec.unit else ''
+            words = range_text(spec)
+            return f'must be {"in " if words[0] in "[(" else ""}{words}{unit}, got {_show(value)}'
+    if spec.choices and value not in spec.choices:
+        return f'must be {_choice_words(spec.choices)}, got {value!r}'
+    if spec.required and not value:
+        return f'missing: {spec.description}'
+    return None
+
+
+def check_values(table: NodeParameters, values: Mapping) -> list[tuple[str, str]]:
+    """(name, reason) of every value in `values` that its spec refuses, then of every
+    check of the table whose parameters are all in `values`."""
+    problems = []
+    for name, value in values.items():
+        try:
+            spec = table.spec(name)
+        except KeyError:
+            problems.append((name, f'not a parameter of {table.executable}'))
+            continue
+        if (reason := validate(spec, value)) is not None:
+            problems.append((name, reason))
+    if not problems:
+        for check in table.checks:
+            if all(n in values for n in check.names) and (reason := check.test(values)) is not None:
+                problems.append((check.name, reason))
+    return problems
+
+
+def coerce(spec: ParameterSpec, value):
+    """Python data -> the declared type, exactly (int -> float for doubles, tuples ->
+    lists); anything else is returned as is (and refused by :func:`validate`)."""
+    if isinstance(value, array.array):
+        value = list(value)
+    if spec.type == DOUBLE and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if spec.type == DOUBLE_ARRAY and isinstance(value, (list, tuple)):
+        return [float(v) if isinstance(v, int) and not isinstance(v, bool) else v for v in value]
+    if spec.type == STRING_ARRAY and isinstance(value, tuple):
+        return list(value)
+    return value
+
+
+def describe(spec: ParameterSpec) -> str:
+    """The description of a descriptor: what, [unit], and what is allowed."""
+    text = spec.description + (f' [{spec.unit}]' if spec.unit else '')
+    return text
+
+
+# --- the tables ---------------------------------------------------------------------------
+
+MACHINE = ParameterSpec('machine', STRING, DEFAULT_MACHINE, description='machine name (config/machines/) or path of its YAML file')
+INPUT_TIMEOUT = ParameterSpec('input_timeout', DOUBLE, 0.5, 's', 'wall time to wait for a missing reference row or '
+                              'offsets once the stream has started, then go on without', low=0.0, low_open=True)
+CHUNK_STEPS = ParameterSpec('chunk_steps', INTEGER, 500, 'steps', 'rows per reference message', low=1)
+LOOKAHEAD_STEPS = ParameterSpec('lookahead_steps', INTEGER, 3000, 'steps', 'rows kept streamed ahead of the sim time',
+                                low=1)
+
+
+def _at_least(name: str, other: str, factor: int):
+    def test(values):
+        if values[name] < factor * values[other]:
+            times = f'{factor} x ' if factor != 1 else ''
+            return f'must be >= {times}{other} ({factor * values[other]}), got {values[name]}'
+        return None
+    return Check(name, (name, other), test, f'>= {"%d x " % factor if factor != 1 else ""}{other}')
+
+
+def _window_needs_lockstep(values):
+    if values['recorder_window'] > 0 and values['mode'] != 'lockstep':
+        return f'needs mode lockstep (0 with mode {values["mode"]}), got {values["recorder_window"]}'
+    return None
+
+
+HW_SIM = NodeParameters('hw_sim_node', 'hw_sim', (
+    MACHINE,
+    ParameterSpec('mode', STRING, 'lockstep', description='lockstep: step k -> k+1 once every axis has its '
+                  'command; paced: step on the wall clock', choices=('lockstep', 'paced')),
+    ParameterSpec('real_time_factor', DOUBLE, 0.1, description='paced mode: sim time per wall time',
+                  low=0.0, high=1.0, low_open=True),
+    ParameterSpec('command_timeout', DOUBLE, 2.0, 's', 'lock-step: wall time a command may be late before '
+                  'the machine faults', low=0.0, low_open=True),
+    ParameterSpec('republish_period', DOUBLE, 0.2, 's', 'lock-step: wall time between re-sends of the state '
+                  'waited on', low=0.0, low_open=True),
+    ParameterSpec('clock_decimation', INTEGER, 10, 'steps', f'publish {contract.CLOCK.name} every N steps', low=1),
+    ParameterSpec('ground_truth_decimation', INTEGER, 10, 'steps', 'publish ground truth every N steps '
+                  '(0: never)', low=0),
+    ParameterSpec('initial_position', DOUBLE_ARRAY, None, 'm, rad', 'axis positions at start, in axis order, '
+                  'inside the strokes', default_text="the machine's home"),
+    ParameterSpec('min_subscribers', INTEGER, 0, description=f'hold at step 0 until {contract.JOINT_STATES.name} has this many '
+                  'subscribers', low=0),
+    ParameterSpec('recorder_window', INTEGER, 0, 'steps', 'lock-step: steps hw_sim may run ahead of a '
+                  "recorder's progress (0: off)", low=0),
+), checks=(Check('recorder_window', ('recorder_window', 'mode'), _window_needs_lockstep, '0 unless mode is lockstep'),))
+
+SERVO = NodeParameters('servo_node', 'servo', (
+    MACHINE,
+    ParameterSpec('axes', STRING_ARRAY, None, description='axes this node controls (machine axis names)',
+                  default_text='every controlled axis'),
+    ParameterSpec('feedforward', BOOL, True, description='velocity, acceleration and friction feed-forward'),
+    ParameterSpec('wait_for_offsets', BOOL, None, description='fine axes of a dual-stage pair wait for '
+                  f'{contract.DUAL_STAGE_OFFSETS.name} each step (no effect without fine axes)',
+                  default_text='true when the node has fine axes'),
+    INPUT_TIMEOUT,
+))
+
+DUAL_STAGE = NodeParameters('dual_stage_node', 'dual_stage', (
+    MACHINE,
+    ParameterSpec('dual_stage', BOOL, True, description=f'dual-stage coupling on at start ({contract.DUAL_STAGE_ENABLE.name} '
+                  'switches it while running; off: zero offsets)'),
+    INPUT_TIMEOUT,
+))
+
+REFERENCE = NodeParameters('reference_node', 'reference', (
+    MACHINE,
+    ParameterSpec('contour', STRING, 'circle', description='test contour to stream',
+                  choices=('circle', 'square', 'hold')),
+    CHUNK_STEPS,
+    LOOKAHEAD_STEPS,
+), checks=(_at_least('lookahead_steps', 'chunk_steps', 1),))
+
+TRAJECTORY = NodeParameters('trajectory_node', 'trajectory', (
+    MACHINE,
+    ParameterSpec('feed', DOUBLE, 0.01, 'm/s', 'process feed limit of tool paths; live: from the next path',
+                  low=0.0, low_open=True, live=True),
+    CHUNK_STEPS,
+    LOOKAHEAD_STEPS,
+    ParameterSpec('output_topic', STRING, contract.REFERENCE.name, description='where the reference chunks go '
+                  f'({contract.TRAJECTORY_REFERENCE.name} when compensation sits between)', required=True),
+), checks=(_at_least('lookahead_steps', 'chunk_steps', 2),))
+
+COMPENSATION = NodeParameters('compensation_node', 'compensation', (
+    MACHINE,
+    ParameterSpec('model', STRING, '', description='geometric error model YAML (machine-ctrl fit-errors --out)',
+                  required=True),
+    ParameterSpec('enabled', BOOL, True, description=f'compensation on at start ({contract.COMPENSATION_ENABLE.name} '
+                  'switches it while running)'),
+    ParameterSpec('input_topic', STRING, contract.TRAJECTORY_REFERENCE.name, description='uncompensated '
+                  'reference chunks', required=True),
+    ParameterSpec('output_topic', STRING, contract.REFERENCE.name, description='compensated reference chunks',
+                  required=True),
+))
+
+CONTOUR_ERROR = NodeParameters('contour_error_node', 'contour_error', (
+    MACHINE,
+    ParameterSpec('estimator', STRING, 'compensated', description='contour error estimator (README "Contour error")',
+                  choices=('basic', 'shifted', 'compensated')),
+))
+
+RECORDER = NodeParameters('recorder_node', 'recorder', (
+    ParameterSpec('output', STRING, '', description='bag directory to create (absent or empty)', required=True),
+    ParameterSpec('topics', STRING_ARRAY, [''], description='topics (NAME or NAME:pkg/msg/Type); empty: all '
+                  f'but {contract.ROSOUT} and {contract.PARAMETER_EVENTS}'),
+    ParameterSpec('machine', STRING, '', description='machine name or YAML path stored with the bag (empty: none)'),
+    ParameterSpec('discovery_period', DOUBLE, 0.2, 's', 'wall time between topic discoveries',
+                  low=0.0, low_open=True),
+    ParameterSpec('duration', DOUBLE, 0.0, 's', 'wall time to record (0: until stopped)', low=0.0),
+))
+
+REPLAY = NodeParameters('replay_node', 'replay', (
+    ParameterSpec('bag', STRING, '', description='bag directory or .mcap file', required=True),
+    ParameterSpec('rate', DOUBLE, 1.0, description='factor on the recorded timing', low=0.0, low_open=True),
+    ParameterSpec('topics', STRING_ARRAY, [''], description='topics to replay; empty: all'),
+    ParameterSpec('start_offset', DOUBLE, 0.0, 's', 'time into the bag to start at', low=0.0),
+    ParameterSpec('loop', BOOL, False, description='replay again and again'),
+    ParameterSpec('wait_for_subscribers', INTEGER, 0, description='start once every publisher has this many '
+                  'matched subscriptions', low=0),
+    ParameterSpec('wait_timeout', DOUBLE, 30.0, 's', 'wall time to wait for them', low=0.0),
+))
+
+TABLES = (HW_SIM, SERVO, DUAL_STAGE, TRAJECTORY, REFERENCE, COMPENSATION, CONTOUR_ERROR, RECORDER, REPLAY)
+
+
+def table(executable: str) -> NodeParameters:
+    """The table of a node executable (e.g. 'servo_node')."""
+    for t in TABLES:
+        if t.executable == executable:
+            return t
+    raise KeyError(f'no parameter table for {executable!r}')
+
+
+# --- the README table -------------------------------------------------------------------------
+
+def default_text(spec: ParameterSpec) -> str:
+    if spec.default is None:
+        return spec.default_text
+    value = spec.default
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str):
+        return value if value else "''"
+    if isinstance(value, (list, tuple)):
+        return '[' + ', '.join(repr(v) for v in value) + ']'
+    return str(value)
+
+
+def constraint_text(table_: NodeParameters, spec: ParameterSpec) -> str:
+    """The range column: the spec's range and the table's checks on the parameter."""
+    parts = [range_text(spec)] + [c.text for c in table_.checks if c.name == spec.name]
+    return '; '.join(p for p in parts if p)
+
+
+README_HEADER = ('| executable | parameter | type | default | unit | range | set | description |\n'
+                 '|---|---|---|---|---|---|---|---|')
+
+
+def readme_rows(table_: NodeParameters) -> list[tuple[str, ...]]:
+    """One row per parameter: the README columns, as plain text."""
+    return [(table_.executable, p.name, p.type, default_text(p), p.unit, constraint_text(table_, p),
+             'live' if p.live else 'read-only', p.description) for p in table_.parameters]
+
+
+def _cell(text: str, code: bool) -> str:
+    text = text.replace('|', '\\|')
+    return f'`{text}`' if code and text else text
+
+
+def markdown() -> str:
+    """The README table "Node parameters" (python -m machine_ctrl.parameters prints it)."""
+    lines = [README_HEADER]
+    for t in TABLES:
+        for spec, row in zip(t.parameters, readme_rows(t)):
+            codes = (True, True, False, spec.default is not None, False, False, False, False)
+            lines.append('| ' + ' | '.join(_cell(text, code) for text, code in zip(row, codes)) + ' |')
+    return '\n'.join(lines)
+
+
+if __name__ == '__main__':
+    print(markdown())

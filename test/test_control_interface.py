@@ -1,0 +1,142 @@
+"""The one control-law interface (machine_ctrl/control/law.py) and the registry by name
+(machine_ctrl/control/registry.py): every registered law implements the protocol and
+declares its gains, names agree with the machine-config schema, unknown names are refused
+with one line, and reset() returns a law to its first run bit for bit."""
+import dataclasses
+import math
+import shutil
+import typing
+from pathlib import Path
+
+import pytest
+
+from machine_ctrl.control.dual_stage import DualStageCoupling
+from machine_ctrl.control.law import ControlLaw
+from machine_ctrl.control.registry import LAWS, LawEntry, make_law
+from machine_ctrl.control.servo import AxisServo, ServoGroup
+from machine_ctrl.model.config import CONTROL_LAWS, ControlConfig, PPIGains, load_machine
+from machine_ctrl.model.errors import ConfigError
+
+MACHINES = Path(__file__).resolve().parents[1] / 'config' / 'machines'
+
+# axis of the micromill whose machine config carries each law's gains
+AXIS_FOR_LAW = {'sliding_mode': 'x_c', 'ppi': 'x_c', 'lead_lag': 'x_f'}
+
+
+def inputs(steps=3000, period=1e-4):
+    """A deterministic 50 Hz reference and a measurement lagging it, (x_r, v_r, a_r, x, v)."""
+    w = 2 * math.pi * 50.0
+    rows = []
+    for k in range(steps):
+        t = k * period
+        x_r, v_r, a_r = 1e-4 * math.sin(w * t), 1e-4 * w * math.cos(w * t), -1e-4 * w * w * math.sin(w * t)
+        rows.append((x_r, v_r, a_r, x_r - 2e-6 * math.cos(w * t), 0.98 * v_r))
+    return rows
+
+
+def run(block, rows):
+    return [block.step(*row) for row in rows]
+
+
+def test_the_registry_names_exactly_the_laws_of_the_config_schema():
+    assert set(LAWS) == set(CONTROL_LAWS) == {'sliding_mode', 'ppi', 'lead_lag'}
+    hints = typing.get_type_hints(ControlConfig)
+    for name, entry in LAWS.items():
+        assert entry.gains in typing.get_args(hints[name]), name     # ControlConfig.<name>: Gains | None
+
+
+@pytest.mark.parametrize('name', sorted(LAWS))
+def test_each_law_implements_the_protocol_and_declares_its_gains(micromill, name):
+    entry = LAWS[name]
+    law = make_law(micromill.axis(AXIS_FOR_LAW[name]), micromill.control_period, name)
+    assert isinstance(law, entry.law) and isinstance(law, ControlLaw)
+    declared = [p.name for p in entry.law.parameters]
+    assert declared == [f.name for f in dataclasses.fields(entry.gains)]
+    assert all(p.unit and p.description for p in entry.law.parameters)
+    assert isinstance(run(law, inputs(10)), list)
+
+
+@pytest.mark.parametrize('name', sorted(LAWS))
+def test_reset_reproduces_the_first_run_bit_for_bit(micromill, name):
+    axis = micromill.axis(AXIS_FOR_LAW[name])
+    law = make_law(axis, micromill.control_period, name)
+    rows = inputs()
+    first = run(law, rows)
+    law.reset()
+    assert run(law, rows) == first
+    assert run(make_law(axis, micromill.control_period, name), rows) == first    # = a fresh law
+
+
+def test_reset_of_servos_with_friction_feedforward_and_of_the_coupling(micromill):
+    servo = AxisServo(micromill.axis('x_c'), micromill.control_period)
+    assert servo.friction is not None                                # sliding mode + LuGre
+    rows = inputs()
+    first = run(servo, rows)
+    servo.reset()
+    assert run(servo, rows) == first
+
+    group = ServoGroup(micromill, ['x_c', 'x_f'])
+    pairs = [([r[0]] * 2, [r[1]] * 2, [r[2]] * 2, [r[3]] * 2, [r[4]] * 2) for r in rows]
+    first = [group.step(*p) for p in pairs]
+    group.reset()
+    assert [group.step(*p) for p in pairs] == first
+
+    coupling = DualStageCoupling(micromill)
+    n = len(micromill.axis_names)
+    frames = [([r[0]] * n, [r[3]] * n) for r in rows]
+    first = [coupling.step(*f) for f in frames]
+    coupling.reset()
+    assert [coupling.step(*f) for f in frames] == first
+
+
+def test_an_unknown_law_name_is_refused_with_one_line(micromill):
+    with pytest.raises(ValueError) as info:
+        ServoGroup(micromill, ['x_c'], laws={'x_c': 'pid'})
+    assert str(info.value) == "axis x_c: unknown control law 'pid' (known: lead_lag, ppi, sliding_mode)"
+
+
+def test_a_law_without_gains_or_an_axis_without_control_is_refused(micromill):
+    with pytest.raises(ValueError, match=r"^axis x_f: law 'ppi' has no gains in the machine config$"):
+        ServoGroup(micromill, ['x_f'], laws={'x_f': 'ppi'})
+    bare = dataclasses.replace(micromill.axis('x_c'), control=None)
+    with pytest.raises(ValueError, match=r'^axis x_c: no control section in the machine config$'):
+        make_law(bare, micromill.control_period)
+
+
+def test_an_unknown_law_in_the_yaml_is_a_config_error(tmp_path):
+    shutil.copy(MACHINES / 'trt_5axis.urdf', tmp_path)
+    text = (MACHINES / 'trt_5axis.yaml').read_text()
+    assert 'law: sliding_mode' in text
+    (tmp_path / 'm.yaml').write_text(text.replace('law: sliding_mode', 'law: pid', 1))
+    with pytest.raises(ConfigError) as info:
+        load_machine(tmp_path / 'm.yaml')
+    expected = "axes.x.control.law: must be one of lead_lag, ppi, sliding_mode, got 'pid'"
+    assert str(info.value).endswith(expected)
+
+
+class PositionOnly:
+    """A stand-in law: u = K_p (x_r - x), reading the ppi gains section."""
+    parameters = ()
+
+    @classmethod
+    def from_axis(cls, gains, axis, period):
+        return cls(gains.position_gain)
+
+    def __init__(self, k_p):
+        self.k_p = k_p
+
+    def reset(self):
+        pass
+
+    def step(self, x_r, v_r, a_r, x, v):
+        return self.k_p * (x_r - x)
+
+
+def test_the_servo_picks_laws_through_the_registry_alone(micromill, monkeypatch):
+    """Replacing a registry entry is all it takes: no other code branches on the name (and an
+    entry without friction feed-forward gets none, though the axis configures one)."""
+    monkeypatch.setitem(LAWS, 'ppi', LawEntry(PositionOnly, PPIGains))
+    servo = AxisServo(micromill.axis('x_c'), micromill.control_period, law='ppi')
+    assert isinstance(servo.law, PositionOnly) and servo.friction is None
+    k_p = micromill.axis('x_c').control.ppi.position_gain
+    assert servo.step(3e-6, 0.01, 0.5, 1e-6, 0.02) == k_p * (3e-6 - 1e-6)
