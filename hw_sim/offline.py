@@ -46,7 +46,7 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     steps = len(reference) if steps is None else steps
     simulator = MachineSimulator(machine, initial_position=reference.position[0])
     servo = ServoGroup(machine, machine.axis_names, laws, feedforward)
-    coupling = DualStageCoupling(machine, enabled=dual_stage)
+    coupling = DualStageCoupling(machine, dual_stage=dual_stage)
     fine_index = [machine.axis_names.index(a) for a in coupling.fine_axes]
     n = len(machine.axes)
     rec = {name: np.empty((steps, n))

@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple, Protocol
 
+from machine_ctrl.model.numeric import all_finite
 from hw_sim.lockstep import LockStep, RecorderGate
 from hw_sim.simulator import MachineSimulator
 from machine_ctrl.contract import StepClock
@@ -73,14 +74,6 @@ class Status(NamedTuple):
     fault: str | None
     message: str
     values: dict
-
-
-def all_finite(values) -> bool:
-    """True if no value is NaN or inf: one C-level sum, through which NaN and inf propagate."""
-    try:
-        return math.isfinite(math.fsum(values))
-    except (ValueError, OverflowError):
-        return False
 
 
 class Session:

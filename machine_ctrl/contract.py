@@ -136,10 +136,11 @@ TOPICS = (CLOCK, JOINT_STATES, SERVO_COMMANDS, REFERENCE, TRAJECTORY_REFERENCE, 
 SERVICES = (HOLD, RESUME, STOP, HOME, RESET, DUAL_STAGE_ENABLE, COMPENSATION_ENABLE)
 
 
-def reference_topics(compensated: bool) -> tuple[Topic, Topic]:
-    """(where the trajectory node publishes, where the servos read): with geometric
-    compensation the compensation node sits between them."""
-    return (TRAJECTORY_REFERENCE if compensated else REFERENCE), REFERENCE
+def trajectory_output(compensated: bool) -> Topic:
+    """Where the trajectory node publishes its reference chunks: /reference, which the
+    servos read, or with geometric compensation /trajectory/reference, as the compensation
+    node sits between."""
+    return TRAJECTORY_REFERENCE if compensated else REFERENCE
 
 
 # --- Message layout choices ---------------------------------------------------------------
@@ -167,6 +168,15 @@ def join_ns(sec: int, nanosec: int) -> int:
 
 def seconds_to_ns(seconds: float) -> int:
     return int(round(seconds * NS_PER_SECOND))
+
+
+def ns_to_seconds(ns: int) -> float:
+    return ns / NS_PER_SECOND
+
+
+def seconds(sec: int, nanosec: int) -> float:
+    """A (sec, nanosec) time or duration in seconds (float)."""
+    return sec + 1e-9 * nanosec
 
 
 class StepClock:

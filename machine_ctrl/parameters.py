@@ -84,7 +84,6 @@ class Check:
 class NodeParameters:
     """The parameter table of one node executable."""
     executable: str                   # e.g. hw_sim_node
-    node: str                         # default node name
     parameters: tuple[ParameterSpec, ...]
     checks: tuple[Check, ...] = field(default=())
 
@@ -226,12 +225,6 @@ def coerce(spec: ParameterSpec, value):
     return value
 
 
-def describe(spec: ParameterSpec) -> str:
-    """The description of a descriptor: what, [unit], and what is allowed."""
-    text = spec.description + (f' [{spec.unit}]' if spec.unit else '')
-    return text
-
-
 # --- the tables ---------------------------------------------------------------------------
 
 MACHINE = ParameterSpec('machine', STRING, DEFAULT_MACHINE, description='machine name (config/machines/) or path of its YAML file')
@@ -257,7 +250,7 @@ def _window_needs_lockstep(values):
     return None
 
 
-HW_SIM = NodeParameters('hw_sim_node', 'hw_sim', (
+HW_SIM = NodeParameters('hw_sim_node', (
     MACHINE,
     ParameterSpec('mode', STRING, 'lockstep', description='lockstep: step k -> k+1 once every axis has its '
                   'command; paced: step on the wall clock', choices=('lockstep', 'paced')),
@@ -278,7 +271,7 @@ HW_SIM = NodeParameters('hw_sim_node', 'hw_sim', (
                   "recorder's progress (0: off)", low=0),
 ), checks=(Check('recorder_window', ('recorder_window', 'mode'), _window_needs_lockstep, '0 unless mode is lockstep'),))
 
-SERVO = NodeParameters('servo_node', 'servo', (
+SERVO = NodeParameters('servo_node', (
     MACHINE,
     ParameterSpec('axes', STRING_ARRAY, None, description='axes this node controls (machine axis names)',
                   default_text='every controlled axis'),
@@ -289,14 +282,14 @@ SERVO = NodeParameters('servo_node', 'servo', (
     INPUT_TIMEOUT,
 ))
 
-DUAL_STAGE = NodeParameters('dual_stage_node', 'dual_stage', (
+DUAL_STAGE = NodeParameters('dual_stage_node', (
     MACHINE,
     ParameterSpec('dual_stage', BOOL, True, description=f'dual-stage coupling on at start ({contract.DUAL_STAGE_ENABLE.name} '
                   'switches it while running; off: zero offsets)'),
     INPUT_TIMEOUT,
 ))
 
-REFERENCE = NodeParameters('reference_node', 'reference', (
+REFERENCE = NodeParameters('reference_node', (
     MACHINE,
     ParameterSpec('contour', STRING, 'circle', description='test contour to stream',
                   choices=('circle', 'square', 'hold')),
@@ -304,7 +297,7 @@ REFERENCE = NodeParameters('reference_node', 'reference', (
     LOOKAHEAD_STEPS,
 ), checks=(_at_least('lookahead_steps', 'chunk_steps', 1),))
 
-TRAJECTORY = NodeParameters('trajectory_node', 'trajectory', (
+TRAJECTORY = NodeParameters('trajectory_node', (
     MACHINE,
     ParameterSpec('feed', DOUBLE, 0.01, 'm/s', 'process feed limit of tool paths; live: from the next path',
                   low=0.0, low_open=True, live=True),
@@ -314,7 +307,7 @@ TRAJECTORY = NodeParameters('trajectory_node', 'trajectory', (
                   f'({contract.TRAJECTORY_REFERENCE.name} when compensation sits between)', required=True),
 ), checks=(_at_least('lookahead_steps', 'chunk_steps', 2),))
 
-COMPENSATION = NodeParameters('compensation_node', 'compensation', (
+COMPENSATION = NodeParameters('compensation_node', (
     MACHINE,
     ParameterSpec('model', STRING, '', description='geometric error model YAML (machine-ctrl fit-errors --out)',
                   required=True),
@@ -326,13 +319,13 @@ COMPENSATION = NodeParameters('compensation_node', 'compensation', (
                   required=True),
 ))
 
-CONTOUR_ERROR = NodeParameters('contour_error_node', 'contour_error', (
+CONTOUR_ERROR = NodeParameters('contour_error_node', (
     MACHINE,
     ParameterSpec('estimator', STRING, 'compensated', description='contour error estimator (README "Contour error")',
                   choices=('basic', 'shifted', 'compensated')),
 ))
 
-RECORDER = NodeParameters('recorder_node', 'recorder', (
+RECORDER = NodeParameters('recorder_node', (
     ParameterSpec('output', STRING, '', description='bag directory to create (absent or empty)', required=True),
     ParameterSpec('topics', STRING_ARRAY, [''], description='topics (NAME or NAME:pkg/msg/Type); empty: all '
                   f'but {contract.ROSOUT} and {contract.PARAMETER_EVENTS}'),
@@ -342,7 +335,7 @@ RECORDER = NodeParameters('recorder_node', 'recorder', (
     ParameterSpec('duration', DOUBLE, 0.0, 's', 'wall time to record (0: until stopped)', low=0.0),
 ))
 
-REPLAY = NodeParameters('replay_node', 'replay', (
+REPLAY = NodeParameters('replay_node', (
     ParameterSpec('bag', STRING, '', description='bag directory or .mcap file', required=True),
     ParameterSpec('rate', DOUBLE, 1.0, description='factor on the recorded timing', low=0.0, low_open=True),
     ParameterSpec('topics', STRING_ARRAY, [''], description='topics to replay; empty: all'),

@@ -28,9 +28,6 @@ class Collector:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64
-
-        from machine_ctrl.ros import contour_error_node as cen
-        from machine_ctrl.ros import messages as ros_io
         self.period_ns = period_ns
         qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
         self.states, self.tip, self.orientation = {}, {}, {}
@@ -102,7 +99,6 @@ def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node,
         # machine starts: nothing it publishes can go out before this test listens
         contour_spec = specs.pop()
         ros_supervisor.start(contour_spec.name, contour_spec.argv())
-        from machine_ctrl.ros import contour_error_node as cen
         topics = (contract.CONTOUR_TOOL_TIP.name, contract.CONTOUR_TOOL_TIP_MAGNITUDE.name, contract.CONTOUR_ORIENTATION.name,
                   contract.CONTOUR_ORIENTATION_MAGNITUDE.name)
         deadline = time.monotonic() + 120

@@ -32,7 +32,7 @@ def test_fine_reference_slews_at_the_fine_velocity_limit(micromill):
 
 
 def test_disabled_coupling_adds_nothing(micromill):
-    coupling = DualStageCoupling(micromill, enabled=False)
+    coupling = DualStageCoupling(micromill, dual_stage=False)
     assert coupling.step(full(micromill, x_c=1.0), full(micromill)).offsets == (0.0, 0.0, 0.0)
 
 

@@ -21,10 +21,9 @@ class StateRecorder:
 
     def __init__(self, node):
         from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
 
-        from machine_ctrl.ros import messages as ros_io
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
         self.rows = {}
         # deep reader queue: the graph may outrun this thread for a while, and a keep-last
         # reader overwrites what it has not taken yet

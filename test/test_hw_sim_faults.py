@@ -219,12 +219,11 @@ def _settled(c, quiet=0.6):
 def test_recorder_window_holds_the_machine_without_a_fault_until_the_recorder_catches_up(gated_commander, ros_node):
     from builtin_interfaces.msg import Time
 
-    from machine_ctrl.recording.recorder import PROGRESS_TOPIC
     from machine_ctrl.ros.recorder_node import PROGRESS_QOS
     from machine_ctrl.ros.messages import StepClock
     c, clock = gated_commander, StepClock(1e-4)
     c.wait(lambda: c.steps and max(c.steps) > 100, what='running without a recorder')
-    progress = ros_node('recorder').create_publisher(Time, PROGRESS_TOPIC, PROGRESS_QOS)
+    progress = ros_node('recorder').create_publisher(Time, contract.RECORDER_PROGRESS.name, PROGRESS_QOS)
     progress.publish(Time())                                   # a recorder: nothing written yet
     held = _settled(c, quiet=1.0)                              # longer than command_timeout
     assert not c.fault() and c.steps.count(held) > 3, c.hw_diag     # held, state re-sent, no fault

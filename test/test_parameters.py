@@ -91,6 +91,19 @@ def test_table_defaults_are_those_of_the_cores():
     assert parameters.HW_SIM.spec('machine').default == DEFAULT_MACHINE
 
 
+def test_reference_node_contours_are_those_of_trajectory_contours(micromill):
+    """Each choice plays (contour_reference), and contour_reference knows no other name: its
+    refusal lists exactly the choices."""
+    from trajectory.contours import contour_reference
+    choices = parameters.REFERENCE.spec('contour').choices
+    for name in choices:
+        assert len(contour_reference(micromill, name)) > 0, name
+    with pytest.raises(ValueError) as refused:
+        contour_reference(micromill, 'triangle')
+    known = re.fullmatch(r"contour must be (.+) or (\w+), got 'triangle'", str(refused.value))
+    assert known and sorted([*known[1].split(', '), known[2]]) == sorted(choices), str(refused.value)
+
+
 def _readme_rows():
     text = README.read_text()
     section = text[text.index('## Node parameters'):]

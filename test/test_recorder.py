@@ -4,6 +4,7 @@ import struct
 
 import pytest
 
+from machine_ctrl import contract
 from machine_ctrl.recording import recorder
 from machine_ctrl.recording.bag import Bag
 
@@ -146,7 +147,7 @@ def test_recording_without_a_machine_says_loss_is_not_checked(tmp_path):
 
 
 def test_progress_topic_is_not_recorded_unless_named():
-    available = {'/joint_states': ['sensor_msgs/msg/JointState'], recorder.PROGRESS_TOPIC: ['builtin_interfaces/msg/Time']}
+    progress = contract.RECORDER_PROGRESS.name
+    available = {'/joint_states': ['sensor_msgs/msg/JointState'], progress: ['builtin_interfaces/msg/Time']}
     assert set(recorder.to_subscribe(available, None, recorder.DEFAULT_EXCLUDED, {})) == {'/joint_states'}
-    assert set(recorder.to_subscribe(available, {recorder.PROGRESS_TOPIC: None}, recorder.DEFAULT_EXCLUDED, {})) \
-        == {recorder.PROGRESS_TOPIC}
+    assert set(recorder.to_subscribe(available, {progress: None}, recorder.DEFAULT_EXCLUDED, {})) == {progress}

@@ -26,7 +26,7 @@ from trajectory import toolpath
 from trajectory.feedrate import FeedLimits, FeedProfile, optimize_feed
 from trajectory.moves import stroke_violation
 from trajectory.redundancy import (RedundancySettings, Resolution, ResolutionFailed, initial_configuration,
-                                   resolve, stroke_problems)
+                                   resolve, start_out_of_stroke)
 from trajectory.sampling import LimitsExceeded, SepticInterpolant, Sampling, local_rule, sample, sample_within
 from trajectory.spline import ArcLengthPath
 
@@ -188,10 +188,9 @@ def plan(cl_or_name, machine, feed: float = DEFAULT_FEED, settings: RedundancySe
     try:
         if q0 is None:
             q0 = initial_configuration(path, kinematics, machine, settings)
-            problems = stroke_problems(machine, q0)
-            if problems:
-                return failed(PlanStatus.OUT_OF_STROKE,
-                              f'the path starts out of reach inside the strokes: {"; ".join(problems)}')
+            reason = start_out_of_stroke(machine, q0)
+            if reason:
+                return failed(PlanStatus.OUT_OF_STROKE, reason)
         res = resolve(path, kinematics, machine, settings, q0)
     except ResolutionFailed as exc:
         return failed(PlanStatus(exc.kind), exc.reason)

@@ -84,6 +84,13 @@ def stroke_problems(machine: MachineConfig, q) -> list[str]:
             if axis.stroke is not None and not axis.stroke[0] <= value <= axis.stroke[1]]
 
 
+def start_out_of_stroke(machine: MachineConfig, q0) -> str | None:
+    """Why a path whose start configuration is q0 cannot be followed inside the strokes, or
+    None when q0 is inside every stroke."""
+    problems = stroke_problems(machine, q0)
+    return 'the path starts out of reach inside the strokes: ' + '; '.join(problems) if problems else None
+
+
 def _failure(machine: MachineConfig, s, qs) -> ResolutionFailed:
     """Why the integration broke down (a numpy LinAlgError or a non-finite rate) after the
     configurations qs (K, n) at the arc lengths s[:K]. When the path is out of the strokes'
@@ -103,8 +110,7 @@ def _failure(machine: MachineConfig, s, qs) -> ResolutionFailed:
                                 'follow the path there)', float(s[j]))
     j = int(outside[0])
     if j == 0:
-        return ResolutionFailed('out_of_stroke', 'the path starts out of reach inside the strokes: '
-                                + '; '.join(stroke_problems(machine, qs[0])), 0.0)
+        return ResolutionFailed('out_of_stroke', start_out_of_stroke(machine, qs[0]), 0.0)
     last = q[j - 1]
     share = np.abs(last - 0.5 * (lo + hi)) / (0.5 * (hi - lo))      # 1 at a stroke end
     ends = np.flatnonzero(share >= 0.99) if np.any(share >= 0.99) else [int(np.argmax(share))]

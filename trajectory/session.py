@@ -16,7 +16,7 @@ States (:class:`State`; the values are the message of the node's status):
   the reference at the fault step held, goals refused until hw_sim is healthy again (idle).
 
 A motion that has played out returns the state to idle at the next :meth:`Session.tick`.
-Refused goals are counted and the last reason kept (`rejections`, `last_rejection`).
+Refused goals are counted and the last reason kept (`rejections`: machine_ctrl.diagnostics.Rejections).
 
 Outputs go through an :class:`Outputs` object, in the order they happen: `rows` (a chunk of
 the stream to publish), `status` (publish the status now: :meth:`Session.status_values`),
@@ -32,6 +32,7 @@ from typing import Protocol
 import numpy as np
 
 from machine_ctrl import contract
+from machine_ctrl.diagnostics import Rejections, error_text
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.model.reference import Reference
@@ -94,8 +95,7 @@ class Session:
         self.step = 0                       # newest sim step seen
         self.fault = ''
         self.override_setting = 1.0
-        self.rejections = 0
-        self.last_rejection = ''
+        self.rejections = Rejections(outputs.warn)
         self.planning_label = ''
 
     # -- time and streaming ----------------------------------------------------------------
@@ -121,15 +121,10 @@ class Session:
             self.out.rows(*self.stream.take(self.chunk_steps))
 
     # -- refusals --------------------------------------------------------------------------
-    def count_rejection(self, what: str, reason: str) -> None:
-        """Count a refused input (and warn) without publishing the status."""
-        self.rejections += 1
-        self.last_rejection = f'{what}: {reason}'
-        self.out.warn(f'rejected {what}: {reason}')
-
     def refuse(self, what: str, reason: str) -> None:
-        """Refuse a goal or command: counted, and the status published with the reason."""
-        self.count_rejection(what, reason)
+        """Refuse a goal or command: counted (and warned), and the status published with the
+        reason. (`rejections.add` counts a refused input without publishing the status.)"""
+        self.rejections.add(what, reason)
         self.out.status()
 
     def may_accept(self, what: str) -> bool:
@@ -167,7 +162,7 @@ class Session:
                 here = self.stream.position(self.stream.next_step)
                 approach = moves.move_to(self.machine, reference.position[0], moves.AxisState.at_rest(here))
             except Exception as exc:  # noqa: BLE001 - any planning error refuses the goal, the session goes on
-                failure = str(exc) if isinstance(exc, ValueError) else f'{type(exc).__name__}: {exc}'
+                failure = error_text(exc)
             else:
                 self._begin(moves.concatenate([approach, reference]), self.planning_label)
                 return
@@ -191,7 +186,7 @@ class Session:
     def home(self) -> Answer:
         """Move to the machine's home at rest (a goal: only while idle)."""
         if not self.may_accept('home'):
-            return Answer(False, self.last_rejection)
+            return Answer(False, self.rejections.last)
         here = moves.AxisState.at_rest(self.stream.position(self.stream.next_step))
         self._begin(moves.home(self.machine, here), 'home')
         return Answer(True, f'homing in {len(self.stream.motion.reference)} steps')
@@ -282,5 +277,5 @@ class Session:
                 'streamed_to_step': stream.next_step if stream else '',
                 'feed_override': f'{stream.override(self.step):.4f}' if stream else '1',
                 'feed_override_setting': self.override_setting,
-                'fault': self.fault, 'rejected_goals': self.rejections,
-                'last_rejection': self.last_rejection}
+                'fault': self.fault, 'rejected_goals': self.rejections.count,
+                'last_rejection': self.rejections.last}

@@ -89,8 +89,7 @@ class Bringup:
         if self.single_process:
             self.graph.start('graph', single_process_argv(self.specs, self.log_dir))
             return
-        for spec in self.specs:
-            self.graph.start(spec.name, spec.argv(self.log_dir))
+        self.graph.start_nodes(self.specs, self.log_dir)
 
     def check(self) -> None:
         """Raise processes.ChildExited when a node process has ended on its own."""

@@ -88,7 +88,7 @@ class MachineClient:
         for i, values in enumerate(points):
             point = JointTrajectoryPoint(positions=[float(v) for v in values])
             if times is not None:
-                point.time_from_start = self.clock.duration(round(times[i] / self.machine.control_period))
+                point.time_from_start = self.clock.duration(self.clock.steps(times[i]))
             msg.points.append(point)
         self.pub_goal.publish(msg)
 

@@ -244,11 +244,11 @@ class Supervisor:
         """Stop child ``name`` and its whole process group; returns its exit code."""
         return self._stop([self.children[name]], timeout)[name]
 
-    def start_nodes(self, specs) -> None:
+    def start_nodes(self, specs, params_dir=None) -> None:
         """Start each node spec (machine_ctrl.ros.graph.NodeSpec: `name`, `argv()`) as a child
-        of its own."""
+        of its own; its parameter file goes to `params_dir` (None: a temporary file)."""
         for spec in specs:
-            self.start(spec.name, spec.argv())
+            self.start(spec.name, spec.argv(params_dir))
 
     def stop_all(self, timeout: float | None = None) -> dict[str, int | None]:
         """Stop every child: each signal goes to the groups in reverse start order (the

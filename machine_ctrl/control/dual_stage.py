@@ -32,10 +32,10 @@ class CouplingResult:
 class DualStageCoupling:
     parameters = (
         Parameter('margin', '1', 'fraction of the fine stroke kept free at each end'),
-        Parameter('enabled', 'bool', 'coupling on (off: zero offsets)'),
+        Parameter('dual_stage', 'bool', 'coupling on (off: zero offsets); the dual_stage node parameter'),
     )
 
-    def __init__(self, machine: MachineConfig, enabled: bool = True, margin: float = 0.10):
+    def __init__(self, machine: MachineConfig, dual_stage: bool = True, margin: float = 0.10):
         index = {name: i for i, name in enumerate(machine.axis_names)}
         self.pairs = []
         for pair in machine.dual_stage:
@@ -44,7 +44,7 @@ class DualStageCoupling:
             slew = machine.axis(pair.fine).limits.velocity * machine.control_period
             self.pairs.append((index[pair.coarse], index[pair.fine], pair.sign, lo + shrink, hi - shrink, slew))
         self.fine_axes = tuple(p.fine for p in machine.dual_stage)
-        self.enabled = enabled
+        self.enabled = dual_stage
         self.reset()
 
     def reset(self) -> None:

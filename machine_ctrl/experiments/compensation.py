@@ -26,6 +26,7 @@ from compensation.compensate import Compensator
 from compensation.error_map import ErrorMap
 from compensation.error_model import ErrorKinematics
 from compensation.measurement import STEP
+from machine_ctrl import parameters
 from machine_ctrl.model.config import MachineConfig
 from hw_sim.offline import RunRecord, run
 from machine_ctrl.model.reference import Reference
@@ -40,7 +41,7 @@ THESIS_6_3 = {
 }
 # Thesis Table 6.4 (um): |dP_x|, |dP_y|, |dP_z| (mean unc., mean comp., max unc., max comp.)
 THESIS_6_4 = {'x': (0.97, 0.19, 6.5, 3.7), 'y': (0.79, 0.31, 6.5, 7.1), 'z': (5.2, 3.8, 65.4, 81.8)}
-GROUND_TRUTH_DECIMATION = 10     # hw_sim's ground_truth_decimation default
+GROUND_TRUTH_DECIMATION = parameters.HW_SIM.spec('ground_truth_decimation').default   # hw_sim's default
 UM = 1e6
 
 

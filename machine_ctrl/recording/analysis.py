@@ -38,9 +38,7 @@ from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.recording.recorder import MACHINE_FILE_KEY, MACHINE_KEY
 
-STATES = contract.JOINT_STATES.name
-REFERENCE = contract.REFERENCE.name
-REQUIRED = {STATES: 'sensor_msgs/msg/JointState', REFERENCE: 'trajectory_msgs/msg/JointTrajectory'}
+REQUIRED = {topic.name: topic.type for topic in (contract.JOINT_STATES, contract.REFERENCE)}
 # assumed: the tool tip lags its reference by far less than 50 ms at the feeds we run
 # (10 mm/s: 0.5 mm of path), so the nearest reference point lies within this window.
 CONTOUR_WINDOW = 0.05      # s
@@ -106,7 +104,8 @@ def load(path, machine: str | MachineConfig | None = None) -> Run:
         reference = _reference(bag, period_ns, names)
     steps = np.array(sorted(set(states) & set(reference)), dtype=np.int64)
     if len(steps) == 0:
-        raise AnalysisError(f'{path}: no control step has both a {STATES} and a {REFERENCE} row')
+        raise AnalysisError(f'{path}: no control step has both a {contract.JOINT_STATES.name} and a '
+                            f'{contract.REFERENCE.name} row')
     return Run(config, steps, np.array([states[k] for k in steps]), np.array([reference[k] for k in steps]),
                str(path))
 
@@ -120,30 +119,32 @@ def _columns(message_names, wanted, topic) -> list[int]:
 
 
 def _states(bag: Bag, period_ns: int, names) -> dict[int, list[float]]:
-    decode = _decoder(bag, STATES)
+    topic = contract.JOINT_STATES.name
+    decode = _decoder(bag, topic)
     rows: dict[int, list[float]] = {}
     picks = None
-    for message in bag.messages([STATES]):
+    for message in bag.messages([topic]):
         msg = decode(message.data)
         step, rest = divmod(_stamp_ns(msg.header), period_ns)
         if rest or step in rows:
             continue
         if picks is None or len(msg.name) != len(names):
-            picks = _columns(list(msg.name), names, STATES)
+            picks = _columns(list(msg.name), names, topic)
         rows[step] = [msg.position[i] for i in picks]
     return rows
 
 
 def _reference(bag: Bag, period_ns: int, names) -> dict[int, list[float]]:
-    decode = _decoder(bag, REFERENCE)
+    topic = contract.REFERENCE.name
+    decode = _decoder(bag, topic)
     rows: dict[int, list[float]] = {}
     end = 0
-    for message in bag.messages([REFERENCE]):
+    for message in bag.messages([topic]):
         msg = decode(message.data)
         first, rest = divmod(_stamp_ns(msg.header), period_ns)
         if rest or not msg.points:
             continue
-        picks = _columns(list(msg.joint_names), names, REFERENCE)
+        picks = _columns(list(msg.joint_names), names, topic)
         for k in range(first, end):            # a new chunk replaces from its first step on
             rows.pop(k, None)
         for i, point in enumerate(msg.points):

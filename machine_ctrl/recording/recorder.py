@@ -32,12 +32,8 @@ from machine_ctrl.recording import msgdefs
 from machine_ctrl.recording.bag import BagWriter
 from machine_ctrl.model.errors import InvalidMessage
 
-PROGRESS_TOPIC = contract.RECORDER_PROGRESS.name
-STATES_TOPIC = contract.JOINT_STATES.name
-CLOCK_TOPIC = contract.CLOCK.name
-JOINT_STATE = 'sensor_msgs/msg/JointState'
 # ROS's log and parameter traffic, and our own flow-control reports
-DEFAULT_EXCLUDED = (contract.ROSOUT, contract.PARAMETER_EVENTS, PROGRESS_TOPIC)
+DEFAULT_EXCLUDED = (contract.ROSOUT, contract.PARAMETER_EVENTS, contract.RECORDER_PROGRESS.name)
 # assumed: a report every 10 states costs the recorder < 1 % (one small publish per ~40
 # messages of the graph) and keeps hw_sim's view of it at most 10 steps (+ transit) stale,
 # small beside the windows that make sense (~100 steps: README).
@@ -192,7 +188,7 @@ class Progress:
     Due after every ``every``-th /joint_states message; :meth:`take` also serves a timer."""
 
     def __init__(self, topics=None, every: int = None, silence: float = None):
-        self.topics = frozenset(PROGRESS_STREAM_TOPICS if topics is None else topics) | {STATES_TOPIC}
+        self.topics = frozenset(PROGRESS_STREAM_TOPICS if topics is None else topics) | {contract.JOINT_STATES.name}
         self.every = PROGRESS_EVERY if every is None else every
         self.silence = STREAM_SILENCE if silence is None else silence
         self.streams: dict[tuple, Stream] = {}
@@ -211,11 +207,11 @@ class Progress:
                 self.streams[key] = Stream(stamp, now)
             else:
                 stream.add(stamp, now)
-            self._since_sent += topic == STATES_TOPIC
+            self._since_sent += topic == contract.JOINT_STATES.name
         return self._since_sent >= self.every
 
     def value(self, now: float) -> int:
-        states = [s for (topic, _), s in self.streams.items() if topic == STATES_TOPIC]
+        states = [s for (topic, _), s in self.streams.items() if topic == contract.JOINT_STATES.name]
         if not states:
             return 0
         state = max(states, key=lambda s: s.seen)
@@ -242,7 +238,8 @@ class Recording:
     def __init__(self, directory, custom_data: dict | None = None, period_ns: int | None = None):
         self.writer = BagWriter(directory)
         self.custom_data = dict(custom_data or {})
-        self.gaps = {STATES_TOPIC: StampGaps(period_ns), CLOCK_TOPIC: StampGaps()} if period_ns else {}
+        self.gaps = ({contract.JOINT_STATES.name: StampGaps(period_ns), contract.CLOCK.name: StampGaps()}
+                     if period_ns else {})
         self.progress = Progress()
 
     def add_topic(self, name: str, type_name: str, offers) -> None:
@@ -254,7 +251,7 @@ class Recording:
         gaps = self.gaps.get(topic)
         if gaps is not None:
             gaps.add(cdr_stamp_ns(data))
-        return self.progress.written(topic, self.writer.topics[topic].type == JOINT_STATE, data, now)
+        return self.progress.written(topic, self.writer.topics[topic].type == contract.JOINT_STATES.type, data, now)
 
     def loss(self) -> dict[str, str]:
         """custom_data entries of the loss check, per checked topic that was recorded."""

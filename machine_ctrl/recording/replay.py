@@ -17,8 +17,6 @@ from machine_ctrl import contract
 from machine_ctrl.recording import cdr
 from machine_ctrl.recording.bag import Bag, BagError, BagMessage
 
-CLOCK_TOPIC = contract.CLOCK.name
-CLOCK_TYPE = 'rosgraph_msgs/msg/Clock'
 DERIVED_CLOCK_PERIOD = 10_000_000   # ns; assumed: 100 Hz, the usual rate of a bag player's clock
 
 
@@ -61,7 +59,7 @@ class ClockSource:
     """Turns replayed messages into the /clock stamps to publish (strictly increasing)."""
 
     def __init__(self, messages: list[BagMessage]):
-        recorded = [clock_ns(m.data) for m in messages if m.topic == CLOCK_TOPIC]
+        recorded = [clock_ns(m.data) for m in messages if m.topic == contract.CLOCK.name]
         self.from_bag = bool(recorded)
         values = recorded or [m.log_time for m in messages]
         steps = [b - a for a, b in zip(values, values[1:]) if b > a]
@@ -75,7 +73,7 @@ class ClockSource:
     def stamp_for(self, message: BagMessage) -> int | None:
         """The clock (ns) to publish when `message` goes out, or None (no clock now)."""
         if self.from_bag:
-            if message.topic != CLOCK_TOPIC:
+            if message.topic != contract.CLOCK.name:
                 return None
             value = clock_ns(message.data) + self.offset
         else:

@@ -25,7 +25,7 @@ from compensation.stream import CompensationStream
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.model.errors import ConfigError
-from machine_ctrl.ros.node_common import Rejections, declare_parameters, machine_parameter, main_for, subscribe_reference, wall_timer
+from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, rejections, subscribe_reference, wall_timer
 
 
 class CompensationNode(Node):
@@ -41,9 +41,10 @@ class CompensationNode(Node):
             raise SystemExit(2) from None
         self.stream = CompensationStream(compensator, self.machine.control_period, enabled)
         self.clock = ros_io.StepClock.of(self.machine)
-        self.rejections = Rejections(self)
+        self.rejections = rejections(self)
         self.pub = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              ros_io.qos(contract.DIAGNOSTICS.qos))
         subscribe_reference(self, input_topic, self.clock, self.machine.axis_names, self.on_chunk,
                             lambda reason: self.rejections.add('reference chunk', reason))
         self.create_service(SetBool, contract.COMPENSATION_ENABLE.name, self.on_enable)

@@ -33,8 +33,8 @@ from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData
 from machine_ctrl.contour.estimation import MAX_SHIFT, ContourEstimator, ToolTrajectory, tool_reference
 from machine_ctrl.model.kinematics import Kinematics
-from machine_ctrl.ros.node_common import (Rejections, declare_parameters, machine_parameter, main_for, subscribe_joint_states,
-                                      subscribe_reference, use_sim_time, wall_timer)
+from machine_ctrl.ros.node_common import (declare_parameters, machine_parameter, main_for, rejections,
+                                          subscribe_joint_states, subscribe_reference, use_sim_time, wall_timer)
 
 
 
@@ -56,12 +56,13 @@ class ContourErrorNode(Node):
         self.last_step = -1
         self.pending: deque = deque()      # states waiting for their reference row
         self.skipped = 0
-        self.rejections = Rejections(self)
+        self.rejections = rejections(self)
         self.frame = self.machine.workpiece_frame
         self.pubs = [self.create_publisher(kind, topic, ros_io.STEP_QOS) for kind, topic in (
             (Vector3Stamped, contract.CONTOUR_TOOL_TIP.name), (Float64, contract.CONTOUR_TOOL_TIP_MAGNITUDE.name),
             (Vector3Stamped, contract.CONTOUR_ORIENTATION.name), (Float64, contract.CONTOUR_ORIENTATION_MAGNITUDE.name))]
-        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              ros_io.qos(contract.DIAGNOSTICS.qos))
         subscribe_reference(self, contract.REFERENCE.name, self.clock, self.machine.axis_names, self.on_reference,
                             lambda reason: self.rejections.add('reference', reason))
         subscribe_joint_states(self, contract.JOINT_STATES.name, self.on_state,

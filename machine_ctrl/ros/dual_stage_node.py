@@ -23,18 +23,19 @@ from machine_ctrl.ros.step_node import StepNode
 
 class DualStageNode(StepNode):
     def __init__(self, name: str = 'dual_stage', **kwargs):
-        super().__init__(name, **kwargs)
+        super().__init__(name, parameters.DUAL_STAGE, **kwargs)
         self.machine = machine_parameter(self)
         if not self.machine.dual_stage:
             self.get_logger().fatal(f'{self.machine.name}: the machine config has no dual_stage pairs')
             raise SystemExit(2)
-        enabled = declare_parameters(self, parameters.DUAL_STAGE).dual_stage
-        self.coupling = DualStageCoupling(self.machine, enabled=enabled)
+        dual_stage = declare_parameters(self, parameters.DUAL_STAGE).dual_stage
+        self.coupling = DualStageCoupling(self.machine, dual_stage=dual_stage)
         self.axes = self.machine.axis_names
         self.make_buffer(self.axes)
         self.encoder = JointStateEncoder(self.coupling.fine_axes)
         self.pub = self.create_publisher(JointState, contract.DUAL_STAGE_OFFSETS.name, ros_io.STEP_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              ros_io.qos(contract.DIAGNOSTICS.qos))
         self.start_stepping(self.machine, self.axes, self.pub, self.buffer.has, self.compute,
                             streaming=lambda: self.buffer.started)
         self.create_service(SetBool, contract.DUAL_STAGE_ENABLE.name, self.on_enable)

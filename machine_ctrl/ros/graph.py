@@ -68,13 +68,12 @@ class NodeSpec:
             args += ['--params-file', str(write_params_file([self], params_dir, self.name))]
         return args
 
-    def create(self, context=None):
+    def create(self):
         """The node, in this process (rclpy must be initialized), with its parameters as
         overrides."""
         module = __import__(self.module, fromlist=[self.cls])
         overrides = [Parameter(k, value=v) for k, v in self.parameters.items()]
-        kwargs = {'context': context} if context is not None else {}
-        return getattr(module, self.cls)(name=self.name, parameter_overrides=overrides, **kwargs)
+        return getattr(module, self.cls)(name=self.name, parameter_overrides=overrides)
 
     def to_data(self) -> dict:
         return {'name': self.name, 'module': self.module, 'class': self.cls, 'parameters': dict(self.parameters)}
@@ -158,7 +157,7 @@ def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_s
         sources.append(NodeSpec('compensation', 'machine_ctrl.ros.compensation_node', 'CompensationNode',
                                 {**common, 'model': str(compensation_model)}))
     if contour is None:
-        output = contract.reference_topics(compensation_model is not None)[0].name
+        output = contract.trajectory_output(compensation_model is not None).name
         sources.append(NodeSpec('trajectory', 'machine_ctrl.ros.trajectory_node', 'TrajectoryNode', {**common, 'output_topic': output}))
         hw = {**common, **(hw_sim or {})}
     else:   # a contour has no approach move: the machine starts where the contour starts
@@ -196,23 +195,25 @@ def main(argv=None) -> int:
 
     parser = argparse.ArgumentParser(prog='python -m machine_ctrl.ros.graph', description=main.__doc__)
     parser.add_argument('--specs', metavar='FILE', help='node specs (YAML); no other option then')
-    parser.add_argument('--machine', default=DEFAULT_MACHINE)
-    parser.add_argument('--contour', default='circle',
-                        help="test contour of the reference node, or 'none' for the trajectory node")
-    parser.add_argument('--no-dual-stage', dest='dual_stage', action='store_false',
-                        help='start with the dual-stage coupling off')
-    parser.add_argument('--hw-sim', action='append', default=[], metavar='KEY=VALUE',
-                        help='hw_sim parameter (value as YAML), e.g. min_subscribers=4')
-    parser.add_argument('--compensation', metavar='MODEL', help='geometric error model: add the compensation node')
-    parser.add_argument('--contour-error', action='store_true', help='add the contour error node')
+    group = parser.add_argument_group('the default graph (not with --specs)')
+    graph_options = [
+        group.add_argument('--machine', help=f'default {DEFAULT_MACHINE}'),
+        group.add_argument('--contour', help="test contour of the reference node (default circle), or 'none' "
+                           'for the trajectory node'),
+        group.add_argument('--no-dual-stage', action='store_true', help='start with the dual-stage coupling off'),
+        group.add_argument('--hw-sim', action='append', default=[], metavar='KEY=VALUE',
+                           help='hw_sim parameter (value as YAML), e.g. min_subscribers=4')]
     args = parser.parse_args(argv)
     if args.specs is not None:
+        given = [option.option_strings[0] for option in graph_options if getattr(args, option.dest) != option.default]
+        if given:
+            parser.error(f'--specs takes no other option, got {", ".join(given)}')
         specs = read_specs(args.specs)
     else:
         hw = {k: yaml.safe_load(v) for k, v in (item.split('=', 1) for item in args.hw_sim)}
-        contour = None if args.contour == 'none' else args.contour
-        specs = default_graph(load_machine(args.machine), contour, args.dual_stage, hw, args.compensation,
-                              args.contour_error)
+        contour = 'circle' if args.contour is None else args.contour
+        specs = default_graph(load_machine(args.machine or DEFAULT_MACHINE), None if contour == 'none' else contour,
+                              not args.no_dual_stage, hw)
     rclpy.init()
     try:
         nodes = create_nodes(specs)

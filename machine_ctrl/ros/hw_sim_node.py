@@ -13,7 +13,7 @@ once on a fault). Per-step states go out and commands come in as CDR bytes
 of the state answered). Service /hw_sim/reset (std_srvs/Trigger) clears a fault.
 
 Modes (parameter `mode`) and faults are hw_sim.session's (ROS-free, unit-tested in
-test/test_lockstep.py), which decides when to advance, re-send, hold, refuse or fault; this
+test/test_hw_sim_session.py), which decides when to advance, re-send, hold, refuse or fault; this
 node converts the messages, passes each event in with the wall time and publishes what the
 session says:
 * lockstep (default): step k -> k+1 once every axis has its step-k command; while waiting,
@@ -48,6 +48,7 @@ from std_srvs.srv import Trigger
 from hw_sim.session import LockStepSession, PacedSession
 from hw_sim.simulator import MachineSimulator, true_geometry
 from machine_ctrl import contract, parameters
+from machine_ctrl.model.numeric import all_finite
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.model.errors import ConfigError
@@ -61,24 +62,18 @@ class HwSimNode(Node):
         self.machine = machine_parameter(self)
         axes = self.machine.axis_names
         values = declare_parameters(self, parameters.HW_SIM, {'initial_position': [float(v) for v in self.machine.home]})
-        self.mode, self.real_time_factor = values.mode, values.real_time_factor
-        self.command_timeout, self.republish_period = values.command_timeout, values.republish_period
-        self.clock_decimation, self.truth_decimation = values.clock_decimation, values.ground_truth_decimation
-        initial, self.min_subscribers = values.initial_position, values.min_subscribers
-        self.recorder_window = values.recorder_window
-
-        self.check_parameters(initial)
+        self.check_parameters(values.initial_position)
         self.clock = ros_io.StepClock.of(self.machine)
-        self.sim = MachineSimulator(self.machine, initial_position=initial)
-        decimation = {'clock_decimation': self.clock_decimation, 'truth_decimation': self.truth_decimation}
-        if self.mode == 'lockstep':
-            self.session = LockStepSession(self.sim, self.clock, self, command_timeout=self.command_timeout,
-                                           republish_period=self.republish_period,
-                                           min_subscribers=self.min_subscribers,
-                                           recorder_window=self.recorder_window, **decimation)
+        self.sim = MachineSimulator(self.machine, initial_position=values.initial_position)
+        common = {'clock_decimation': values.clock_decimation, 'truth_decimation': values.ground_truth_decimation}
+        if values.mode == 'lockstep':
+            self.session = LockStepSession(self.sim, self.clock, self, command_timeout=values.command_timeout,
+                                           republish_period=values.republish_period,
+                                           min_subscribers=values.min_subscribers,
+                                           recorder_window=values.recorder_window, **common)
         else:
-            self.session = PacedSession(self.sim, self.clock, self, real_time_factor=self.real_time_factor,
-                                        **decimation)
+            self.session = PacedSession(self.sim, self.clock, self, real_time_factor=values.real_time_factor,
+                                        **common)
         self.encoder = JointStateEncoder(axes)
         try:
             self.true_tool_pose = true_geometry(self.machine, Kinematics.from_config(self.machine))
@@ -92,21 +87,22 @@ class HwSimNode(Node):
         self.pub_state = self.create_publisher(JointState, contract.JOINT_STATES.name, ros_io.STEP_QOS)
         self.pub_true = self.create_publisher(JointState, contract.TRUE_JOINT_STATES.name, ros_io.STEP_QOS)
         self.pub_pose = self.create_publisher(PoseStamped, contract.TRUE_TOOL_POSE.name, ros_io.STEP_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              ros_io.qos(contract.DIAGNOSTICS.qos))
         subscribe_joint_states(self, contract.SERVO_COMMANDS.name, self.on_command, self.refuse_command)
         self.sub_progress = (self.create_subscription(Time, contract.RECORDER_PROGRESS.name, self.on_progress,
                                                      ros_io.qos(contract.PROGRESS_QOS))
-                             if self.recorder_window > 0 else None)
+                             if values.recorder_window > 0 else None)
         self.create_service(Trigger, contract.RESET.name, self.on_reset)
         wall_timer(self, 1.0, self.publish_diagnostics)
         wall_timer(self, self.session.timer_period, self.on_timer)
         self.session.start(time.monotonic())
-        self.get_logger().info(f'ready: {self.machine.name}, {self.mode}, {len(axes)} axes')
+        self.get_logger().info(f'ready: {self.machine.name}, {values.mode}, {len(axes)} axes')
 
     def check_parameters(self, initial) -> None:
         """What the table cannot say: the initial position against the machine."""
         problems = []
-        if len(initial) != len(self.machine.axes) or not ros_io.all_finite(initial):
+        if len(initial) != len(self.machine.axes) or not all_finite(initial):
             problems.append(f'initial_position needs {len(self.machine.axes)} finite values, got {list(initial)}')
         else:
             outside = [a.name for a, q in zip(self.machine.axes, initial) if not a.in_stroke(q)]
@@ -116,15 +112,15 @@ class HwSimNode(Node):
             self.get_logger().fatal(f'parameters: {"; ".join(problems)}')
             raise SystemExit(2)
 
-    # read by tools and test/test_recorder_graph.py (lock-step only): the recorder gate's holds
+    # read by tools and test/test_recorder_graph.py: the recorder gate's holds (none when paced)
     @property
     def recorder_holds(self) -> int:
-        return self.session.gate.hold_count
+        return self.session.gate.hold_count if isinstance(self.session, LockStepSession) else 0
 
     @property
     def recorder_hold_time(self) -> float:
         """Wall s of the holds ended."""
-        return self.session.gate.hold_time
+        return self.session.gate.hold_time if isinstance(self.session, LockStepSession) else 0.0
 
     # -- events: message -> session -------------------------------------------------------
     def on_command(self, msg: JointStateData) -> None:

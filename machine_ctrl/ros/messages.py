@@ -9,7 +9,6 @@ exact in both directions.
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 import pinocchio as pin
@@ -20,6 +19,7 @@ from nav_msgs.msg import Path
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
+from machine_ctrl.model.numeric import all_finite
 from trajectory_msgs.msg import JointTrajectory
 
 from machine_ctrl import contract
@@ -51,16 +51,6 @@ class StepClock(contract.StepClock):
     def duration(self, steps: int) -> Duration:
         sec, nanosec = self.split(steps)
         return Duration(sec=sec, nanosec=nanosec)
-
-
-def all_finite(values) -> bool:
-    """True if no value is NaN or inf: one C-level sum, through which NaN and inf propagate
-    (inf - inf raises; a sum beyond the float range, impossible for real values, counts as
-    not finite)."""
-    try:
-        return math.isfinite(math.fsum(values))
-    except (ValueError, OverflowError):
-        return False
 
 
 def _finite(values, what: str) -> list[float]:

@@ -17,6 +17,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from machine_ctrl.control.stepping import StepAnswerer
 from machine_ctrl import parameters
+from machine_ctrl.diagnostics import Rejections
 from machine_ctrl.recording.cdr import ChunkDecoder, JointStateDecoder
 from machine_ctrl.model.config import MachineConfig, load_machine
 from machine_ctrl.ros.messages import REFERENCE_QOS, STEP_QOS, InvalidMessage, parse_chunk_bytes
@@ -40,7 +41,7 @@ class ParameterValues(dict):
             raise AttributeError(name) from None
 
 
-def descriptor(spec: parameters.ParameterSpec, table: parameters.NodeParameters | None = None):
+def descriptor(spec: parameters.ParameterSpec, table: parameters.NodeParameters):
     """The rcl_interfaces ParameterDescriptor of a table entry: type, description with the
     unit, range (FloatingPointRange / IntegerRange; an open bound is the closed one in the
     descriptor and refused by the on-set check), read_only unless live; choices and
@@ -50,9 +51,9 @@ def descriptor(spec: parameters.ParameterSpec, table: parameters.NodeParameters 
             parameters.DOUBLE: ParameterType.PARAMETER_DOUBLE, parameters.STRING: ParameterType.PARAMETER_STRING,
             parameters.DOUBLE_ARRAY: ParameterType.PARAMETER_DOUBLE_ARRAY,
             parameters.STRING_ARRAY: ParameterType.PARAMETER_STRING_ARRAY}[spec.type]
-    result = ParameterDescriptor(name=spec.name, type=kind, description=parameters.describe(spec),
-                                 additional_constraints=(parameters.constraint_text(table, spec) if table
-                                                         else parameters.range_text(spec)),
+    result = ParameterDescriptor(name=spec.name, type=kind,
+                                 description=spec.description + (f' [{spec.unit}]' if spec.unit else ''),
+                                 additional_constraints=parameters.constraint_text(table, spec),
                                  read_only=spec.read_only)
     if spec.numeric and (spec.low is not None or spec.high is not None):
         if spec.type == parameters.INTEGER:
@@ -127,7 +128,7 @@ def declare_parameters(node: Node, table, defaults: dict | None = None, names=No
     are refused with the reason (read-only ones by rclpy); a live parameter needs an
     `on_change[name](value)` hook, called after each accepted set."""
     if not isinstance(table, parameters.NodeParameters):
-        table = parameters.NodeParameters(node.get_name(), node.get_name(), tuple(table))
+        table = parameters.NodeParameters(node.get_name(), tuple(table))
     state = getattr(node, '_machine_ctrl_parameters', None)
     if state is None:
         state = _Declared(node)
@@ -137,14 +138,14 @@ def declare_parameters(node: Node, table, defaults: dict | None = None, names=No
     for spec in wanted:
         if spec.live != (spec.name in on_change):
             raise ValueError(f'{spec.name}: a live parameter needs an on_change hook, a read-only one has none')
+    default_of = {spec.name: spec.default if spec.default is not None else parameters.coerce(spec, defaults[spec.name])
+                  for spec in wanted if spec.default is not None or spec.name in defaults}
     given = {}
     for spec in wanted:
         if spec.name in node._parameter_overrides:          # noqa: SLF001 - rclpy keeps them there
             given[spec.name] = _plain(node._parameter_overrides[spec.name].value)
-        elif spec.default is not None:
-            given[spec.name] = spec.default
-        elif spec.name in defaults:
-            given[spec.name] = parameters.coerce(spec, defaults[spec.name])
+        elif spec.name in default_of:
+            given[spec.name] = default_of[spec.name]
         else:
             raise ValueError(f'{spec.name}: the node must supply the default ({spec.default_text})')
     known = {**{n: v for n, v in state.values.items() if n in table.names}, **given}
@@ -155,8 +156,7 @@ def declare_parameters(node: Node, table, defaults: dict | None = None, names=No
         node.get_logger().fatal(what)
         raise SystemExit(2)
     for spec in wanted:
-        default = spec.default if spec.default is not None else parameters.coerce(spec, defaults[spec.name])
-        value = node.declare_parameter(spec.name, default, descriptor(spec, table)).value
+        value = node.declare_parameter(spec.name, default_of[spec.name], descriptor(spec, table)).value
         state.values[spec.name] = _plain(value)
         state.tables[spec.name] = table
         if spec.live:
@@ -262,18 +262,11 @@ def main_for(node_class):
     return main
 
 
-class Rejections:
-    """Counts refused messages and keeps the last reason (for /diagnostics)."""
-
-    def __init__(self, node: Node):
-        self.logger = node.get_logger()
-        self.count = 0
-        self.last = ''
-
-    def add(self, what: str, reason: str) -> None:
-        self.count += 1
-        self.last = f'{what}: {reason}'
-        self.logger.warning(f'rejected {what}: {reason}', throttle_duration_sec=1.0)
+def rejections(node: Node) -> Rejections:
+    """The count of a node's refused messages and the last reason (for /diagnostics), each
+    refusal warned on the node's log at most once a second."""
+    logger = node.get_logger()
+    return Rejections(lambda text: logger.warning(text, throttle_duration_sec=1.0))
 
 
 class StepResponder:

@@ -91,8 +91,8 @@ class RecorderNode(Node):
         self.last_message = time.monotonic()
         self.started = time.monotonic()
         self.pub_progress = None
-        if self.wanted is None or recorder.STATES_TOPIC in self.wanted:
-            self.pub_progress = self.create_publisher(Time, recorder.PROGRESS_TOPIC, PROGRESS_QOS)
+        if self.wanted is None or contract.JOINT_STATES.name in self.wanted:
+            self.pub_progress = self.create_publisher(Time, contract.RECORDER_PROGRESS.name, PROGRESS_QOS)
             self.publish_progress()                  # 0: a recorder is here, nothing written yet
             wall_timer(self, recorder.PROGRESS_PERIOD, self.publish_progress)
         for topic, type_name in (self.wanted or {}).items():

@@ -62,8 +62,8 @@ class ReplayNode(Node):
             raise SystemExit(2) from None
         self.clock = replay.ClockSource(self.messages)
         self.publishers_by_topic = {}
-        for topic in sorted({m.topic for m in self.messages} | {replay.CLOCK_TOPIC}):
-            type_name = types.get(topic, replay.CLOCK_TYPE)
+        for topic in sorted({m.topic for m in self.messages} | {contract.CLOCK.name}):
+            type_name = types.get(topic, contract.CLOCK.type)
             try:
                 cls = message_class(type_name)
             except LookupError as exc:
@@ -89,15 +89,15 @@ class ReplayNode(Node):
         first = self.messages[0].log_time
         started = time.monotonic()
         for message in self.messages:
-            due = (message.log_time - first) / contract.NS_PER_SECOND / self.rate
+            due = contract.ns_to_seconds(message.log_time - first) / self.rate
             while (ahead := due - (time.monotonic() - started)) > 0:
                 if not rclpy.ok():
                     return False
                 time.sleep(min(ahead, 0.05))
             stamp = self.clock.stamp_for(message)
             if stamp is not None:
-                self.publish(replay.CLOCK_TOPIC, replay.clock_bytes(stamp))
-            if message.topic != replay.CLOCK_TOPIC:
+                self.publish(contract.CLOCK.name, replay.clock_bytes(stamp))
+            if message.topic != contract.CLOCK.name:
                 self.publish(message.topic, message.data)
         return rclpy.ok()
 

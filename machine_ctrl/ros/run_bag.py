@@ -7,9 +7,10 @@ record: same topics, types, stamps and contents per step k (stamp t_k = k T):
 * /dual_stage/offsets: the fine-stage offsets (zero with the coupling off), if the machine
   has dual-stage pairs;
 * /reference: chunks of ``CHUNK_STEPS`` rows as reference_node sends them;
-* /clock and the ground truth (/hw_sim/ground_truth/joint_states: true positions — the
-  offline record keeps no true velocities, so that field is empty — and the true tool pose)
-  every ``DECIMATION`` steps.
+* /clock every ``CLOCK_DECIMATION`` steps and the ground truth
+  (/hw_sim/ground_truth/joint_states: true positions — the offline record keeps no true
+  velocities, so that field is empty — and the true tool pose) every
+  ``TRUTH_DECIMATION`` steps (the nodes' defaults).
 
 There is no wall clock offline: log and publish times are the sim time of the message.
 """
@@ -19,27 +20,30 @@ from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
 from hw_sim.simulator import true_geometry
-from machine_ctrl import contract
+from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.bag import BagWriter, qos_profile
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.ros.graph import default_graph
 from machine_ctrl.recording.recorder import MACHINE_FILE_KEY, MACHINE_KEY
 
-CHUNK_STEPS = 500      # reference_node's default chunk_steps
-DECIMATION = 10        # hw_sim's default clock_decimation and ground_truth_decimation
+CHUNK_STEPS = parameters.REFERENCE.spec('chunk_steps').default
+CLOCK_DECIMATION = parameters.HW_SIM.spec('clock_decimation').default
+TRUTH_DECIMATION = parameters.HW_SIM.spec('ground_truth_decimation').default
 
-_STEP = qos_profile(depth=200)                                     # ros_io.STEP_QOS
-_TOPICS = {
-    contract.JOINT_STATES.name: ('sensor_msgs/msg/JointState', _STEP),
-    contract.SERVO_COMMANDS.name: ('sensor_msgs/msg/JointState', _STEP),
-    contract.DUAL_STAGE_OFFSETS.name: ('sensor_msgs/msg/JointState', _STEP),
-    contract.REFERENCE.name: ('trajectory_msgs/msg/JointTrajectory',
-                             qos_profile(depth=50, durability='transient_local')),   # ros_io.REFERENCE_QOS
-    contract.CLOCK.name: ('rosgraph_msgs/msg/Clock', qos_profile(depth=10)),
-    contract.TRUE_JOINT_STATES.name: ('sensor_msgs/msg/JointState', _STEP),
-    contract.TRUE_TOOL_POSE.name: ('geometry_msgs/msg/PoseStamped', _STEP),
-}
+
+def _offered(qos: contract.Qos) -> dict:
+    """A contract QoS as the bag stores an offered profile."""
+    return qos_profile(reliability='reliable' if qos.reliable else 'best_effort',
+                       durability='transient_local' if qos.transient_local else 'volatile', depth=qos.depth)
+
+
+# the topics in the order the bag lists them, with the QoS offered: the contract's, but
+# /clock with the depth these bags have always had (contract.CLOCK_READER_QOS; hw_sim
+# offers contract.CLOCK.qos)
+_TOPICS = [(topic, _offered(topic.qos if topic is not contract.CLOCK else contract.CLOCK_READER_QOS))
+           for topic in (contract.JOINT_STATES, contract.SERVO_COMMANDS, contract.DUAL_STAGE_OFFSETS,
+                         contract.REFERENCE, contract.CLOCK, contract.TRUE_JOINT_STATES, contract.TRUE_TOOL_POSE)]
 
 
 def servo_groups(machine: MachineConfig) -> list[list[str]]:
@@ -51,9 +55,9 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
     """Write `record` (offline.RunRecord of `reference`) as a bag; returns the counts."""
     writer = BagWriter(directory)
     has_offsets = bool(machine.dual_stage)
-    for topic, (type_name, qos) in _TOPICS.items():
-        if topic != contract.DUAL_STAGE_OFFSETS.name or has_offsets:
-            writer.add_topic(topic, type_name, [qos])
+    for topic, qos in _TOPICS:
+        if topic is not contract.DUAL_STAGE_OFFSETS or has_offsets:
+            writer.add_topic(topic.name, topic.type, [qos])
     clock = ros_io.StepClock.of(machine)
     axes = list(machine.axis_names)
     groups = [(g, [axes.index(a) for a in g]) for g in servo_groups(machine)]
@@ -65,12 +69,13 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
 
     for k in range(steps):
         stamp = clock.stamp(k)
-        ns = k * clock.period_ns
+        ns = clock.ns(k)
         if k % CHUNK_STEPS == 0:
             rows = [reference.row(i) for i in range(k, k + CHUNK_STEPS)]
             put(contract.REFERENCE.name, ros_io.trajectory_chunk(clock, k, axes, *zip(*rows)), ns)
-        if k % DECIMATION == 0:
+        if k % CLOCK_DECIMATION == 0:
             put(contract.CLOCK.name, Clock(clock=stamp), ns)
+        if k % TRUTH_DECIMATION == 0:
             put(contract.TRUE_JOINT_STATES.name, ros_io.joint_state(stamp, axes, record.true[k]), ns)
             put(contract.TRUE_TOOL_POSE.name, ros_io.pose_message(stamp, machine.workpiece_frame,
                                                                      true_tool_pose(record.true[k])), ns)

@@ -28,7 +28,7 @@ from machine_ctrl.ros.step_node import StepNode
 
 class ServoNode(StepNode):
     def __init__(self, name: str = 'servo', **kwargs):
-        super().__init__(name, **kwargs)
+        super().__init__(name, parameters.SERVO, **kwargs)
         self.machine = machine_parameter(self)
         controlled = [a.name for a in self.machine.axes if a.control is not None]
         values = declare_parameters(self, parameters.SERVO, {'axes': controlled}, names=('axes', 'feedforward'))
@@ -52,7 +52,8 @@ class ServoNode(StepNode):
         self.make_buffer(self.axes)
         self.encoder = JointStateEncoder(self.axes)
         self.pub = self.create_publisher(JointState, contract.SERVO_COMMANDS.name, ros_io.STEP_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              ros_io.qos(contract.DIAGNOSTICS.qos))
         self.start_stepping(self.machine, self.axes, self.pub, self.ready, self.compute, self.streaming)
         if self.wait_for_offsets:
             subscribe_joint_states(self, contract.DUAL_STAGE_OFFSETS.name, self.on_offsets,

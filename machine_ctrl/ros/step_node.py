@@ -9,17 +9,18 @@ from rclpy.node import Node
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData
-from machine_ctrl.ros.node_common import (Rejections, StepResponder, declare_parameters, subscribe_joint_states,
-                                      subscribe_reference, use_sim_time)
+from machine_ctrl.ros.node_common import (StepResponder, declare_parameters, rejections, subscribe_joint_states,
+                                          subscribe_reference, use_sim_time)
 from machine_ctrl.model.reference import ReferenceBuffer
 
 
 class StepNode(Node):
-    def __init__(self, name: str, **kwargs):
+    def __init__(self, name: str, table: parameters.NodeParameters, **kwargs):
+        """`table`: the node's parameters, which hold `input_timeout`."""
         super().__init__(name, **kwargs)
         use_sim_time(self)
-        self.input_timeout = declare_parameters(self, (parameters.INPUT_TIMEOUT,)).input_timeout
-        self.rejections = Rejections(self)
+        self.input_timeout = declare_parameters(self, table, names=('input_timeout',)).input_timeout
+        self.rejections = rejections(self)
 
     def start_stepping(self, machine, reference_axes, publisher, ready, compute, streaming) -> None:
         """Subscribe /joint_states and /reference; `ready`, `compute`, `streaming` as in

@@ -55,6 +55,7 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from machine_ctrl import contract, parameters
+from machine_ctrl.diagnostics import error_text
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, use_sim_time, wall_timer
 from trajectory.session import Answer, Session, plan_path
@@ -102,13 +103,15 @@ class TrajectoryNode(Node):
 
         self.pub_reference = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
         self.pub_status = self.create_publisher(DiagnosticStatus, contract.TRAJECTORY_STATUS.name, LATCHED)
-        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name, 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              ros_io.qos(contract.DIAGNOSTICS.qos))
         self.sub_state = self.create_subscription(JointState, contract.JOINT_STATES.name, self.on_first_state,
                                                   ros_io.STEP_QOS)
         self.create_subscription(Clock, contract.CLOCK.name, self.on_clock, ros_io.qos(contract.CLOCK_READER_QOS))
         self.create_subscription(Path, contract.PATH.name, self.on_path, GOAL_QOS)
         self.create_subscription(JointTrajectory, contract.JOINT_GOAL.name, self.on_joint_goal, GOAL_QOS)
-        self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics, 50)
+        self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics,
+                                 ros_io.qos(contract.DIAGNOSTICS_READER_QOS))
         self.create_subscription(Float64, contract.FEED_OVERRIDE.name, self.on_feed_override, GOAL_QOS)
         self.create_service(Trigger, contract.HOLD.name, self.on_hold)
         self.create_service(Trigger, contract.RESUME.name, self.on_resume)
@@ -132,7 +135,7 @@ class TrajectoryNode(Node):
             step = self.clock.step(msg.header.stamp)
             position = ros_io.select(msg, 'position', self.machine.axis_names)
         except ros_io.InvalidMessage as exc:
-            self.session.count_rejection('state', str(exc))
+            self.session.rejections.add('state', str(exc))
             return
         self.destroy_subscription(self.sub_state)    # the stream knows the state from here on
         self.session.start_streaming(position, step)
@@ -169,11 +172,11 @@ class TrajectoryNode(Node):
             self.planner = self.start_planner()
             reference, failure = None, 'the planner process died (restarted)'
         except Exception as exc:  # noqa: BLE001 - any planning error refuses the goal, the node goes on
-            reference, failure = None, str(exc) if isinstance(exc, ValueError) else f'{type(exc).__name__}: {exc}'
+            reference, failure = None, error_text(exc)
         self.session.path_planned(reference, failure)
 
     def on_joint_goal(self, msg: JointTrajectory) -> None:
-        times = [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in msg.points]
+        times = [contract.seconds(p.time_from_start.sec, p.time_from_start.nanosec) for p in msg.points]
         self.session.accept_joint_goal(msg.joint_names, [list(p.positions) for p in msg.points], times)
 
     def on_feed_override(self, msg: Float64) -> None:

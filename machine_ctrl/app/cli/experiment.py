@@ -96,12 +96,11 @@ def contouring(machine, kind: str, progress=None, steps: int | None = None, reco
     """machine_ctrl.experiments.tracking.contouring; with `record_dir`, each run is also
     written as a bag, <record_dir>/smc and <record_dir>/dsfd, right after it ran."""
     from machine_ctrl.experiments import tracking
-    on_run = None
-    if record_dir is not None:
-        def on_run(label, reference, record):
-            from machine_ctrl.ros.run_bag import write_run_bag     # imports rclpy: only when recording
-            write_run_bag(Path(record_dir) / label, machine, reference, record, f'experiment {kind} {label}')
-    return tracking.contouring(machine, kind, progress=progress, steps=steps, on_run=on_run)
+    def write_bag(label, reference, record):
+        from machine_ctrl.ros.run_bag import write_run_bag     # imports rclpy: only when recording
+        write_run_bag(Path(record_dir) / label, machine, reference, record, f'experiment {kind} {label}')
+    return tracking.contouring(machine, kind, progress=progress, steps=steps,
+                               on_run=None if record_dir is None else write_bag)
 
 
 def cmd_experiment(args) -> int:

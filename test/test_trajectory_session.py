@@ -104,7 +104,7 @@ def test_a_joint_goal_runs_from_the_first_row_not_streamed_and_ends_idle(micromi
     assert out.logs == [f'joint goal (1 points): {len(move)} steps from step 1000', 'state: running']
     # one motion at a time
     assert not session.accept_joint_goal(['y_c'], [[0.0]], [0.0])
-    assert session.last_rejection == 'joint goal: busy (running); one motion at a time'
+    assert session.rejections.last == 'joint goal: busy (running); one motion at a time'
     end = run_until_idle(session)
     assert session.status_values()['motion_end_step'] == 1000 + len(move) - 1 <= end
     assert out.states[:2] == ['idle', 'running'] and out.states[-1] == 'idle'   # streaming, goal, end
@@ -124,8 +124,8 @@ def test_bad_joint_goals_are_refused_with_the_reason_and_nothing_moves(micromill
                                                                        reason):
     session = session_of(micromill, out, start_step=0)
     assert not session.accept_joint_goal(names, points, times)
-    assert session.state == State.IDLE and session.rejections == 1
-    assert session.last_rejection.startswith('joint goal: ') and reason in session.last_rejection
+    assert session.state == State.IDLE and session.rejections.count == 1
+    assert session.rejections.last.startswith('joint goal: ') and reason in session.rejections.last
     session.tick(5000)
     assert (streamed(out)[1] == HERE).all()
 
@@ -134,8 +134,8 @@ def test_feed_override_is_a_fraction_and_sets_the_next_motions_feed(micromill, o
     session = session_of(micromill, out, start_step=0)
     for bad in (1.5, -0.1, math.nan, math.inf):
         assert not session.set_feed_override(bad)
-        assert session.last_rejection == f'feed override: {bad!r} is not a fraction within [0, 1]'
-    assert session.rejections == 4 and session.override_setting == 1.0
+        assert session.rejections.last == f'feed override: {bad!r} is not a fraction within [0, 1]'
+    assert session.rejections.count == 4 and session.override_setting == 1.0
     assert session.set_feed_override(0.5)
     assert session.status_values()['feed_override_setting'] == 0.5
     full = len(move_to(micromill, [3e-3] + HERE[1:], AxisState.at_rest(HERE)))
@@ -187,10 +187,10 @@ def test_a_planned_path_starts_after_an_approach_and_a_failed_one_is_refused(mic
     session.planning('path of 24 points')
     assert session.state == State.PLANNING and session.awaiting_plan and out.states[-1] == 'planning'
     assert not session.accept_joint_goal(['x_c'], [[2e-3]], [0.0])
-    assert session.last_rejection == 'joint goal: busy (planning); one motion at a time'
+    assert session.rejections.last == 'joint goal: busy (planning); one motion at a time'
     session.path_planned(None, 'the path is out of reach inside the strokes')
     assert session.state == State.IDLE and not session.awaiting_plan
-    assert session.last_rejection == 'path: planning failed: the path is out of reach inside the strokes'
+    assert session.rejections.last == 'path: planning failed: the path is out of reach inside the strokes'
     assert out.states[-2:] == ['idle', 'idle']                         # the state, then the refusal
 
     # "the path": a move from A to B; the session approaches A from where the stream holds
@@ -226,7 +226,7 @@ def test_a_fault_drops_the_motion_holds_the_fault_step_and_refuses_until_reset(m
     session.machine_status(True, 'another', '2600')                     # already faulted: nothing new
     assert session.fault == 'missing command for x_c'
     assert not session.accept_joint_goal(['x_c'], [[1e-3]], [0.0])
-    assert session.last_rejection == ('joint goal: machine is faulted (missing command for x_c); '
+    assert session.rejections.last == ('joint goal: machine is faulted (missing command for x_c); '
                                       'reset hw_sim first')
     assert session.hold() == Answer(False, 'not applicable while fault')
     session.machine_status(False)
