@@ -1,7 +1,11 @@
 """contour_error_node over real DDS in a lock-step graph (hw_sim + servo_node on trt_5axis,
 this test as the reference source playing the Eq. (35) path): what it publishes for every
 step equals the same core (machine_ctrl.contour.estimation) run offline on the recorded joint states
-and the same reference."""
+and the same reference.
+
+Nothing is lost to a slow test reader: the test reports, like the recorder, the newest step
+it holds of every stream on /recorder/progress, and hw_sim (recorder_window) runs at most
+WINDOW steps ahead of it, well inside the publishers' keep-last queues."""
 import math
 import threading
 import time
@@ -17,28 +21,38 @@ from trajectory.sencer_path import sencer_reference
 
 STEPS = 1200          # 0.2 s at rest, then 1 s of the path
 CHUNK = 500
+WINDOW = 50           # steps hw_sim may run ahead of what this test has taken (< the queue depths)
 
 
 class Collector:
-    """/joint_states and the four contour-error topics by step, in a background thread."""
+    """/joint_states and the four contour-error topics by step, in a background thread; the
+    newest step held of every stream goes out on /recorder/progress."""
 
-    def __init__(self, node, period_ns):
+    def __init__(self, node, clock):
+        from builtin_interfaces.msg import Time
         from geometry_msgs.msg import Vector3Stamped
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64
-        self.period_ns = period_ns
+
+        from machine_ctrl.ros import messages as ros_io
+        self.clock, self.time_type = clock, Time
         qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
         self.states, self.tip, self.orientation = {}, {}, {}
         self.tip_magnitude, self.orientation_magnitude, self.frames = [], [], set()
-        node.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state, qos)
-        node.create_subscription(Vector3Stamped, contract.CONTOUR_TOOL_TIP.name, lambda m: self.on_vector(m, self.tip), qos)
-        node.create_subscription(Vector3Stamped, contract.CONTOUR_ORIENTATION.name,
-                                 lambda m: self.on_vector(m, self.orientation), qos)
-        node.create_subscription(Float64, contract.CONTOUR_TOOL_TIP_MAGNITUDE.name, lambda m: self.tip_magnitude.append(m.data), qos)
-        node.create_subscription(Float64, contract.CONTOUR_ORIENTATION_MAGNITUDE.name,
-                                 lambda m: self.orientation_magnitude.append(m.data), qos)
+        self.reported = -1
+        self.progress = node.create_publisher(Time, contract.RECORDER_PROGRESS.name, ros_io.qos(contract.PROGRESS_QOS))
+        self.subscriptions = [
+            node.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state, qos),
+            node.create_subscription(Vector3Stamped, contract.CONTOUR_TOOL_TIP.name,
+                                     lambda m: self.on_vector(m, self.tip), qos),
+            node.create_subscription(Vector3Stamped, contract.CONTOUR_ORIENTATION.name,
+                                     lambda m: self.on_vector(m, self.orientation), qos),
+            node.create_subscription(Float64, contract.CONTOUR_TOOL_TIP_MAGNITUDE.name,
+                                     lambda m: self.on_magnitude(m, self.tip_magnitude), qos),
+            node.create_subscription(Float64, contract.CONTOUR_ORIENTATION_MAGNITUDE.name,
+                                     lambda m: self.on_magnitude(m, self.orientation_magnitude), qos)]
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)
         self.running = True
@@ -49,15 +63,30 @@ class Collector:
         while self.running:
             self.executor.spin_once(timeout_sec=0.05)
 
-    def step(self, stamp):
-        return (stamp.sec * 1_000_000_000 + stamp.nanosec) // self.period_ns
+    def contour_publishers_matched(self) -> bool:
+        return all(s.get_publisher_count() for s in self.subscriptions[1:])
 
     def on_state(self, msg):
-        self.states[self.step(msg.header.stamp)] = msg.position.tolist()
+        self.states[self.clock.step(msg.header.stamp)] = msg.position.tolist()
+        self.report()
 
     def on_vector(self, msg, store):
         self.frames.add(msg.header.frame_id)
-        store[self.step(msg.header.stamp)] = [msg.vector.x, msg.vector.y, msg.vector.z]
+        store[self.clock.step(msg.header.stamp)] = [msg.vector.x, msg.vector.y, msg.vector.z]
+        self.report()
+
+    def on_magnitude(self, msg, store):
+        store.append(msg.data)
+        self.report()
+
+    def report(self):
+        """Progress = the newest step whose state and four contour errors are all here."""
+        held = min(len(self.tip_magnitude), len(self.orientation_magnitude)) - 1
+        while held > self.reported and not all(held in d for d in (self.states, self.tip, self.orientation)):
+            held -= 1
+        if held > self.reported:
+            self.reported = held
+            self.progress.publish(self.time_type(**dict(zip(('sec', 'nanosec'), self.clock.split(held)))))
 
     def stop(self):
         self.running = False
@@ -74,7 +103,7 @@ def publish_reference(node, machine, reference):
     from trajectory_msgs.msg import JointTrajectory
 
     from machine_ctrl.ros import messages as ros_io
-    clock = ros_io.StepClock(machine.control_period)
+    clock = ros_io.StepClock.of(machine)
     pub = node.create_publisher(JointTrajectory, contract.REFERENCE.name, ros_io.REFERENCE_QOS)
     for first in range(0, len(reference), CHUNK):
         rows = slice(first, first + CHUNK)
@@ -84,36 +113,34 @@ def publish_reference(node, machine, reference):
 
 
 def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node, ros_supervisor):
+    from machine_ctrl.ros import messages as ros_io
     common = {'machine': str(trt.yaml_path)}
     node = ros_node('contour_test')
-    collector = Collector(node, int(round(trt.control_period * 1e9)))
+    collector = Collector(node, ros_io.StepClock.of(trt))
     publish_reference(node, trt, reference)
     specs = [NodeSpec('hw_sim', 'machine_ctrl.ros.hw_sim_node', 'HwSimNode',
                       {**common, 'initial_position': [float(v) for v in reference.position[0]],
-                       'min_subscribers': 3}),         # servo, contour_error and this test
+                       'min_subscribers': 3,           # servo, contour_error and this test
+                       'recorder_window': WINDOW}),    # this test reports its progress
              NodeSpec('servo', 'machine_ctrl.ros.servo_node', 'ServoNode', common),
              NodeSpec('contour_error', 'machine_ctrl.ros.contour_error_node', 'ContourErrorNode',
                       {**common, 'estimator': 'compensated'})]
     try:
-        # the contour node first, and its four publishers discovered by this test, before the
-        # machine starts: nothing it publishes can go out before this test listens
+        # the contour node first, and its four publishers matched with this test's readers,
+        # before the machine starts: nothing it publishes can go out before this test listens
         contour_spec = specs.pop()
         ros_supervisor.start(contour_spec.name, contour_spec.argv())
-        topics = (contract.CONTOUR_TOOL_TIP.name, contract.CONTOUR_TOOL_TIP_MAGNITUDE.name, contract.CONTOUR_ORIENTATION.name,
-                  contract.CONTOUR_ORIENTATION_MAGNITUDE.name)
         deadline = time.monotonic() + 120
-        while not all(node.count_publishers(t) for t in topics):
-            assert time.monotonic() < deadline, 'contour_error publishers not discovered'
+        while not collector.contour_publishers_matched():
+            assert time.monotonic() < deadline, 'contour_error publishers not matched'
             ros_supervisor.check()
             time.sleep(0.1)
-        time.sleep(0.5)                    # discovery seen; let the reader-writer match settle
         ros_supervisor.start_nodes(specs)
         deadline = time.monotonic() + 120
         while not all(k in collector.tip for k in range(STEPS)) or len(collector.orientation_magnitude) < STEPS:
             assert time.monotonic() < deadline, f'got {len(collector.tip)} contour errors'
             ros_supervisor.check()
             time.sleep(0.1)
-        time.sleep(0.2)
     finally:
         ros_supervisor.stop_all()
         collector.stop()
