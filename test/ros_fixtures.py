@@ -16,6 +16,7 @@ import sys
 
 import pytest
 
+from machine_ctrl import contract
 from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
 
 _ROS_VARIABLES = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS',
@@ -109,3 +110,28 @@ def ros_supervisor(ros_env, tmp_path):
     teardown, also when the test fails."""
     with Supervisor(ros_env, log_dir=tmp_path / 'logs', stop_timeout=3.0) as supervisor:
         yield supervisor
+
+
+class ProgressReporter:
+    """A test's reader as a recorder: it reports on /recorder/progress the newest step it
+    holds of every stream it reads, and hw_sim, started with `recorder_window` W, never runs
+    more than W steps ahead of it. So no reliable keep-last queue overflows behind a test
+    thread that falls behind (the graph waits for it, as for the recorder); holding only
+    delays a lock-step run, it never changes it."""
+
+    WINDOW = 50          # steps; well inside the per-step publishers' queues (contract.STEP_QOS)
+
+    def __init__(self, node, clock):
+        from builtin_interfaces.msg import Time
+
+        from machine_ctrl.ros import messages as ros_io
+        self.clock, self.time_type, self.reported = clock, Time, -1
+        self.publisher = node.create_publisher(Time, contract.RECORDER_PROGRESS.name,
+                                               ros_io.qos(contract.PROGRESS_QOS))
+
+    def report(self, step: int) -> None:
+        """Every stream is held up to `step` (called from the reader's callbacks)."""
+        if step > self.reported:
+            self.reported = step
+            sec, nanosec = self.clock.split(step)
+            self.publisher.publish(self.time_type(sec=sec, nanosec=nanosec))

@@ -3,9 +3,8 @@ this test as the reference source playing the Eq. (35) path): what it publishes 
 step equals the same core (machine_ctrl.contour.estimation) run offline on the recorded joint states
 and the same reference.
 
-Nothing is lost to a slow test reader: the test reports, like the recorder, the newest step
-it holds of every stream on /recorder/progress, and hw_sim (recorder_window) runs at most
-WINDOW steps ahead of it, well inside the publishers' keep-last queues."""
+Nothing is lost to a slow test reader: the test reports its progress like the recorder
+(ros_fixtures.ProgressReporter), so hw_sim never runs far ahead of it."""
 import math
 import threading
 import time
@@ -17,11 +16,11 @@ from machine_ctrl import contract
 from machine_ctrl.contour.estimation import ContourEstimator, ToolTrajectory
 from machine_ctrl.ros.graph import NodeSpec
 from machine_ctrl.model.kinematics import Kinematics
+from ros_fixtures import ProgressReporter
 from trajectory.sencer_path import sencer_reference
 
 STEPS = 1200          # 0.2 s at rest, then 1 s of the path
 CHUNK = 500
-WINDOW = 50           # steps hw_sim may run ahead of what this test has taken (< the queue depths)
 
 
 class Collector:
@@ -29,20 +28,17 @@ class Collector:
     newest step held of every stream goes out on /recorder/progress."""
 
     def __init__(self, node, clock):
-        from builtin_interfaces.msg import Time
         from geometry_msgs.msg import Vector3Stamped
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64
 
-        from machine_ctrl.ros import messages as ros_io
-        self.clock, self.time_type = clock, Time
+        self.clock, self.progress = clock, ProgressReporter(node, clock)
         qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
         self.states, self.tip, self.orientation = {}, {}, {}
         self.tip_magnitude, self.orientation_magnitude, self.frames = [], [], set()
-        self.reported = -1
-        self.progress = node.create_publisher(Time, contract.RECORDER_PROGRESS.name, ros_io.qos(contract.PROGRESS_QOS))
+        self.held = -1
         self.subscriptions = [
             node.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state, qos),
             node.create_subscription(Vector3Stamped, contract.CONTOUR_TOOL_TIP.name,
@@ -82,11 +78,10 @@ class Collector:
     def report(self):
         """Progress = the newest step whose state and four contour errors are all here."""
         held = min(len(self.tip_magnitude), len(self.orientation_magnitude)) - 1
-        while held > self.reported and not all(held in d for d in (self.states, self.tip, self.orientation)):
+        while held > self.held and not all(held in d for d in (self.states, self.tip, self.orientation)):
             held -= 1
-        if held > self.reported:
-            self.reported = held
-            self.progress.publish(self.time_type(**dict(zip(('sec', 'nanosec'), self.clock.split(held)))))
+        self.held = max(self.held, held)
+        self.progress.report(self.held)
 
     def stop(self):
         self.running = False
@@ -121,7 +116,7 @@ def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node,
     specs = [NodeSpec('hw_sim', 'machine_ctrl.ros.hw_sim_node', 'HwSimNode',
                       {**common, 'initial_position': [float(v) for v in reference.position[0]],
                        'min_subscribers': 3,           # servo, contour_error and this test
-                       'recorder_window': WINDOW}),    # this test reports its progress
+                       'recorder_window': ProgressReporter.WINDOW}),   # this test reports its progress
              NodeSpec('servo', 'machine_ctrl.ros.servo_node', 'ServoNode', common),
              NodeSpec('contour_error', 'machine_ctrl.ros.contour_error_node', 'ContourErrorNode',
                       {**common, 'estimator': 'compensated'})]

@@ -11,20 +11,25 @@ import pytest
 from machine_ctrl import contract
 from machine_ctrl.ros.graph import default_graph
 from hw_sim.offline import run
+from ros_fixtures import ProgressReporter
 from trajectory.contours import circle
 
 STEPS = 2000
 
 
 class StateRecorder:
-    """Collects /joint_states by step in a background executor thread."""
+    """Collects /joint_states by step in a background executor thread, reporting its
+    progress to hw_sim (ros_fixtures.ProgressReporter: the graph never outruns it)."""
 
-    def __init__(self, node):
+    def __init__(self, node, machine):
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
 
-        self.rows = {}
+        from machine_ctrl.ros import messages as ros_io
+        self.clock = ros_io.StepClock.of(machine)
+        self.progress = ProgressReporter(node, self.clock)
+        self.rows, self.next_step = {}, 0
         # deep reader queue: the graph may outrun this thread for a while, and a keep-last
         # reader overwrites what it has not taken yet
         qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
@@ -40,8 +45,11 @@ class StateRecorder:
             self.executor.spin_once(timeout_sec=0.05)
 
     def on_state(self, msg):
-        ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        self.rows[ns // 100_000] = (msg.position.tolist(), msg.velocity.tolist(), msg.effort.tolist())
+        self.rows[self.clock.step(msg.header.stamp)] = (msg.position.tolist(), msg.velocity.tolist(),
+                                                        msg.effort.tolist())
+        while self.next_step in self.rows:
+            self.next_step += 1
+        self.progress.report(self.next_step - 1)
 
     def wait_for(self, steps, timeout, supervisor):
         deadline = time.monotonic() + timeout
@@ -69,15 +77,19 @@ def offline(micromill):
 
 
 def record_graph(micromill, ros_node, ros_supervisor, single_process):
-    recorder = StateRecorder(ros_node('recorder'))
+    recorder = StateRecorder(ros_node('recorder'), micromill)
+    window = ProgressReporter.WINDOW
     try:
         # hw_sim holds step 0 until servo_coarse, servo_fine, dual_stage and this recorder
-        # all subscribe /joint_states, so the recorder sees every step
+        # all subscribe /joint_states, so the recorder sees every step, and then runs at most
+        # `window` steps ahead of it
         if single_process:
             ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.ros.graph', '--machine',
-                                           str(micromill.yaml_path), '--hw-sim', 'min_subscribers=4'])
+                                           str(micromill.yaml_path), '--hw-sim', 'min_subscribers=4',
+                                           '--hw-sim', f'recorder_window={window}'])
         else:
-            ros_supervisor.start_nodes(default_graph(micromill, hw_sim={'min_subscribers': 4}))
+            ros_supervisor.start_nodes(default_graph(micromill, hw_sim={'min_subscribers': 4,
+                                                                        'recorder_window': window}))
         recorder.wait_for(STEPS, timeout=120, supervisor=ros_supervisor)
     finally:
         ros_supervisor.stop_all()
