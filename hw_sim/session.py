@@ -86,6 +86,7 @@ class Session:
         self.sim, self.clock, self.io = sim, clock, io
         self.clock_decimation, self.truth_decimation = clock_decimation, truth_decimation
         self.lockstep = LockStep(tuple(sim.machine.axis_names))
+        self.gate = RecorderGate(0)              # window 0: no recorder flow control (paced mode)
         self.missed_deadlines = 0
         self._state_sent_at = self._step_started_at = 0.0
 

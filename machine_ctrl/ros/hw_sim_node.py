@@ -115,12 +115,12 @@ class HwSimNode(Node):
     # read by tools and test/test_recorder_graph.py: the recorder gate's holds (none when paced)
     @property
     def recorder_holds(self) -> int:
-        return self.session.gate.hold_count if isinstance(self.session, LockStepSession) else 0
+        return self.session.gate.hold_count
 
     @property
     def recorder_hold_time(self) -> float:
         """Wall s of the holds ended."""
-        return self.session.gate.hold_time if isinstance(self.session, LockStepSession) else 0.0
+        return self.session.gate.hold_time
 
     # -- events: message -> session -------------------------------------------------------
     def on_command(self, msg: JointStateData) -> None:
