@@ -107,6 +107,13 @@ CONTOUR_ORIENTATION = Topic('/contour_error/orientation', 'geometry_msgs/msg/Vec
                             'tool-orientation contour error vector, rad')
 CONTOUR_ORIENTATION_MAGNITUDE = Topic('/contour_error/orientation_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
                                       'tool-orientation contour error magnitude, rad')
+GOAL_STATUS = Topic('/trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', LATCHED_QOS,
+                    'latched: every goal of the session with its id (UUID) and state: accepted, executing, '
+                    'succeeded, canceled, aborted (the reason on /diagnostics)')
+READY = Topic('/ready', 'std_msgs/msg/Bool', LATCHED_QOS,
+              'latched: true once every node of the graph has its first state (the graph steps)')
+ROBOT_DESCRIPTION = Topic('/robot_description', 'std_msgs/msg/String', LATCHED_QOS,
+                          "latched: the machine's URDF, joint names as on /joint_states")
 RECORDER_PROGRESS = Topic('/recorder/progress', 'builtin_interfaces/msg/Time', PROGRESS_QOS,
                           "the newest step every per-step publisher's stream has reached in the bag")
 
@@ -125,14 +132,14 @@ PARAMETER_EVENTS = '/parameter_events'
 
 # The command API a user of the running graph sees (machine-ctrl bringup prints it).
 COMMAND_API = (PATH, JOINT_GOAL, FEED_OVERRIDE, HOLD, RESUME, STOP, HOME, RESET, DUAL_STAGE_ENABLE,
-               COMPENSATION_ENABLE, TRAJECTORY_STATUS, DIAGNOSTICS)
+               COMPENSATION_ENABLE, TRAJECTORY_STATUS, GOAL_STATUS, READY, ROBOT_DESCRIPTION, DIAGNOSTICS)
 # The per-step streams of the lock-step graph: each publisher of these answers every step,
 # so the recorder's progress is the minimum over them.
 PER_STEP_TOPICS = (JOINT_STATES, SERVO_COMMANDS, DUAL_STAGE_OFFSETS, CLOCK, TRUE_JOINT_STATES, TRUE_TOOL_POSE)
 TOPICS = (CLOCK, JOINT_STATES, SERVO_COMMANDS, REFERENCE, TRAJECTORY_REFERENCE, DUAL_STAGE_OFFSETS,
           TRUE_JOINT_STATES, TRUE_TOOL_POSE, DIAGNOSTICS, PATH, JOINT_GOAL, FEED_OVERRIDE, TRAJECTORY_STATUS,
           CONTOUR_TOOL_TIP, CONTOUR_TOOL_TIP_MAGNITUDE, CONTOUR_ORIENTATION, CONTOUR_ORIENTATION_MAGNITUDE,
-          RECORDER_PROGRESS)
+          RECORDER_PROGRESS, GOAL_STATUS, READY, ROBOT_DESCRIPTION)
 SERVICES = (HOLD, RESUME, STOP, HOME, RESET, DUAL_STAGE_ENABLE, COMPENSATION_ENABLE)
 
 

@@ -7,7 +7,7 @@ From these tables
 * each node declares its parameters with rcl_interfaces ParameterDescriptors (type,
   description with the unit, FloatingPointRange / IntegerRange, read_only) and validates
   every value — overrides at start (a bad one ends the node with one line, exit 2) and
-  every later set (refused with the reason): :func:`machine_ctrl.ros.node_common.declare_parameters`;
+  every later set (refused with the reason): :func:`machine_ctrl.ros.node_parameters.declare_parameters`;
 * node specs for bringup are typed data (:class:`machine_ctrl.ros.graph.NodeSpec` coerces
   and checks its values here, and writes them to ROS parameter files);
 * the README table "Node parameters" is printed by ``python -m machine_ctrl.parameters``

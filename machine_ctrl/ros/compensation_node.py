@@ -25,7 +25,8 @@ from compensation.stream import CompensationStream
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.model.errors import ConfigError
-from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, rejections, subscribe_reference, wall_timer
+from machine_ctrl.ros.node_common import main_for, rejections, subscribe_reference, wall_timer
+from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 
 
 class CompensationNode(Node):

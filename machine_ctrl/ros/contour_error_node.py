@@ -33,8 +33,9 @@ from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData
 from machine_ctrl.contour.estimation import MAX_SHIFT, ContourEstimator, ToolTrajectory, tool_reference
 from machine_ctrl.model.kinematics import Kinematics
-from machine_ctrl.ros.node_common import (declare_parameters, machine_parameter, main_for, rejections,
-                                          subscribe_joint_states, subscribe_reference, use_sim_time, wall_timer)
+from machine_ctrl.ros.node_common import (main_for, rejections, subscribe_joint_states, subscribe_reference,
+                                          use_sim_time, wall_timer)
+from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 
 
 

@@ -17,7 +17,8 @@ from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.control.dual_stage import DualStageCoupling
-from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, wall_timer
+from machine_ctrl.ros.node_common import main_for, wall_timer
+from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 from machine_ctrl.ros.step_node import StepNode
 
 

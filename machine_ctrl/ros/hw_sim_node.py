@@ -53,7 +53,8 @@ from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.model.kinematics import Kinematics
-from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, subscribe_joint_states, wall_timer
+from machine_ctrl.ros.node_common import main_for, subscribe_joint_states, wall_timer
+from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 
 
 class HwSimNode(Node):

@@ -42,7 +42,8 @@ from machine_ctrl.recording.bag import qos_profile
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.recording.msgdefs import DefinitionNotFound, split_type
-from machine_ctrl.ros.node_common import DefaultExecutor, declare_parameters, wall_timer
+from machine_ctrl.ros.node_common import DefaultExecutor, wall_timer
+from machine_ctrl.ros.node_parameters import declare_parameters
 
 DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
 DRAIN_LIMIT = 30.0     # s: the drain never takes longer

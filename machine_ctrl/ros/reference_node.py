@@ -12,7 +12,8 @@ from trajectory_msgs.msg import JointTrajectory
 
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
-from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, use_sim_time
+from machine_ctrl.ros.node_common import main_for, use_sim_time
+from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 from trajectory.contours import contour_reference
 
 

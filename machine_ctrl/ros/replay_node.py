@@ -21,7 +21,7 @@ from machine_ctrl import contract
 from machine_ctrl.recording import replay
 from machine_ctrl.recording.bag import Bag
 from machine_ctrl import parameters
-from machine_ctrl.ros.node_common import declare_parameters
+from machine_ctrl.ros.node_parameters import declare_parameters
 from machine_ctrl.ros.recorder_node import message_class
 
 MIN_DEPTH = 1000     # assumed: a burst at a high rate factor outruns a 10-deep queue

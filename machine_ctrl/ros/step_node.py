@@ -9,8 +9,9 @@ from rclpy.node import Node
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData
-from machine_ctrl.ros.node_common import (StepResponder, declare_parameters, rejections, subscribe_joint_states,
-                                          subscribe_reference, use_sim_time)
+from machine_ctrl.ros.node_common import (StepResponder, rejections, subscribe_joint_states, subscribe_reference,
+                                          use_sim_time)
+from machine_ctrl.ros.node_parameters import declare_parameters
 from machine_ctrl.model.reference import ReferenceBuffer
 
 

@@ -57,7 +57,8 @@ from trajectory_msgs.msg import JointTrajectory
 from machine_ctrl import contract, parameters
 from machine_ctrl.diagnostics import error_text
 from machine_ctrl.ros import messages as ros_io
-from machine_ctrl.ros.node_common import declare_parameters, machine_parameter, main_for, use_sim_time, wall_timer
+from machine_ctrl.ros.node_common import main_for, use_sim_time, wall_timer
+from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 from trajectory.session import Answer, Session, plan_path
 
 LATCHED = ros_io.qos(contract.LATCHED_QOS)
