@@ -30,6 +30,13 @@ Malformed commands (unknown or duplicate axes, length mismatch, off-grid or futu
 and progress reports (off-grid, not a published step) are refused with a reason and change
 nothing. A reset clears a fault and restarts the current step from where the axes are
 (clipped into their strokes).
+
+Readiness (:attr:`Session.ready`, the node publishes it latched on contract.READY): the
+graph is ready once it has completed its first step — in lock-step mode when every axis has
+answered step 0 and the machine advanced (so every servo had its first state and its first
+reference, and a trajectory node as the reference source had its first state: it streams
+only from then on); in paced mode once every axis has been commanded at least once. It stays
+true (a fault or a reset does not make the graph less up).
 """
 from __future__ import annotations
 
@@ -88,6 +95,7 @@ class Session:
         self.lockstep = LockStep(tuple(sim.machine.axis_names))
         self.gate = RecorderGate(0)              # window 0: no recorder flow control (paced mode)
         self.missed_deadlines = 0
+        self.ready = False                       # the graph has completed its first step
         self._state_sent_at = self._step_started_at = 0.0
 
     @property
@@ -156,7 +164,8 @@ class Session:
         values = {'step': self.lockstep.step, 'mode': self.mode, 'fault': fault or '',
                   'waiting_for': self._waiting_for(),
                   'stale_commands': stats.stale, 'refused_commands': stats.refused,
-                  'last_refusal': stats.last_refusal, 'missed_deadlines': self.missed_deadlines}
+                  'last_refusal': stats.last_refusal, 'missed_deadlines': self.missed_deadlines,
+                  'ready': self.ready}
         message = f'FAULT: {fault}' if fault else f'running, step {self.lockstep.step}'
         return Status(fault, message, values)
 
@@ -233,6 +242,7 @@ class LockStepSession(Session):
             self._send(now, resend=True)         # step 0 again, now that every subscriber is there
         if self.holding_for_recorder(now):
             return
+        self.ready = True                        # every axis answered a step: the graph steps
         self._advance(self.lockstep.take(), now)
 
     def holding_for_recorder(self, now: float) -> bool:
@@ -279,6 +289,7 @@ class PacedSession(Session):
         super().__init__(sim, clock, io, **common)
         self.real_time_factor = real_time_factor
         self._latest: dict[str, float] = {}      # the current step's command per axis
+        self._commanded: set[str] = set()        # axes commanded at least once (until ready)
 
     @property
     def timer_period(self) -> float:
@@ -298,3 +309,6 @@ class PacedSession(Session):
     def _take(self, step: int, names, values, now: float) -> None:
         if step == self.lockstep.step and len(values) == len(names):
             self._latest.update((n, v) for n, v in zip(names, values) if n in self.lockstep.axis_names)
+            if not self.ready:
+                self._commanded.update(self._latest)
+                self.ready = len(self._commanded) == len(self.lockstep.axis_names)

@@ -9,7 +9,15 @@ simulator's lock-step core counts steps on the clock — need no ROS import, and
 recomputes the control period in nanoseconds; `test/test_architecture.py` checks both.
 
 Units on every topic are SI (m, rad, s, N, N*m; REP 103); joint names are the machine's axis
-names. Names are absolute today (one machine per ROS domain).
+names.
+
+Names are relative (README "For ROS users", "Namespaces"): a node in namespace /mill1
+publishes `joint_states` as /mill1/joint_states, so several machines share a ROS domain,
+each graph under its own namespace. That includes the sim clock: every node of a graph
+remaps ROS's absolute /clock to the relative `clock` (:data:`CLOCK_REMAP`), and
+/diagnostics, whose readers (the trajectory node learns hw_sim's faults there) must not hear
+another machine. ROS's own /rosout and /parameter_events stay global. Bags store the fully
+qualified names and their namespace (:func:`absolute`).
 
 Time (design.md "Time"): control step k of a machine with period T happens at sim time
 t_k = k*T, carried in stamps as integer nanoseconds; T must be a whole number of
@@ -17,6 +25,7 @@ nanoseconds, so step <-> stamp is exact both ways (:class:`StepClock`).
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from machine_ctrl.model.errors import InvalidMessage
@@ -59,79 +68,119 @@ DIAGNOSTICS_READER_QOS = Qos(depth=50)
 
 # --- Topics and services ----------------------------------------------------------------
 
+_TOKEN = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
+
+
+def namespace_problem(namespace: str) -> str | None:
+    """Why `namespace` is not a ROS namespace ('' and '/' are the root; 'mill1', '/mill1',
+    '/plant/mill1' are fine), or None."""
+    inner = namespace.strip('/')
+    if any(not _TOKEN.match(token) for token in (inner.split('/') if inner else [])):
+        return (f'{namespace!r} is not a ROS namespace (names of letters, digits and _, not starting with a '
+                'digit, joined by /)')
+    return None
+
+
+def normal_namespace(namespace: str) -> str:
+    """'/mill1' for 'mill1', '/mill1' or '/mill1/' ('' for the root); ValueError if invalid."""
+    if (problem := namespace_problem(namespace)) is not None:
+        raise ValueError(problem)
+    inner = namespace.strip('/')
+    return f'/{inner}' if inner else ''
+
+
+def absolute(name: str, namespace: str = '') -> str:
+    """The fully qualified name of a relative contract name under `namespace`, as rcl
+    resolves it ('joint_states' in '/mill1' -> '/mill1/joint_states'); an absolute name is
+    returned as it is."""
+    return name if name.startswith('/') else f'{normal_namespace(namespace)}/{name}'
+
+
 @dataclass(frozen=True)
 class Topic:
-    name: str
+    name: str                  # relative: resolved in the node's namespace
     type: str                  # 'pkg/msg/Type'
     qos: Qos
     description: str = ''
 
+    def full(self, namespace: str = '') -> str:
+        return absolute(self.name, namespace)
+
 
 @dataclass(frozen=True)
 class Service:
-    name: str
+    name: str                  # relative
     type: str                  # 'pkg/srv/Type'
     description: str = ''
 
+    def full(self, namespace: str = '') -> str:
+        return absolute(self.name, namespace)
 
-CLOCK = Topic('/clock', 'rosgraph_msgs/msg/Clock', STEP_QOS, "hw_sim's simulated time")
-JOINT_STATES = Topic('/joint_states', 'sensor_msgs/msg/JointState', STEP_QOS,
+
+CLOCK = Topic('clock', 'rosgraph_msgs/msg/Clock', STEP_QOS, "hw_sim's simulated time")
+JOINT_STATES = Topic('joint_states', 'sensor_msgs/msg/JointState', STEP_QOS,
                      'measured position and velocity of every axis, one per control step')
-SERVO_COMMANDS = Topic('/servo_commands', 'sensor_msgs/msg/JointState', STEP_QOS,
+SERVO_COMMANDS = Topic('servo_commands', 'sensor_msgs/msg/JointState', STEP_QOS,
                        'actuator commands (effort), stamped with the state they answer')
-REFERENCE = Topic('/reference', 'trajectory_msgs/msg/JointTrajectory', REFERENCE_QOS,
+REFERENCE = Topic('reference', 'trajectory_msgs/msg/JointTrajectory', REFERENCE_QOS,
                   'reference chunks the servos follow (one point per step)')
-TRAJECTORY_REFERENCE = Topic('/trajectory/reference', 'trajectory_msgs/msg/JointTrajectory', REFERENCE_QOS,
+TRAJECTORY_REFERENCE = Topic('trajectory/reference', 'trajectory_msgs/msg/JointTrajectory', REFERENCE_QOS,
                              'uncompensated reference chunks (when compensation runs)')
-DUAL_STAGE_OFFSETS = Topic('/dual_stage/offsets', 'sensor_msgs/msg/JointState', STEP_QOS,
+DUAL_STAGE_OFFSETS = Topic('dual_stage/offsets', 'sensor_msgs/msg/JointState', STEP_QOS,
                            'fine-stage reference offsets (position), one per step')
-TRUE_JOINT_STATES = Topic('/hw_sim/ground_truth/joint_states', 'sensor_msgs/msg/JointState', STEP_QOS,
+TRUE_JOINT_STATES = Topic('hw_sim/ground_truth/joint_states', 'sensor_msgs/msg/JointState', STEP_QOS,
                           'true axis positions (published only while subscribed)')
-TRUE_TOOL_POSE = Topic('/hw_sim/ground_truth/tool_pose', 'geometry_msgs/msg/PoseStamped', STEP_QOS,
+TRUE_TOOL_POSE = Topic('hw_sim/ground_truth/tool_pose', 'geometry_msgs/msg/PoseStamped', STEP_QOS,
                        'true tool pose in the workpiece frame (published only while subscribed)')
-DIAGNOSTICS = Topic('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray', DIAGNOSTICS_QOS,
+DIAGNOSTICS = Topic('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray', DIAGNOSTICS_QOS,
                     'every node: faults, refusals, counters')
-PATH = Topic('/trajectory/path', 'nav_msgs/msg/Path', COMMAND_QOS,
+PATH = Topic('trajectory/path', 'nav_msgs/msg/Path', COMMAND_QOS,
              'tool path, frame workpiece, m; pose z-axis = tool axis')
-JOINT_GOAL = Topic('/trajectory/joint_goal', 'trajectory_msgs/msg/JointTrajectory', COMMAND_QOS,
+JOINT_GOAL = Topic('trajectory/joint_goal', 'trajectory_msgs/msg/JointTrajectory', COMMAND_QOS,
                    'axis goals, m / rad, times s')
-FEED_OVERRIDE = Topic('/trajectory/feed_override', 'std_msgs/msg/Float64', COMMAND_QOS,
+FEED_OVERRIDE = Topic('trajectory/feed_override', 'std_msgs/msg/Float64', COMMAND_QOS,
                       'feed fraction 0..1, ramped')
-TRAJECTORY_STATUS = Topic('/trajectory/status', 'diagnostic_msgs/msg/DiagnosticStatus', LATCHED_QOS,
+TRAJECTORY_STATUS = Topic('trajectory/status', 'diagnostic_msgs/msg/DiagnosticStatus', LATCHED_QOS,
                           'latched: state, progress, refusals')
-CONTOUR_TOOL_TIP = Topic('/contour_error/tool_tip', 'geometry_msgs/msg/Vector3Stamped', STEP_QOS,
+CONTOUR_TOOL_TIP = Topic('contour_error/tool_tip', 'geometry_msgs/msg/Vector3Stamped', STEP_QOS,
                          'tool-tip contour error vector, m, workpiece frame')
-CONTOUR_TOOL_TIP_MAGNITUDE = Topic('/contour_error/tool_tip_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
+CONTOUR_TOOL_TIP_MAGNITUDE = Topic('contour_error/tool_tip_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
                                    'tool-tip contour error magnitude, m')
-CONTOUR_ORIENTATION = Topic('/contour_error/orientation', 'geometry_msgs/msg/Vector3Stamped', STEP_QOS,
+CONTOUR_ORIENTATION = Topic('contour_error/orientation', 'geometry_msgs/msg/Vector3Stamped', STEP_QOS,
                             'tool-orientation contour error vector, rad')
-CONTOUR_ORIENTATION_MAGNITUDE = Topic('/contour_error/orientation_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
+CONTOUR_ORIENTATION_MAGNITUDE = Topic('contour_error/orientation_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
                                       'tool-orientation contour error magnitude, rad')
-GOAL_STATUS = Topic('/trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', LATCHED_QOS,
+GOAL_STATUS = Topic('trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', LATCHED_QOS,
                     'latched: every goal of the session with its id (UUID) and state: accepted, executing, '
                     'succeeded, canceled, aborted (the reason on /diagnostics)')
-READY = Topic('/ready', 'std_msgs/msg/Bool', LATCHED_QOS,
+READY = Topic('ready', 'std_msgs/msg/Bool', LATCHED_QOS,
               'latched: true once every node of the graph has its first state (the graph steps)')
-ROBOT_DESCRIPTION = Topic('/robot_description', 'std_msgs/msg/String', LATCHED_QOS,
+ROBOT_DESCRIPTION = Topic('robot_description', 'std_msgs/msg/String', LATCHED_QOS,
                           "latched: the machine's URDF, joint names as on /joint_states")
-RECORDER_PROGRESS = Topic('/recorder/progress', 'builtin_interfaces/msg/Time', PROGRESS_QOS,
+RECORDER_PROGRESS = Topic('recorder/progress', 'builtin_interfaces/msg/Time', PROGRESS_QOS,
                           "the newest step every per-step publisher's stream has reached in the bag")
 
-HOLD = Service('/trajectory/hold', 'std_srvs/srv/Trigger', 'feed hold along the path (program kept)')
-RESUME = Service('/trajectory/resume', 'std_srvs/srv/Trigger', 'resume after a hold')
-STOP = Service('/trajectory/stop', 'std_srvs/srv/Trigger', 'stop smoothly and drop the program')
-HOME = Service('/trajectory/home', 'std_srvs/srv/Trigger', 'move to home (when idle)')
-RESET = Service('/hw_sim/reset', 'std_srvs/srv/Trigger', 'clear a fault')
-DUAL_STAGE_ENABLE = Service('/dual_stage/enable', 'std_srvs/srv/SetBool', 'dual-stage coupling on/off')
-COMPENSATION_ENABLE = Service('/compensation/enable', 'std_srvs/srv/SetBool',
+HOLD = Service('trajectory/hold', 'std_srvs/srv/Trigger', 'feed hold along the path (program kept)')
+RESUME = Service('trajectory/resume', 'std_srvs/srv/Trigger', 'resume after a hold')
+STOP = Service('trajectory/stop', 'std_srvs/srv/Trigger', 'stop smoothly and drop the program')
+HOME = Service('trajectory/home', 'std_srvs/srv/Trigger', 'move to home (when idle)')
+CANCEL = Service('trajectory/cancel', 'action_msgs/srv/CancelGoal',
+                'cancel the active goal by id (zero id: any): stopped as by stop, then canceled')
+RESET = Service('hw_sim/reset', 'std_srvs/srv/Trigger', 'clear a fault')
+DUAL_STAGE_ENABLE = Service('dual_stage/enable', 'std_srvs/srv/SetBool', 'dual-stage coupling on/off')
+COMPENSATION_ENABLE = Service('compensation/enable', 'std_srvs/srv/SetBool',
                               'geometric compensation on/off (with a model)')
+
+# rclpy's sim-time subscription is to the absolute /clock: each node of a graph remaps it to
+# its own namespace's clock (a no-op in the root namespace), as (from, to).
+CLOCK_REMAP = ('/clock', CLOCK.name)
 
 # ROS's own topics, which a recording leaves out by default.
 ROSOUT = '/rosout'
 PARAMETER_EVENTS = '/parameter_events'
 
 # The command API a user of the running graph sees (machine-ctrl bringup prints it).
-COMMAND_API = (PATH, JOINT_GOAL, FEED_OVERRIDE, HOLD, RESUME, STOP, HOME, RESET, DUAL_STAGE_ENABLE,
+COMMAND_API = (PATH, JOINT_GOAL, FEED_OVERRIDE, HOLD, RESUME, STOP, CANCEL, HOME, RESET, DUAL_STAGE_ENABLE,
                COMPENSATION_ENABLE, TRAJECTORY_STATUS, GOAL_STATUS, READY, ROBOT_DESCRIPTION, DIAGNOSTICS)
 # The per-step streams of the lock-step graph: each publisher of these answers every step,
 # so the recorder's progress is the minimum over them.
@@ -140,7 +189,7 @@ TOPICS = (CLOCK, JOINT_STATES, SERVO_COMMANDS, REFERENCE, TRAJECTORY_REFERENCE, 
           TRUE_JOINT_STATES, TRUE_TOOL_POSE, DIAGNOSTICS, PATH, JOINT_GOAL, FEED_OVERRIDE, TRAJECTORY_STATUS,
           CONTOUR_TOOL_TIP, CONTOUR_TOOL_TIP_MAGNITUDE, CONTOUR_ORIENTATION, CONTOUR_ORIENTATION_MAGNITUDE,
           RECORDER_PROGRESS, GOAL_STATUS, READY, ROBOT_DESCRIPTION)
-SERVICES = (HOLD, RESUME, STOP, HOME, RESET, DUAL_STAGE_ENABLE, COMPENSATION_ENABLE)
+SERVICES = (HOLD, RESUME, STOP, CANCEL, HOME, RESET, DUAL_STAGE_ENABLE, COMPENSATION_ENABLE)
 
 
 def trajectory_output(compensated: bool) -> Topic:

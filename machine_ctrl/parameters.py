@@ -14,13 +14,17 @@ From these tables
   (and `test/test_parameters.py` checks the README against the tables).
 
 A value is never clamped: it is accepted as given or refused with the reason. Read-only
-parameters are read once at start; a live one takes effect while the node runs (the node
-names what it does with a new value).
+parameters are read once at start; a live one takes effect while the node runs (its
+description says when and why that is safe) and the node publishes the value in effect in
+its /diagnostics status. A *template* entry (``gains.<axis>.<gain>``) stands for parameters
+the node declares per item (each with its own descriptor); its table row describes them all.
+Nodes on the simulated clock (``sim_time``) refuse ``use_sim_time`` false (:data:`SIM_TIME_REASON`).
 """
 from __future__ import annotations
 
 import array
 import math
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
@@ -38,7 +42,8 @@ class ParameterSpec:
     """One declared parameter. `default` None: the node supplies it (it depends on the
     machine), `default_text` says what it is. `low`/`high` bound numbers (closed, or open
     with `low_open`/`high_open`); `choices` lists the allowed strings; `required`: a
-    string that must not be empty."""
+    string that must not be empty. `constraint`: the allowed values in words when the
+    bounds alone do not say it. `template`: the name has <placeholders> (see the module)."""
     name: str
     type: str
     default: object
@@ -52,6 +57,8 @@ class ParameterSpec:
     required: bool = False
     live: bool = False
     default_text: str = ''
+    constraint: str = ''
+    template: bool = False
 
     def __post_init__(self):
         if self.type not in TYPES:
@@ -68,6 +75,14 @@ class ParameterSpec:
     @property
     def numeric(self) -> bool:
         return self.type in (INTEGER, DOUBLE)
+
+    def matches(self, name: str) -> bool:
+        """Whether `name` is this parameter (or, for a template, one of its instances)."""
+        if not self.template:
+            return name == self.name
+        pattern = '\\.'.join('[^.]+' if re.fullmatch(r'<[^<>]+>', part) else re.escape(part)
+                              for part in self.name.split('.'))
+        return re.fullmatch(pattern, name) is not None
 
 
 @dataclass(frozen=True)
@@ -86,6 +101,7 @@ class NodeParameters:
     executable: str                   # e.g. hw_sim_node
     parameters: tuple[ParameterSpec, ...]
     checks: tuple[Check, ...] = field(default=())
+    sim_time: bool = False            # the node runs on hw_sim's clock: use_sim_time true, fixed
 
     def __iter__(self):
         return iter(self.parameters)
@@ -95,14 +111,18 @@ class NodeParameters:
         return tuple(p.name for p in self.parameters)
 
     def spec(self, name: str) -> ParameterSpec:
+        """The entry of `name`: its own, or the template it is an instance of."""
         for p in self.parameters:
             if p.name == name:
+                return p
+        for p in self.parameters:
+            if p.template and p.matches(name):
                 return p
         raise KeyError(f'{self.executable}: no parameter {name!r}')
 
     def defaults(self) -> dict:
         """The defaults that do not depend on the machine."""
-        return {p.name: p.default for p in self.parameters if p.default is not None}
+        return {p.name: p.default for p in self.parameters if p.default is not None and not p.template}
 
 
 # --- validation -----------------------------------------------------------------------
@@ -149,7 +169,13 @@ def _show(value) -> str:
 
 
 def range_text(spec: ParameterSpec) -> str:
-    """The allowed values in words: `(0, 1]`, `>= 1`, `one of a, b`, `non-empty`, or ''."""
+    """The allowed values in words: the spec's `constraint`, else `(0, 1]`, `>= 1`, `one of
+    a, b`, `non-empty`, or ''."""
+    return spec.constraint or bounds_text(spec)
+
+
+def bounds_text(spec: ParameterSpec) -> str:
+    """The allowed values by the spec's bounds, choices or `required`, in words."""
     if spec.choices:
         return 'one of ' + ', '.join(spec.choices)
     if spec.required:
@@ -183,7 +209,7 @@ def validate(spec: ParameterSpec, value) -> str | None:
         too_high = spec.high is not None and (value >= spec.high if spec.high_open else value > spec.high)
         if too_low or too_high:
             unit = f' {spec.unit}' if spec.unit else ''
-            words = range_text(spec)
+            words = bounds_text(spec)
             return f'must be {"in " if words[0] in "[(" else ""}{words}{unit}, got {_show(value)}'
     if spec.choices and value not in spec.choices:
         return f'must be {_choice_words(spec.choices)}, got {value!r}'
@@ -226,6 +252,9 @@ def coerce(spec: ParameterSpec, value):
 
 
 # --- the tables ---------------------------------------------------------------------------
+
+SIM_TIME_REASON = (f"this node runs on hw_sim's simulated clock (topic {contract.CLOCK.name}, design.md "
+                   '"Time"); it cannot be switched off')
 
 MACHINE = ParameterSpec('machine', STRING, DEFAULT_MACHINE, description='machine name (config/machines/) or path of its YAML file')
 INPUT_TIMEOUT = ParameterSpec('input_timeout', DOUBLE, 0.5, 's', 'wall time to wait for a missing reference row or '
@@ -274,20 +303,31 @@ HW_SIM = NodeParameters('hw_sim_node', (
 SERVO = NodeParameters('servo_node', (
     MACHINE,
     ParameterSpec('axes', STRING_ARRAY, None, description='axes this node controls (machine axis names)',
-                  default_text='every controlled axis'),
-    ParameterSpec('feedforward', BOOL, True, description='velocity, acceleration and friction feed-forward'),
+                  default_text='every controlled axis', constraint='controlled axes of the machine, each once'),
+    ParameterSpec('feedforward', BOOL, True, description='velocity, acceleration and friction feed-forward; '
+                  'live: switched at the first step whose reference is at rest on every axis of the node '
+                  '(under motion a switch steps the command by (K_s + m_e lambda) v_r + m_e a_r: 1.4-4.4 V of the '
+                  "micromill's 5 V at 10 mm/s)", live=True),
+    ParameterSpec('gains.<axis>.<gain>', DOUBLE, None, "the gain's (SI)",
+                  "live gains of each axis's law (a new set of the law's parameters, applied between two steps): "
+                  'sliding_mode bandwidth, gain, adaptation (the command moves in proportion to the tracking error; '
+                  'refused unless T (K_s/m_e + lambda) < 1); ppi position_gain, velocity_gain, velocity_integral_gain '
+                  '(the integral is rescaled: bumpless); lead_lag none (its filter states belong to their coefficients)',
+                  default_text="the machine config's (axes.<axis>.control.<law>)",
+                  constraint="as in the machine config: > 0 or >= 0; the law's conditions", live=True, template=True),
     ParameterSpec('wait_for_offsets', BOOL, None, description='fine axes of a dual-stage pair wait for '
                   f'{contract.DUAL_STAGE_OFFSETS.name} each step (no effect without fine axes)',
                   default_text='true when the node has fine axes'),
     INPUT_TIMEOUT,
-))
+), sim_time=True)
 
 DUAL_STAGE = NodeParameters('dual_stage_node', (
     MACHINE,
-    ParameterSpec('dual_stage', BOOL, True, description=f'dual-stage coupling on at start ({contract.DUAL_STAGE_ENABLE.name} '
-                  'switches it while running; off: zero offsets)'),
+    ParameterSpec('dual_stage', BOOL, True, description='dual-stage coupling on (off: zero offsets); live: from the '
+                  'next step, the fine reference moves by the coarse tracking error, inside the fine stroke; '
+                  f'{contract.DUAL_STAGE_ENABLE.name} sets this parameter', live=True),
     INPUT_TIMEOUT,
-))
+), sim_time=True)
 
 REFERENCE = NodeParameters('reference_node', (
     MACHINE,
@@ -295,7 +335,7 @@ REFERENCE = NodeParameters('reference_node', (
                   choices=('circle', 'square', 'hold')),
     CHUNK_STEPS,
     LOOKAHEAD_STEPS,
-), checks=(_at_least('lookahead_steps', 'chunk_steps', 1),))
+), checks=(_at_least('lookahead_steps', 'chunk_steps', 1),), sim_time=True)
 
 TRAJECTORY = NodeParameters('trajectory_node', (
     MACHINE,
@@ -305,14 +345,14 @@ TRAJECTORY = NodeParameters('trajectory_node', (
     LOOKAHEAD_STEPS,
     ParameterSpec('output_topic', STRING, contract.REFERENCE.name, description='where the reference chunks go '
                   f'({contract.TRAJECTORY_REFERENCE.name} when compensation sits between)', required=True),
-), checks=(_at_least('lookahead_steps', 'chunk_steps', 2),))
+), checks=(_at_least('lookahead_steps', 'chunk_steps', 2),), sim_time=True)
 
 COMPENSATION = NodeParameters('compensation_node', (
     MACHINE,
     ParameterSpec('model', STRING, '', description='geometric error model YAML (machine-ctrl fit-errors --out)',
                   required=True),
-    ParameterSpec('enabled', BOOL, True, description=f'compensation on at start ({contract.COMPENSATION_ENABLE.name} '
-                  'switches it while running)'),
+    ParameterSpec('enabled', BOOL, True, description='geometric compensation on; live: from the next chunk, '
+                  f'ramped in or out over 0.1 s; {contract.COMPENSATION_ENABLE.name} sets this parameter', live=True),
     ParameterSpec('input_topic', STRING, contract.TRAJECTORY_REFERENCE.name, description='uncompensated '
                   'reference chunks', required=True),
     ParameterSpec('output_topic', STRING, contract.REFERENCE.name, description='compensated reference chunks',
@@ -321,9 +361,10 @@ COMPENSATION = NodeParameters('compensation_node', (
 
 CONTOUR_ERROR = NodeParameters('contour_error_node', (
     MACHINE,
-    ParameterSpec('estimator', STRING, 'compensated', description='contour error estimator (README "Contour error")',
-                  choices=('basic', 'shifted', 'compensated')),
-))
+    ParameterSpec('estimator', STRING, 'compensated', description='contour error estimator (README "Contour '
+                  'error"); live: from the next step (the estimators share their state, only the formula changes)',
+                  choices=('basic', 'shifted', 'compensated'), live=True),
+), sim_time=True)
 
 RECORDER = NodeParameters('recorder_node', (
     ParameterSpec('output', STRING, '', description='bag directory to create (absent or empty)', required=True),

@@ -199,11 +199,15 @@ def _docstrings(tree) -> set[int]:
     return ids
 
 
-NAMES = sorted({item.name for item in contract.TOPICS + contract.SERVICES}
+# The contract's names are relative: searched for in their absolute form ('/joint_states'),
+# and as written where they cannot be an English word ('trajectory/path', 'joint_states');
+# 'clock', 'reference', 'ready' alone are words.
+_RELATIVE = {item.name for item in contract.TOPICS + contract.SERVICES}
+NAMES = sorted({'/' + name for name in _RELATIVE} | {name for name in _RELATIVE if '/' in name or '_' in name}
                | {contract.ROSOUT, contract.PARAMETER_EVENTS}, key=len, reverse=True)
-# a ROS name of the contract inside a string: not preceded by a name character or a dot,
-# not followed by a name character or a slash
-NAME_IN_TEXT = re.compile('(?<![\\w.])(' + '|'.join(map(re.escape, NAMES)) + ')(?![\\w/])')
+# a ROS name of the contract inside a string: not preceded by a name character, a dot or a
+# slash, not followed by a name character or a slash
+NAME_IN_TEXT = re.compile('(?<![\\w./])(' + '|'.join(map(re.escape, NAMES)) + ')(?![\\w/])')
 
 
 def test_topic_and_service_names_are_written_only_in_the_contract():
@@ -227,7 +231,8 @@ def test_nanoseconds_per_second_only_in_the_contract():
     assert not found, '\n'.join(map(str, found))
 
 
-@pytest.mark.parametrize('name', ['/trajectory/path', '/joint_states', '/dual_stage/enable'])
+@pytest.mark.parametrize('name', ['/trajectory/path', '/joint_states', '/dual_stage/enable', 'trajectory/path',
+                                  'joint_states', '/clock'])
 def test_the_name_check_finds_a_name_where_it_is_written(name):
     assert NAME_IN_TEXT.search(f'send it on {name} now')
     assert NAME_IN_TEXT.search(name + ' (never received)')

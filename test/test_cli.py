@@ -147,3 +147,13 @@ def test_usage_errors_exit_2_with_one_error_line():
     assert 'machine-ctrl fit-errors: error: unrecognized arguments: --bogus' in result.stderr
     result = run('experiment', 'frf', '--record', 'nowhere')
     assert result.returncode == 2 and result.stderr == 'machine-ctrl: experiment: --record is for circle and square\n'
+
+
+def test_bringup_send_and_move_take_the_graph_namespace():
+    from machine_ctrl.app import cli
+    parser = cli.build_parser()
+    for command in (['bringup'], ['send', 'circle_xy'], ['move', 'x_c=0.001']):
+        assert parser.parse_args(command).namespace == ''
+        assert parser.parse_args(command + ['--namespace', 'mill1']).namespace == '/mill1'
+    result = run('move', 'x_c=0.001', '--namespace', '1bad')
+    assert result.returncode == 2 and 'is not a ROS namespace' in result.stderr

@@ -153,3 +153,44 @@ def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node,
                                                       for e in offline]
     assert collector.frames == {'workpiece'}
     assert np.linalg.norm(tip, axis=1).max() > 1e-5       # the machine moved and made contour errors
+
+
+# --- states without a reference row: a state of the node, not a flood ------------------------------
+
+def rows_from(trajectory, first, count):
+    zeros = np.zeros((count, 3))
+    trajectory.add(first, zeros, zeros, zeros, zeros, zeros)
+
+
+def test_states_before_the_reference_are_start_up_and_a_gap_is_warned_once():
+    from machine_ctrl.ros.contour_error_node import PendingStates
+    warned, told = [], []
+    pending = PendingStates(history=10, warn=warned.append, info=told.append)
+    trajectory = ToolTrajectory(1e-3)
+    assert pending.state() == 'waiting for states'
+    for step in range(25):                       # hw_sim steps before the reference source streams
+        assert pending.add(step, [0.0])
+    assert not pending.add(24, [0.0]) and len(pending) == 10       # a re-send is not taken again
+    assert pending.state() == 'waiting for the reference (never received)'
+    assert list(pending.ready(trajectory)) == [] and pending.before_reference == 15
+    rows_from(trajectory, 20, 100)               # the reference begins at step 20
+    pending.reference_from(20)
+    assert [step for step, _ in pending.ready(trajectory)] == list(range(20, 25))
+    assert (pending.before_reference, pending.skipped, pending.gaps, pending.state()) == (20, 0, 0, 'ok')
+    assert warned == [] and told == ['20 states came before the reference began (step 20): start-up, '
+                                     'no contour error for them']
+    for step in range(25, 120):
+        pending.add(step, [0.0])
+        list(pending.ready(trajectory))
+    for step in range(120, 135):                 # the stream stops at 119: a gap
+        pending.add(step, [0.0])
+        assert list(pending.ready(trajectory)) == []
+    assert (pending.skipped, pending.gaps, pending.gap_since) == (5, 1, 120)
+    assert pending.state() == 'no reference since step 120 (5 steps without it so far)'
+    assert warned == ['no reference row for step 120 (waited 10 steps for it): its contour error is not '
+                      f'published; one line per gap, counted as skipped_steps on {contract.DIAGNOSTICS.name}']
+    rows_from(trajectory, 130, 100)              # rows again, from step 130
+    assert [step for step, _ in pending.ready(trajectory)] == list(range(130, 135))
+    assert (pending.skipped, pending.gaps, pending.gap_since, pending.state()) == (10, 1, None, 'ok')
+    assert len(warned) == 1 and told[-1] == ('reference rows back from step 130: 10 steps from step 120 on had '
+                                             'none (no contour error published for them)')

@@ -140,3 +140,108 @@ def test_the_servo_picks_laws_through_the_registry_alone(micromill, monkeypatch)
     assert isinstance(servo.law, PositionOnly) and servo.friction is None
     k_p = micromill.axis('x_c').control.ppi.position_gain
     assert servo.step(3e-6, 0.01, 0.5, 1e-6, 0.02) == k_p * (3e-6 - 1e-6)
+
+
+# --- retuning: a new parameter set between two steps -----------------------------------------
+
+LIVE = {'sliding_mode': ['bandwidth', 'gain', 'adaptation'],
+        'ppi': ['position_gain', 'velocity_gain', 'velocity_integral_gain'],
+        'lead_lag': []}
+
+
+@pytest.mark.parametrize('name', sorted(LAWS))
+def test_live_gains_are_declared_with_why_they_are_safe(name):
+    from machine_ctrl import parameters
+    from machine_ctrl.control.law import live_parameters
+    live = live_parameters(LAWS[name].law)
+    assert [p.name for p in live] == LIVE[name]
+    assert all(len(p.live) > 20 for p in live)
+    template = parameters.SERVO.spec('gains.<axis>.<gain>').description       # the README row names them
+    assert f'{name} {", ".join(LIVE[name]) or "none"}' in template
+
+
+def test_a_refused_retune_gives_the_reason_and_changes_nothing(micromill):
+    axis = micromill.axis('x_c')
+    law = make_law(axis, micromill.control_period)
+    gains = law.gains
+    rows = inputs(200)
+    refused = {
+        'disturbance_bounds: fixed while running (a new value needs a new law)': dataclasses.replace(
+            gains, disturbance_bounds=(-2.0, 2.0)),
+        'gain: must be > 0, got -1': dataclasses.replace(gains, gain=-1.0),
+        'bandwidth: must be finite, got nan': dataclasses.replace(gains, bandwidth=math.nan),
+        'adaptation: must be >= 0, got -5': dataclasses.replace(gains, adaptation=-5.0),
+        'gains must be SlidingModeGains, got PPIGains': axis.control.ppi,
+    }
+    for reason, new in refused.items():
+        assert law.retune_problem(new) == reason
+        with pytest.raises(ValueError) as info:
+            law.retune(new)
+        assert str(info.value) == reason and law.gains is gains
+    unstable = dataclasses.replace(gains, gain=5000.0)
+    assert law.retune_problem(unstable).startswith('gain: T (K_s / m_e + lambda) = 1.09 must be < 1')
+    assert run(law, rows) == run(make_law(axis, micromill.control_period), rows)    # nothing changed
+
+
+def test_a_retune_takes_effect_from_the_next_step_and_keeps_the_state(micromill):
+    axis, period = micromill.axis('x_c'), micromill.control_period
+    rows = inputs(400)
+    new = dataclasses.replace(axis.control.sliding_mode, gain=60.0, bandwidth=150.0, adaptation=0.0)
+    law = make_law(axis, period)
+    law.retune(new)                         # before the first step: the same law as one built with them
+    built = make_law(dataclasses.replace(axis, control=dataclasses.replace(axis.control, sliding_mode=new)), period)
+    assert run(law, rows) == run(built, rows)
+
+    law = make_law(axis, period)
+    first = run(law, rows[:200])
+    d_hat = law.d_hat
+    law.retune(new)
+    assert law.d_hat == d_hat and law.gains == new          # the disturbance estimate is kept
+    assert law.step(*rows[200]) == pytest.approx(built.m_e * (150.0 * (rows[200][1] - rows[200][4]) + rows[200][2])
+                                                 + built.b_e * rows[200][4] + d_hat
+                                                 + 60.0 * ((rows[200][1] - rows[200][4]) + 150.0 * (rows[200][0] - rows[200][3])),
+                                                 rel=1e-12)
+    assert law.d_hat == d_hat                                # adaptation 0: frozen
+    assert first == run(make_law(axis, period), rows[:200])
+
+
+def test_ppi_retune_is_bumpless_and_refuses_switching_the_integrator(micromill):
+    axis, period = micromill.axis('x_c'), micromill.control_period
+    law = make_law(axis, period, 'ppi')
+    run(law, inputs(500))
+    held = law.k_vi * law.integral                           # the force the integrator holds
+    gains = law.gains
+    law.retune(dataclasses.replace(gains, velocity_integral_gain=2 * gains.velocity_integral_gain))
+    assert law.k_vi * law.integral == pytest.approx(held, rel=1e-15)
+    reason = law.retune_problem(dataclasses.replace(law.gains, velocity_integral_gain=0.0))
+    assert reason.startswith('velocity_integral_gain: switching the integral action off is not bumpless')
+
+
+def test_lead_lag_takes_no_new_gains_but_its_own(micromill):
+    axis, period = micromill.axis('x_f'), micromill.control_period
+    law = make_law(axis, period)
+    rows = inputs(300)
+    assert law.retune_problem(dataclasses.replace(law.gains, alpha=100.0)) == \
+        'alpha: fixed while running (a new value needs a new law)'
+    law.retune(law.gains)                                    # the gains in use: nothing to do
+    assert run(law, rows) == run(make_law(axis, period), rows)
+
+
+def test_feedforward_switches_at_the_first_step_at_rest(micromill):
+    moving, rest = inputs(300), [(r[0], 0.0, 0.0, r[3], r[4]) for r in inputs(50)]
+
+    def rows(data):
+        return [([r[0]] * 3, [r[1]] * 3, [r[2]] * 3, [r[3]] * 3, [r[4]] * 3) for r in data]
+    asked, kept = ServoGroup(micromill, ['x_c', 'y_c', 'z_c']), ServoGroup(micromill, ['x_c', 'y_c', 'z_c'])
+    asked.set_feedforward(False)
+    assert (asked.feedforward, asked.feedforward_requested) == (True, False)
+    assert [asked.step(*r) for r in rows(moving)] == [kept.step(*r) for r in rows(moving)]    # not under motion
+    assert asked.feedforward is True
+    asked.step(*rows(rest)[0])
+    assert (asked.feedforward, asked.feedforward_requested) == (False, None)
+    assert all(s.feedforward is False and s._friction_active is None for s in asked.servos)
+    asked.set_feedforward(True)
+    asked.step(*rows(rest)[1])                               # on again at rest: friction from zero bristles
+    assert asked.feedforward is True and asked.servos[0]._friction_active is asked.servos[0].friction
+    off = ServoGroup(micromill, ['x_c'], feedforward=False)  # off from the start: the law alone
+    assert off.servos[0].friction is not None and off.servos[0]._friction_active is None

@@ -218,6 +218,29 @@ def test_min_subscribers_holds_step_0_then_sends_it_again_and_starts(make):
     assert io.states()[-1] == 2
 
 
+def test_the_graph_is_ready_once_it_has_completed_its_first_step(make):
+    s, io = make(min_subscribers=1)
+    command(s, 0, COARSE)
+    assert not s.ready                             # the fine servos have not answered
+    command(s, 0, FINE)
+    assert not s.ready and s.step == 0             # every axis has, but held for a subscriber
+    io.subscribers = 1
+    s.on_timer(now=0.1)
+    assert s.ready and s.step == 1 and s.status(0.1).values['ready'] is True
+    s.fault('estop', now=0.2)
+    s.reset(now=0.3)
+    assert s.ready                                 # a fault does not make the graph less up
+
+
+def test_paced_mode_is_ready_once_every_axis_has_been_commanded(make):
+    s, _ = make(PacedSession)
+    command(s, 0, COARSE)
+    s.on_timer(now=0.001)
+    assert not s.ready and s.step == 1             # stepping, but the fine axes have not spoken
+    command(s, 1, FINE)
+    assert s.ready
+
+
 def test_timer_periods(make, micromill):
     assert make(command_timeout=2.0, republish_period=0.2)[0].timer_period == 0.2
     assert make(command_timeout=0.5, republish_period=0.2)[0].timer_period == 0.125
@@ -235,7 +258,7 @@ def test_decimation_of_the_clock_and_the_ground_truth(make):
 
 def test_diagnostics_keys(make):
     keys = ['step', 'mode', 'fault', 'waiting_for', 'stale_commands', 'refused_commands', 'last_refusal',
-            'missed_deadlines']
+            'missed_deadlines', 'ready']
     gate_keys = ['recorder_window', 'recorder_step', 'holding_for_recorder', 'recorder_holds',
                  'recorder_hold_time', 'refused_progress', 'last_progress_refusal']
     s, _ = make()
@@ -365,3 +388,13 @@ def test_paced_mode_faults_on_a_non_finite_command_too(make):
     io.take()
     command(s, 0, ['y_c'], [math.inf])
     assert io.take() == [('fault', 'non-finite command for y_c'), ('state', 0)]
+
+
+@pytest.mark.parametrize('name', ['micromill_9axis', 'trt_5axis'])
+def test_the_urdf_hw_sim_publishes_names_the_axes_of_the_joint_states(name):
+    """hw_sim publishes its machine's URDF file as robot_description and the axis names as
+    the joint names of /joint_states: the URDF's movable joints are exactly those axes."""
+    from machine_ctrl.model import urdf
+    from machine_ctrl.model.config import load_machine
+    machine = load_machine(name)
+    assert set(urdf.read_joints(machine.urdf_path)) == set(machine.axis_names)

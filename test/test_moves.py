@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from limit_checks import assert_within_limits
 
-from trajectory.moves import AxisState, home, move_to, smooth_stop
+from trajectory.axis_limits import unlimited_range
+from trajectory.moves import AxisState, home, move_to, smooth_stop, through_waypoints
 
 GOAL = [0.01, -0.02, 0.03, 5e-5, -4e-5, 2e-5, 0.001, -0.002, 1.0]
 
@@ -49,13 +50,27 @@ def test_home_returns_to_home(micromill):
 
 @pytest.mark.parametrize('goal, message', [
     (GOAL[:8], 'goal needs 9 positions'),
-    (GOAL[:8] + [float('nan')], 'NaN or inf'),
-    ([0.06] + GOAL[1:], 'for x_c is outside its stroke'),
-    (GOAL[:3] + [2e-4] + GOAL[4:], 'for x_f is outside its stroke'),
+    (GOAL[:8] + [float('nan')], 'c_f at nan: NaN or inf is not a position'),
+    ([0.06] + GOAL[1:], r'x_c at 0.06 m, outside its stroke \[-0.05, 0.05\] m by 10 mm'),
+    (GOAL[:3] + [2e-4] + GOAL[4:], r'x_f at 0.0002 m, outside its stroke \[-0.0001, 0.0001\] m by 100 µm'),
+    (GOAL[:7] + [-0.01] + GOAL[8:], r'b_f at -0.01 rad, outside its stroke \[-0.00872665, 0.00872665\] rad '
+                                    r'by 1.27 mrad'),
+    # c_f is unlimited: ulp(q) <= 0.001 x 2000 rad/s³ x (100 µs)³ / 4 = 5e-13 rad up to 2^11 rad
+    (GOAL[:8] + [2049.0], r'c_f at 2049 rad, beyond ±2048 rad \(326 turns\), the range of its unlimited axis'),
 ])
 def test_bad_goals_are_refused(micromill, goal, message):
     with pytest.raises(ValueError, match=message):
         move_to(micromill, goal)
+
+
+def test_the_unlimited_range_is_where_float64_resolves_the_jerk_at_the_control_period(micromill, trt):
+    c_f = micromill.axes[micromill.axis_names.index('c_f')]
+    assert unlimited_range(c_f, micromill.control_period) == 2048.0
+    # trt_5axis c: 0.001 x 2000 rad/s³ x (1 ms)³ / 4 = 5e-10 rad = ulp of [2^21, 2^22)
+    c = trt.axes[trt.axis_names.index('c')]
+    assert unlimited_range(c, trt.control_period) == 2.0**21
+    assert np.spacing(2.0**21) <= 5e-10 < np.spacing(2.0**22)
+    move_to(micromill, GOAL[:8] + [-2048.0], minimum_duration=0.0, start=AxisState.at_rest(GOAL[:8] + [-2047.0]))
 
 
 def test_stop_that_cannot_end_inside_the_stroke_is_refused(micromill):
@@ -63,5 +78,46 @@ def test_stop_that_cannot_end_inside_the_stroke_is_refused(micromill):
     near_end[0] = 0.0499
     velocity = [0.0] * 9
     velocity[0] = 0.15                                   # full speed towards the +50 mm end
-    with pytest.raises(ValueError, match='x_c would reach'):
+    # jerk-limited stop from 0.15 m/s (a_max 5 m/s² not reached): 2 tau with j tau² = v,
+    # tau = 38.7 ms, at the mean speed v/2: 5.81 mm further, 5.71 mm beyond the stroke end
+    with pytest.raises(ValueError, match=r'x_c would reach 0.0557\d* m, outside its stroke \[-0.05, 0.05\] m '
+                                         r'by 5.71 mm'):
         smooth_stop(micromill, AxisState(tuple(near_end), tuple(velocity), (0.0,) * 9))
+
+
+# x_c's rest-to-rest time-optimal 1 mm (v 0.15 m/s, a 5 m/s², j 100 m/s³ not reached): four
+# jerk phases of tau, 2 j tau³ = 1 mm: tau = 17.1 ms, 68.4 ms in all
+EARLIEST = 4 * (1e-3 / (2 * 100.0)) ** (1 / 3)
+
+
+@pytest.mark.parametrize('names, points, times, message', [
+    (['x_c'], [[1e-3]], [1e-6], r'point 0: 1 mm in 1 µs on x_c needs 1000 m/s \(limit 150 mm/s\); '
+                                r'earliest time_from_start 0.0684 s'),
+    (['x_c'], [[1e-3]], [0.02], r'point 0: 1 mm in 20 ms on x_c needs more than its acceleration and jerk limits '
+                                r'allow \(5 m/s², 100 m/s³\); earliest time_from_start 0.0684 s'),
+    (['x_c', 'y_c'], [[0.0, 1e-3], [1e-3, 1e-3]], [0.5, 0.51],
+     r'point 1: 1 mm in 10 ms on x_c needs more than its acceleration and jerk limits allow .*; '
+     r'earliest time_from_start 0.5684 s'),                  # 0.5 s + the 68.4 ms of EARLIEST
+    (['x_c'], [[1e-3]], [1e6], r'point 0: time_from_start 1e\+06 s is beyond the 104.858 s a joint goal may last '
+                               r'\(1048576 control steps\)'),
+    (['c_f'], [[1e9]], [0.0], r'point 0: c_f at 1e\+09 rad, beyond ±2048 rad \(326 turns\)'),
+    # 2000 rad at the 2 pi rad/s limit of c_f: > 318 s
+    (['c_f'], [[2000.0]], [0.0], r'point 0: the joint goal would last 31\d\.\d+ s up to it, beyond the 104.858 s'),
+    (['x_f'], [[5e-4]], [0.0], r'point 0: x_f at 0.0005 m, outside its stroke \[-0.0001, 0.0001\] m by 400 µm'),
+    (['x_c'], [[0.0], [float('nan')]], [0.0, 0.0], 'point 1: x_c at nan: NaN or inf is not a position'),
+])
+def test_joint_goals_are_refused_naming_the_point_and_the_axis(micromill, names, points, times, message):
+    with pytest.raises(ValueError, match=message):
+        through_waypoints(micromill, [0.0] * 9, names, points, times)
+
+
+def test_a_joint_goal_at_its_earliest_time_runs_and_arrives_then(micromill):
+    assert EARLIEST == pytest.approx(0.068399, abs=1e-6)
+    t = 0.0685                                           # the earliest, on the next 100 µs step
+    reference = through_waypoints(micromill, [0.0] * 9, ['x_c'], [[1e-3]], [t])
+    assert len(reference) - 1 == 685
+    np.testing.assert_allclose(reference.position[-1, 0], 1e-3, atol=1e-12)
+    with pytest.raises(ValueError, match='earliest time_from_start 0.0684 s'):
+        through_waypoints(micromill, [0.0] * 9, ['x_c'], [[1e-3]], [0.0683])
+    later = through_waypoints(micromill, [0.0] * 9, ['x_c'], [[1e-3], [2e-3]], [t, t + 0.1])
+    assert len(later) - 1 == 685 + 1000                  # each point at its time

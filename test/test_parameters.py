@@ -137,20 +137,44 @@ def node_arguments(micromill, tmp_path):
     }
 
 
+def declared_specs(node, table):
+    """(spec, name) of every parameter the node declared from `table`: a template's
+    instances with their own specs (the node's declarations), the others by name."""
+    from machine_ctrl.ros.node_parameters import gain_parameters
+    out = []
+    for spec in table.parameters:
+        if not spec.template:
+            out.append((spec, spec.name))
+            continue
+        instances = [n for n in node._parameters if spec.matches(n)]
+        assert table is parameters.SERVO and spec.name == 'gains.<axis>.<gain>'
+        gains = gain_parameters(node.machine, node.axes)
+        assert sorted(instances) == sorted(g.name for g in gains) and instances, instances
+        out += [(g.spec, g.name) for g in gains]
+    return out
+
+
 @pytest.mark.parametrize('executable', list(NODES))
 def test_every_declared_parameter_has_its_descriptor(executable, rclpy_context, node_arguments):
     table = parameters.table(executable)
     node, code = make_node(executable, rclpy_context, node_arguments.get(executable, {}))
     try:
         assert code == (2 if executable == 'replay_node' else None)
-        for spec in table.parameters:
-            assert node.has_parameter(spec.name), spec.name
+        if code is None:        # the nodes on the simulated clock are the table's
+            assert node.get_parameter('use_sim_time').value is table.sim_time
+            if table.sim_time:
+                assert parameters.SIM_TIME_REASON in node.describe_parameter('use_sim_time').description
+        for spec, name in (declared_specs(node, table) if code is None else [(s, s.name) for s in table]):
+            if spec.template:
+                continue
+            assert spec.name == name and node.has_parameter(spec.name), spec.name
             d = node.describe_parameter(spec.name)
             assert d.type == ROS_TYPE[spec.type], spec.name
             assert d.read_only == (not spec.live), spec.name
             assert d.description.startswith(spec.description), spec.name
             if spec.unit:
                 assert d.description.endswith(f'[{spec.unit}]'), spec.name
+            assert d.additional_constraints == parameters.constraint_text(table, spec) or spec.name.startswith('gains.'), spec.name
             if spec.type == 'double' and (spec.low is not None or spec.high is not None):
                 (r,) = d.floating_point_range
                 assert (r.from_value, r.to_value) == (spec.low if spec.low is not None else -1.7976931348623157e308,
@@ -179,6 +203,15 @@ START_REFUSALS = [
      "parameters: mode: must be lockstep or paced, got 'turbo'; command_timeout: must be > 0 s, got -1.0"),
     ('servo_node', {'input_timeout': 0.0}, 'parameter input_timeout: must be > 0 s, got 0.0'),
     ('servo_node', {'wait_for_offsets': 1}, 'parameter wait_for_offsets: must be true or false, got integer 1'),
+    ('servo_node', {'axes': ['x_c', 'q']}, 'parameter axes: must name controlled axes of micromill_9axis '
+     "(x_c, y_c, z_c, x_f, y_f, z_f, a_f, b_f, c_f), each once; unknown 'q'"),
+    ('servo_node', {'axes': ['x_c', 'y_c', 'x_c']}, 'parameter axes: must name controlled axes of micromill_9axis '
+     '(x_c, y_c, z_c, x_f, y_f, z_f, a_f, b_f, c_f), each once; repeated x_c'),
+    ('servo_node', {'use_sim_time': False}, "parameter use_sim_time: this node runs on hw_sim's simulated clock "
+     '(topic clock, design.md "Time"); it cannot be switched off, got false'),
+    ('servo_node', {'gains.x_c.gain': 0.0}, 'parameter gains.x_c.gain: must be > 0 V*s/m (V*s/rad), got 0.0'),
+    ('servo_node', {'gains.x_c.gain': 5000.0}, 'parameter gains.x_c: gain: T (K_s / m_e + lambda) = 1.09 must be < 1 '
+     '(the sampled loop would oscillate or diverge; K_s 5000, lambda 200, m_e 0.4667, T 0.0001)'),
     ('dual_stage_node', {'dual_stage': 'no'}, "parameter dual_stage: must be true or false, got string 'no'"),
     ('reference_node', {'chunk_steps': 600, 'lookahead_steps': 500},
      'parameter lookahead_steps: must be >= chunk_steps (600), got 500'),

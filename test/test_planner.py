@@ -1,13 +1,14 @@
 """plan(): fit -> resolve -> feed -> sample, its result statuses, and `machine-ctrl plan`."""
 import json
 import math
+import re
 
 import numpy as np
 import pytest
 
 from machine_ctrl.app import cli
 from machine_ctrl.model.kinematics import Kinematics
-from trajectory import toolpath
+from trajectory import planner, reach, toolpath
 from trajectory.planner import PlanError, PlanStatus, plan
 from trajectory.redundancy import RedundancySettings
 
@@ -70,20 +71,132 @@ def test_a_path_out_of_the_strokes_is_out_of_stroke_not_singular(micromill):
     # the redundancy resolution used to end in numpy's "Singular matrix" here
     result = plan(tip_arc(micromill, shift=0.2), micromill, feed=0.01)
     assert result.status == PlanStatus.OUT_OF_STROKE
-    assert 'x_c at -0.19' in result.reason and 'stroke [-0.05, 0.05]' in result.reason
+    assert result.reason.startswith('the path starts out of reach inside the strokes: x_c at -0.19')
+    assert 'outside its stroke [-0.05, 0.05] m by 150 mm (point 0)' in result.reason     # 0.2 m - 50 mm
     assert 'ingular' not in result.reason
 
 
-def test_a_path_leaving_the_strokes_midway_names_where(micromill):
-    # a straight 80 mm line from the home tool tip in -x: x_c reaches its +50 mm stroke end
-    # about 50 mm along it (the workpiece side moves the other way)
+def straight(machine, length, points=24):
+    """A straight line of `length` (m) in -x from the home tool tip, tool axis +z."""
+    tip, _ = Kinematics.from_config(machine).forward(np.zeros(len(machine.axes)))
+    p = np.column_stack([tip[0] - np.linspace(0.0, length, points), np.full(points, tip[1]), np.full(points, tip[2])])
+    return toolpath.from_arrays(p, np.tile([0.0, 0.0, 1.0], (points, 1)))
+
+
+@pytest.fixture
+def no_long_planning(monkeypatch):
+    """plan() must refuse before the spline fit and the redundancy resolution."""
+    def never(*args, **kwargs):
+        raise AssertionError('the long planning stages ran')
+    monkeypatch.setattr(planner.ArcLengthPath, 'fit', never)
+    monkeypatch.setattr(planner, 'resolve', never)
+
+
+def test_a_path_leaving_the_strokes_midway_is_refused_at_its_first_point_out(micromill, no_long_planning):
+    # 80 mm in -x, points 80/23 mm apart, c_f kept still: x_c (+-50 mm) carries the motion
+    # (the fine x_f, 1/500 of its stroke, almost none: the solve weighs the axes by their
+    # strokes squared); point 15 at 52.17 mm is the first beyond, by 2.17 mm
+    only = RedundancySettings(active_axes=tuple(a for a in micromill.axis_names if a != 'c_f'))
+    result = plan(straight(micromill, 0.08), micromill, feed=0.01, settings=only)
+    assert result.status == PlanStatus.OUT_OF_STROKE
+    assert result.reason == ('the path leaves the reach of the strokes at point 15: x_c at 0.0521737 m, '
+                             'outside its stroke [-0.05, 0.05] m by 2.17 mm')
+
+
+def test_a_tilt_beyond_the_table_is_refused_at_its_first_point(micromill, no_long_planning):
+    # the tool axis tilted 0.1 rad about y: b_f would turn -0.1 rad, 91.3 mrad beyond its 0.5 deg
+    cl = tip_arc(micromill)
+    tilted = toolpath.from_arrays(cl.positions, np.tile([math.sin(0.1), 0.0, math.cos(0.1)], (len(cl), 1)))
+    result = plan(tilted, micromill, feed=0.01)
+    assert result.status == PlanStatus.OUT_OF_STROKE
+    assert result.reason == ('the path starts out of reach inside the strokes: b_f at -0.1 rad, outside its '
+                             'stroke [-0.00872665, 0.00872665] rad by 91.3 mrad (point 0)')
+
+
+def test_a_pose_out_of_reach_between_the_samples_is_named_when_the_resolution_breaks_down(micromill):
+    # 200 points 0.1 mm apart; point 100 (between the samples 98 and 101 of the quick check)
+    # tilts the tool 2 deg: b_f would turn 2 deg, 1.5 deg = 26.2 mrad beyond its stroke
     tip, _ = Kinematics.from_config(micromill).forward(np.zeros(len(micromill.axes)))
-    p = np.column_stack([tip[0] - np.linspace(0.0, 0.08, 24), np.full(24, tip[1]), np.full(24, tip[2])])
-    result = plan(toolpath.from_arrays(p, np.tile([0.0, 0.0, 1.0], (24, 1))), micromill, feed=0.01)
+    p = tip + np.outer(np.arange(200) * 1e-4, [1.0, 0.0, 0.0])
+    o = np.tile([0.0, 0.0, 1.0], (200, 1))
+    o[100] = [math.sin(math.radians(2)), 0.0, math.cos(math.radians(2))]
+    result = plan(toolpath.from_arrays(p, o), micromill, feed=0.01)
+    assert result.status == PlanStatus.OUT_OF_STROKE
+    assert result.reason.startswith('the path leaves the reach of the strokes at point 100: b_f at -0.03490')
+    assert result.reason.endswith('rad, outside its stroke [-0.00872665, 0.00872665] rad by 26.2 mrad')
+
+
+def test_a_path_the_resolution_cannot_follow_to_a_stroke_end_names_the_points_and_the_axis(micromill):
+    # 49.9 mm in -x: every pose is inside the strokes (x_c + x_f reach 50.1 mm), but the
+    # stroke cost holds x_c off its end and the resolution breaks down ~0.5 mm before it
+    result = plan(straight(micromill, 0.0499, points=40), micromill, feed=0.01)
     assert result.status == PlanStatus.OUT_OF_STROKE and 'ingular' not in result.reason
-    assert 'leaves the reach of the strokes' in result.reason and 'x_c at 0.049' in result.reason
-    where = float(result.reason.split('s = ')[1].split(' mm')[0])
-    assert 45.0 < where < 50.0
+    assert result.reason.startswith('the redundancy resolution cannot keep the axes inside their strokes '
+                                    'between points 38 and 39 (s = 49.')
+    assert ': x_c at 0.049' in result.reason and 'from the end of its stroke [-0.05, 0.05] m' in result.reason
+
+
+def test_points_closer_than_the_machine_resolves_are_refused(micromill, no_long_planning):
+    # 10 nm apart: below the 20 nm of the table's sensors (CIRP section 2), the finest linear ones
+    cl = toolpath.from_arrays(np.outer(np.arange(24) * 1e-8, [1.0, 0.0, 0.0]), np.tile([0.0, 0.0, 1.0], (24, 1)))
+    result = plan(cl, micromill, feed=0.01)
+    assert result.status == PlanStatus.INVALID_INPUT
+    assert result.reason == ('points 0 and 1 are 1e-08 m apart (need >= 2e-08 m), the finest sensor resolution '
+                             'of the linear axes of micromill_9axis')
+
+
+def test_a_path_shorter_than_the_feed_grid_resolves_is_refused(micromill, no_long_planning):
+    cl = toolpath.from_arrays(np.outer(np.arange(6) * 1e-7, [1.0, 0.0, 0.0]), np.tile([0.0, 0.0, 1.0], (6, 1)))
+    result = plan(cl, micromill, feed=0.01)
+    assert result.status == PlanStatus.INVALID_INPUT
+    assert result.reason == 'the path is 5e-07 m long (need >= 1e-06 m for the feed optimization)'
+
+
+def test_a_tool_tip_beyond_the_workspace_is_unreachable(micromill, no_long_planning):
+    cl = tip_arc(micromill)
+    p = cl.positions.copy()
+    p[2] = [1e6, 0.0, 0.0]
+    result = plan(toolpath.from_arrays(p, cl.axes), micromill, feed=0.01)
+    assert result.status == PlanStatus.UNREACHABLE
+    assert result.reason.startswith('point 2: tool tip (1e+06, 0, 0) m is beyond the workspace: 1e+06 m from the '
+                                    'workpiece origin, where no tool tip of micromill_9axis is farther than 0.')
+
+
+def test_a_start_reachable_only_in_another_configuration_says_so(micromill):
+    # a helix of 60 mm radius starts 60 mm beside the c_f axis: x_c alone (+-50 mm) is 10 mm
+    # short, the table turned by c_f reaches it; the planner starts from home with every axis
+    # moved in proportion to its stroke, which keeps the table still
+    result = plan(toolpath.helix(radius=0.06), micromill, feed=0.01)
+    assert result.status == PlanStatus.OUT_OF_STROKE
+    assert re.fullmatch(r'point 0 is reachable inside the strokes, but not in the start configuration the planner '
+                        r'takes \(from home, each axis moved in proportion to its stroke\): x_c at -0\.060\d* m, '
+                        r'outside its stroke \[-0\.05, 0\.05\] m by 10\.\d mm', result.reason), result.reason
+
+
+def test_a_vertical_tool_on_the_tilting_table_machine_is_out_of_stroke(trt, no_long_planning):
+    # trt_5axis holds the tool along the workpiece's y at home: +z needs a = -pi/2, 70.8 mrad
+    # beyond its +-1.5 rad
+    result = plan('circle_xy', trt, feed=0.01)
+    assert result.status == PlanStatus.OUT_OF_STROKE
+    assert result.reason == ('the path starts out of reach inside the strokes: a at -1.5708 rad, outside its '
+                             'stroke [-1.5, 1.5] rad by 70.8 mrad (point 0)')
+
+
+@pytest.mark.parametrize('machine_name', ['micromill_9axis', 'trt_5axis'])
+def test_the_reach_radius_bounds_every_tool_tip_inside_the_strokes(machine_name, request):
+    machine = request.getfixturevalue({'micromill_9axis': 'micromill', 'trt_5axis': 'trt'}[machine_name])
+    kinematics = Kinematics.from_config(machine)
+    radius = reach.reach_radius(kinematics, machine)
+    rng = np.random.default_rng(7)
+    lo = np.array([a.stroke[0] if a.stroke else -math.pi for a in machine.axes])
+    hi = np.array([a.stroke[1] if a.stroke else math.pi for a in machine.axes])
+    corners = np.array(np.meshgrid(*zip(lo, hi))).reshape(len(lo), -1).T      # every stroke end
+    for q in np.vstack((corners, rng.uniform(lo, hi, (500, len(lo))))):
+        assert np.linalg.norm(kinematics.forward(q)[0]) <= radius
+    # a bound, not a blanket: within 3x the farthest tool tip found (x-y-z strokes of 0.1 m /
+    # 0.6 m per axis)
+    farthest = max(np.linalg.norm(kinematics.forward(q)[0]) for q in corners)
+    assert radius <= 3 * farthest
 
 
 def test_a_start_the_active_axes_cannot_reach_is_unreachable(micromill):

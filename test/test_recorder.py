@@ -130,7 +130,7 @@ def test_recording_reports_loss_and_writes_it_into_custom_data(tmp_path):
     assert '  /joint_states (sensor_msgs/msg/JointState): 22' in report
     assert 'lost (skipped stamps): /joint_states 3, /clock 1' in report
     with Bag(tmp_path / 'bag') as bag:
-        assert bag.custom_data == {'k': 'v', 'machine_ctrl.lost/joint_states': '3',
+        assert bag.custom_data == {'k': 'v', 'machine_ctrl.namespace': '', 'machine_ctrl.lost/joint_states': '3',
                                    'machine_ctrl.stamps_back/joint_states': '0',
                                    'machine_ctrl.lost/clock': '1', 'machine_ctrl.stamps_back/clock': '0'}
 
@@ -143,11 +143,33 @@ def test_recording_without_a_machine_says_loss_is_not_checked(tmp_path):
     rec.close()
     assert 'lost: not checked (no machine given' in rec.report()
     with Bag(tmp_path / 'bag') as bag:
-        assert bag.custom_data == {}
+        assert bag.custom_data == {'machine_ctrl.namespace': ''}
 
 
 def test_progress_topic_is_not_recorded_unless_named():
     progress = contract.RECORDER_PROGRESS.name
     available = {'/joint_states': ['sensor_msgs/msg/JointState'], progress: ['builtin_interfaces/msg/Time']}
-    assert set(recorder.to_subscribe(available, None, recorder.DEFAULT_EXCLUDED, {})) == {'/joint_states'}
-    assert set(recorder.to_subscribe(available, {progress: None}, recorder.DEFAULT_EXCLUDED, {})) == {progress}
+    assert set(recorder.to_subscribe(available, None, recorder.default_excluded(), {})) == {'/joint_states'}
+    assert set(recorder.to_subscribe(available, {progress: None}, recorder.default_excluded(), {})) == {progress}
+
+
+def test_a_recorder_in_a_namespace_records_its_own_graph_only():
+    available = {'/mill1/joint_states': ['sensor_msgs/msg/JointState'],
+                 '/mill2/joint_states': ['sensor_msgs/msg/JointState'],
+                 '/mill1/recorder/progress': ['builtin_interfaces/msg/Time'],
+                 '/rosout': ['rcl_interfaces/msg/Log']}
+    chosen = recorder.to_subscribe(available, None, recorder.default_excluded('/mill1'), {}, '/mill1')
+    assert set(chosen) == {'/mill1/joint_states'}
+    assert recorder.parse_topic('joint_states', 'mill1') == ('/mill1/joint_states', None)
+    assert recorder.parse_topic('/tf', 'mill1') == ('/tf', None)
+
+
+def test_a_namespaced_recording_keeps_its_namespace_and_checks_its_own_streams(tmp_path):
+    rec = recorder.Recording(tmp_path / 'bag', {}, PERIOD, namespace='mill1')
+    rec.add_topic('/mill1/joint_states', 'sensor_msgs/msg/JointState', [])
+    for k in (0, 1, 3):
+        rec.write('/mill1/joint_states', state(k), k, 0.0)
+    rec.close()
+    with Bag(tmp_path / 'bag') as bag:
+        assert bag.custom_data['machine_ctrl.namespace'] == '/mill1'
+        assert bag.custom_data['machine_ctrl.lost/mill1/joint_states'] == '1'

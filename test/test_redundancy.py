@@ -353,9 +353,53 @@ def test_a_breakdown_is_named_out_of_stroke_or_singular(micromill):
     runaway[2, 3] = 50e-6                                    # x_f halfway to its +-100 um end: not named
     failure = _failure(micromill, s, runaway)
     assert failure.kind == 'out_of_stroke' and failure.s == 2e-3
-    assert 'x_c at 0.0497 m (stroke [-0.05, 0.05])' in failure.reason and 'x_f' not in failure.reason
+    assert failure.reason == ('the redundancy resolution cannot keep the axes inside their strokes at s = 2 mm: '
+                              'x_c at 0.0497 m, 300 µm from the end of its stroke [-0.05, 0.05] m')
     start_outside = inside.copy()
     start_outside[:, 1] = -0.2
     failure = _failure(micromill, s, start_outside)
     assert failure.kind == 'out_of_stroke' and failure.s == 0.0
-    assert 'y_c at -0.2 m, outside its stroke [-0.05, 0.05]' in failure.reason
+    assert failure.reason == ('the start configuration is outside the strokes: '
+                              'y_c at -0.2 m, outside its stroke [-0.05, 0.05] m by 150 mm')
+
+
+class KnotPath:
+    """Only the arc lengths of the CL points (spline.ArcLengthPath.knot_s)."""
+    knot_s = np.array([0.0, 1e-3, 2.5e-3, 4e-3])
+
+
+def test_a_breakdown_names_the_cl_points_around_it(micromill):
+    from trajectory.redundancy import _failure, where_on
+    assert where_on(KnotPath(), 1.7e-3) == 'between points 1 and 2 (s = 1.7 mm)'
+    assert where_on(KnotPath(), 2.5e-3) == 'at point 2 (s = 2.5 mm)'
+    assert where_on(KnotPath(), 4e-3) == 'between points 2 and 3 (s = 4 mm)'       # the end: the last span
+    assert where_on(None, 4e-3) == 'at s = 4 mm'
+    s = np.array([0.0, 1e-3, 1.7e-3])
+    qs = np.zeros((3, len(micromill.axes)))
+    failure = _failure(micromill, s, qs, KnotPath())
+    assert failure.kind == 'singular' and 'singular between points 1 and 2 (s = 1.7 mm)' in failure.reason
+
+
+def test_the_pose_solver_reaches_poses_and_finds_the_nearest_inside_the_strokes(micromill, micromill_kin,
+                                                                                 home_tip):
+    from trajectory.redundancy import PoseSolver
+    solver = PoseSolver(micromill_kin, micromill)
+    z = np.array([0.0, 0.0, 1.0])
+    # 1 mm beside the home tool tip: reached, the coarse axis moving (fine axes near home)
+    q, ep, eo = solver.weighted(home_tip + [1e-3, 0.0, 0.0], z, micromill.home)
+    assert ep <= 1e-14 and eo <= 1e-14 and abs(q[0] + 1e-3) < 2e-6 and abs(q[3]) < 2e-6
+    # tilted 0.1 rad about y: b_f (stroke +-0.5 deg = 8.7 mrad) would have to turn 0.1 rad
+    tilted = np.array([math.sin(0.1), 0.0, math.cos(0.1)])
+    q, ep, eo = solver.weighted(home_tip, tilted, micromill.home)
+    assert ep <= 1e-14 and eo <= 1e-14 and q[7] == pytest.approx(-0.1, abs=1e-9)
+    q, ep, eo = solver.inside(home_tip, tilted, q)
+    # nearest inside: c_f turns the table so that a_f and b_f both tilt at their stroke ends,
+    # arccos(cos a cos b) = 12.3 mrad of the 0.1 rad; the rest is missing
+    end = math.radians(0.5)
+    assert np.abs(q[6:8]).tolist() == pytest.approx([end, end], abs=1e-12)
+    assert eo == pytest.approx(0.1 - math.acos(math.cos(end) ** 2), abs=1e-6)
+    # 60 mm beside it: x_c alone cannot (stroke +-50 mm) but turning the table (c_f) can
+    far = home_tip + [-0.06, 0.0, 0.0]
+    q, ep, eo = solver.inside(far, z, solver.weighted(far, z, micromill.home)[0])
+    assert ep <= 1e-9 and eo <= 1e-9
+    assert all(a.in_stroke(v) for a, v in zip(micromill.axes, q))

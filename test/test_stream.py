@@ -10,10 +10,10 @@ from scipy.optimize import minimize_scalar
 
 from machine_ctrl.model.kinematics import Kinematics
 from trajectory import toolpath
-from trajectory.moves import AxisState, move_to, through_waypoints
+from trajectory.moves import AxisState, move_to, smooth_stop, through_waypoints
 from trajectory.planner import plan
 from trajectory.ramp import SMOOTHSTEP_PEAK_CURVATURE, SMOOTHSTEP_PEAK_RATE, smoothstep
-from trajectory.stream import ReferenceStream
+from trajectory.stream import ReferenceStream, TooLate
 
 
 def limits(machine):
@@ -154,6 +154,45 @@ def test_override_outside_a_fraction_is_refused_and_abort_holds(micromill):
     assert stream.next_step == 100 and not stream.busy(100)
     first, p, v, _ = stream.take(3)
     assert first == 100 and p[0] == tuple(positions[100]) and not np.any(v)
+
+
+def test_a_cut_plays_a_stop_from_the_state_the_stream_gives_there(micromill):
+    """A point-to-point move at the limits is stopped by a cut: the stop planned from the
+    stream's state at the cut step, played from there, then held; within the limits."""
+    stream = stream_of(micromill, [0.0] * 9)
+    move = move_to(micromill, [40e-3] + [0.0] * 8)
+    stream.start(move, 'long', limits(micromill))
+    played, _ = play(stream, len(move) // 2)
+    at = len(move) // 4
+    p, v, a = stream.state(at)
+    np.testing.assert_array_equal(p, move.position[at])
+    np.testing.assert_array_equal(v, move.velocity[at])
+    np.testing.assert_array_equal(a, move.acceleration[at])
+    tail = smooth_stop(micromill, AxisState(tuple(p), tuple(v), tuple(a)))
+    assert stream.cut(at, tail) == at and stream.next_step == at + 1       # rows after the cut re-sent
+    rest, v_rest = play(stream, len(move))
+    positions = np.vstack([played[:at + 1], rest])
+    assert_within_limits(micromill, positions)
+    np.testing.assert_array_equal(positions[at + len(tail) - 1:], np.tile(tail.position[-1], (len(positions) - at - len(tail) + 1, 1)))
+    assert not np.any(v_rest[len(tail) - 1:]) and not stream.busy(at + len(tail) - 1)
+    assert 0.0 < stream.progress(at + len(tail)) < 0.5 and stream.override(at + len(tail)) == 0.0
+    assert positions[-1][0] < 40e-3 - 1e-3                           # stopped short of the goal
+    with pytest.raises(ValueError, match='not streamed yet'):
+        other = stream_of(micromill, [0.0] * 9)
+        other.start(move, 'long', limits(micromill))
+        other.state(10)
+
+
+def test_a_ramp_to_0_that_cannot_end_before_the_motion_does_is_too_late(micromill):
+    stream = stream_of(micromill, [0.0] * 9)
+    move = move_to(micromill, [40e-3] + [0.0] * 8)
+    stream.start(move, 'long', limits(micromill))
+    play(stream, len(move) - 50)
+    with pytest.raises(TooLate, match='too late: the motion reaches its end'):
+        stream.set_override(0.0, at=len(move) - 100)
+    assert stream.motion.ramp.k1 == 1.0                               # nothing changed
+    rest, _ = play(stream, 100)
+    np.testing.assert_array_equal(rest[49], move.position[-1])
 
 
 def test_waypoints_keep_unnamed_axes_and_stop_at_each_point(micromill):

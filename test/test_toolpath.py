@@ -27,18 +27,34 @@ def test_axes_are_normalized_and_arrays_frozen():
 @pytest.mark.parametrize('mutate, message', [
     (lambda p, o: (p[:, :2], o), r'positions must have shape \(N, 3\)'),
     (lambda p, o: (p, o[:, :2]), r'axes must have shape \(N, 3\)'),
-    (lambda p, o: (p, o[:-1]), '8 positions but 7 tool axes'),
-    (lambda p, o: (p[:-1], o[:-1]), '7 points, need at least 8'),
-    (lambda p, o: (np.where(np.arange(8)[:, None] == 3, np.nan, p), o), 'point 3: position is not finite'),
-    (lambda p, o: (p, np.where(np.arange(8)[:, None] == 5, np.inf, o)), 'point 5: tool axis is not finite'),
-    (lambda p, o: (p, np.where(np.arange(8)[:, None] == 2, 0.0, o)), 'point 2: zero-length tool axis'),
-    (lambda p, o: (np.vstack((p[:5], p[4:7])), o), 'point 5 repeats point 4'),
+    (lambda p, o: (p, o[:-1]), '6 positions but 5 tool axes'),
+    (lambda p, o: (p[:-1], o[:-1]), '5 points, need at least 6'),
+    (lambda p, o: (np.where(np.arange(6)[:, None] == 3, np.nan, p), o), 'point 3: position is not finite'),
+    (lambda p, o: (p, np.where(np.arange(6)[:, None] == 5, np.inf, o)), 'point 5: tool axis is not finite'),
+    (lambda p, o: (p, np.where(np.arange(6)[:, None] == 2, 0.0, o)), 'point 2: zero-length tool axis'),
+    (lambda p, o: (np.vstack((p[:5], p[4:5])), o), r'point 5 repeats point 4: points 4 and 5 are 0 m apart '
+                                                   r'\(need >= 1e-09 m\)'),
+    (lambda p, o: (np.vstack((p[:5], p[4:5] + [1e-12, 0.0, 0.0])), o),
+     r'point 5 repeats point 4: points 4 and 5 are 1e-12 m apart \(need >= 1e-09 m\)'),
 ])
 def test_cldata_rejections(mutate, message):
     p, o = line()
     with pytest.raises(ValueError, match=message) as e:
         CLData(*mutate(p, o))
     assert '\n' not in str(e.value)
+
+
+def test_six_points_are_the_fewest_and_they_fit_a_quintic():
+    # a quintic interpolating spline needs k + 1 = 6 points: the fit of six works, the CL data
+    # of five are refused
+    from trajectory.spline import DEGREE, ArcLengthPath
+    assert MIN_POINTS == DEGREE + 1 == 6
+    t = np.linspace(0.0, 1.0, 6)
+    p = np.column_stack((1e-3 * np.cos(t), 1e-3 * np.sin(t), np.zeros(6)))
+    path = ArcLengthPath.fit(tp.from_arrays(p, np.tile([0.0, 0.0, 1.0], (6, 1))))
+    np.testing.assert_allclose(path.evaluate(path.knot_s)[0], p, atol=1e-17)
+    with pytest.raises(ValueError, match='5 points, need at least 6'):
+        tp.from_arrays(p[:5], np.tile([0.0, 0.0, 1.0], (5, 1)))
 
 
 def test_closed_path_is_not_a_repeat():
@@ -56,18 +72,29 @@ def test_axes_from_quaternions_hand_computed():
     q = [[0, 0, 0, 1],                                   # identity: z stays z
          [h, 0, 0, h],                                   # +90 deg about x: z -> -y
          [0, math.sin(a / 2), 0, math.cos(a / 2)],       # a about y: z -> (sin a, 0, cos a)
-         [0, 0, 2 * h, 2 * h],                           # about z, not unit: z stays z
+         [0, 0, 1.004 * h, 1.004 * h],                   # about z, norm 1.004 (within tf2's tolerance)
          [0, 1, 0, 0]]                                   # 180 deg about y: z -> -z
     expected = [[0, 0, 1], [0, -1, 0], [math.sin(a), 0, math.cos(a)], [0, 0, 1], [0, 0, -1]]
     np.testing.assert_allclose(tp.axes_from_quaternions(q), expected, atol=1e-15)
 
 
+UNIT = [0.0, 0.0, 0.0, 1.0]
+
+
 @pytest.mark.parametrize('q, message', [
-    ([[0, 0, 0]], r'shape \(N, 4\)'), ([[0, 0, 0, 0]], 'quaternion 0 has zero length'),
-    ([[0, 0, 0, 1], [np.nan, 0, 0, 1]], 'quaternion 1 is not finite')])
+    ([[0, 0, 0]], r'shape \(N, 4\)'),
+    ([[0, 0, 0, 0]], 'pose 0: orientation quaternion has zero length, not unit'),
+    ([UNIT, [np.nan, 0, 0, 1]], r'pose 1: orientation quaternion is not finite \(NaN or inf\)'),
+    ([UNIT] * 3 + [[0, 0, 0, 0.5]], r'pose 3: orientation quaternion has norm 0.5, not unit '
+                                    r'\(\|x² \+ y² \+ z² \+ w² - 1\| must be below 0.01\)'),
+    ([UNIT, [0, 0, 0, 1.006]], 'pose 1: orientation quaternion has norm 1.006, not unit'),   # squared: 1.012
+    ([UNIT, [0, 0, 0, 2]], 'pose 1: orientation quaternion has norm 2, not unit'),
+])
 def test_axes_from_quaternions_rejects(q, message):
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ValueError, match=message) as e:
         tp.axes_from_quaternions(q)
+    if isinstance(e.value, tp.CLDataError):
+        assert e.value.index == len(q) - 1
 
 
 # ---------------------------------------------------------------- CSV
@@ -98,7 +125,7 @@ GOOD = [f'{i}e-3,0,0,0,0,1' for i in range(8)]
     ('px,py,pz,oi,oj,ok\n' + '\n'.join(GOOD[:3] + ['1e-2,0,zero,0,0,1'] + GOOD[3:]),
      "line 5: not a number: 'zero'"),
     ('px,py,pz,oi,oj,ok\n' + '\n'.join(GOOD[:2] + ['1e-2,0,0,0,0'] + GOOD[2:]), 'line 4: 5 values, expected 6'),
-    ('px,py,pz,oi,oj,ok\n' + '\n'.join(GOOD[:7]), '7 data rows, need at least 8'),
+    ('px,py,pz,oi,oj,ok\n' + '\n'.join(GOOD[:5]), '5 data rows, need at least 6'),
     ('', 'no header line'),
     ('px,py,pz,oi,oj,ok\n' + '\n'.join(GOOD[:3] + ['nan,0,0,0,0,1'] + GOOD[3:]), 'line 5: .*not finite'),
     ('px,py,pz,oi,oj,ok\n' + '\n'.join(GOOD[:3] + ['9,0,0,0,0,0'] + GOOD[3:]), 'line 5: .*zero-length tool axis'),

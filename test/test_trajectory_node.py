@@ -1,9 +1,17 @@
 """trajectory_node in the running lock-step graph (hw_sim, servos, dual_stage, trajectory;
 each node its own process, real DDS), driven only through its topics and services
 (machine_ctrl.app.client): refused goals move nothing, a tool path runs end to end after an
-approach from where the machine stands, joint goals, home, feed hold, fault and reset."""
+approach from where the machine stands, joint goals, home, feed hold, fault and reset; the
+goal status (ids, lifecycle, cancel; a goal sent with the real `ros2 topic pub`), the
+graph's readiness and its robot_description."""
 import math
+import shutil
+import subprocess
+import sys
 import threading
+import time
+import uuid
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -100,7 +108,8 @@ def client(micromill, graph, ros_env):
         node = rclpy.create_node('trajectory_client', context=context)
         c = Client(node, micromill)
         try:
-            c.wait(lambda: c.status().get('streamed_to_step', '') not in ('', None), 'streaming', 60, graph.check)
+            c.wait_ready(60, graph.check)                      # hw_sim: the graph has stepped
+            assert c.status().get('streamed_to_step', '') not in ('', None)   # so the trajectory node streams
             yield c
         finally:
             c.close()
@@ -262,6 +271,86 @@ def test_joint_goal_home_and_feed_hold(micromill, graph, client):
     assert client.call('/trajectory/home')[0]
     client.wait_states(n, ['running', 'idle'], check=graph.check)
     client.wait(lambda: np.abs(client.truth[:3]).max() < 2e-6, 'home', check=graph.check)
+
+
+def test_every_goal_has_an_id_and_its_lifecycle_on_the_goal_status(micromill, graph, client):
+    n = len(client.statuses)
+    stamp = client.send_goal(['y_c'], [[-1e-3]])
+    goal_id = client.wait_goal(stamp, ['accepted', 'executing', 'succeeded'], check=graph.check)
+    assert client.goal_states[goal_id] == ['accepted', 'executing', 'succeeded']   # each change latched
+    client.wait(lambda: client.goal_entries.get(goal_id, {}).get('status') == 'succeeded', 'its diagnostics entry',
+                check=graph.check)
+    entry = client.goal_entries[goal_id]
+    assert entry['label'] == 'joint goal (1 points)' and entry['kind'] == 'joint goal' and entry['reason'] == ''
+    assert entry['stamp'] == f'{stamp.sec}.{stamp.nanosec:09d}'
+    running = [{kv.key: kv.value for kv in st.values} for st in client.statuses[n:] if st.message == 'running']
+    assert running and all(v['goal_id'] == goal_id and v['feed'] == '0.01' for v in running)
+    assert client.status()['goal_id'] == ''                   # idle: no active goal
+
+    # a refused goal is a goal too: aborted, the reason on /diagnostics
+    stamp = client.send_goal(['x_f'], [[0.5e-3]])
+    goal_id = client.wait_goal(stamp, ['aborted'], check=graph.check)
+    client.wait(lambda: client.goal_entries.get(goal_id, {}).get('status') == 'aborted', 'the reason',
+                check=graph.check)
+    assert 'outside its stroke' in client.goal_entries[goal_id]['reason']
+
+    # cancel by id: stopped at rest short of the goal, then canceled
+    stamp = client.send_goal(['x_c'], [[-40e-3]])
+    goal_id = client.wait_goal(stamp, ['executing'], check=graph.check)
+    assert client.cancel(str(uuid.uuid4())) == (2, [])          # ERROR_UNKNOWN_GOAL_ID
+    assert client.cancel(goal_id) == (0, [goal_id])
+    client.wait_goal(stamp, ['canceling', 'canceled'], check=graph.check)
+    assert client.cancel(goal_id) == (3, [])                     # ERROR_GOAL_TERMINATED
+    client.wait(lambda: client.status()['state'] == 'idle', 'idle', check=graph.check)
+    assert client.reference()[1][-1][0] > -40e-3 + 1e-3
+    n = len(client.statuses)
+    assert client.call('/trajectory/home')[0]
+    client.wait_states(n, ['running', 'idle'], check=graph.check)
+
+
+ROS2 = Path(sys.executable).with_name('ros2')
+
+
+@pytest.mark.skipif(not ROS2.exists() and shutil.which('ros2') is None,
+                    reason='the ros2 command line is not installed (ros2cli)')
+def test_a_joint_goal_from_ros2_topic_pub_goes_accepted_executing_succeeded(micromill, graph, client, ros_env):
+    from builtin_interfaces.msg import Time
+    ros2 = str(ROS2) if ROS2.exists() else shutil.which('ros2')
+    stamp = Time(sec=int(time.time()), nanosec=4242)
+    goal = (f'{{header: {{stamp: {{sec: {stamp.sec}, nanosec: {stamp.nanosec}}}}}, joint_names: [x_c, y_c], '
+            f'points: [{{positions: [0.002, 0.001]}}]}}')
+    result = subprocess.run([ros2, 'topic', 'pub', '--once', '-w', '1', '--max-wait-time-secs', '60',
+                             contract.JOINT_GOAL.full(), 'trajectory_msgs/msg/JointTrajectory', goal],
+                            env=ros_env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    goal_id = client.wait_goal(stamp, ['accepted', 'executing', 'succeeded'], check=graph.check)
+    assert client.goal_states[goal_id] == ['accepted', 'executing', 'succeeded']
+    client.wait(lambda: abs(client.truth[0] - 0.002) < 2e-6 and abs(client.truth[1] - 0.001) < 2e-6, 'the goal',
+                check=graph.check)
+
+
+def test_the_graph_publishes_its_urdf_with_the_joint_names_of_the_joint_states(micromill, graph, client,
+                                                                                tmp_path):
+    import xml.etree.ElementTree as ET
+
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from machine_ctrl.model import urdf
+    description, states = [], []
+    client.node.create_subscription(String, contract.ROBOT_DESCRIPTION.name, description.append,
+                                    ros_io.qos(contract.ROBOT_DESCRIPTION.qos))
+    client.node.create_subscription(JointState, contract.JOINT_STATES.name, states.append, 10)
+    client.wait(lambda: description and states, 'robot_description and joint_states', check=graph.check)
+    text = description[0].data
+    assert ET.fromstring(text).tag == 'robot'
+    path = tmp_path / 'published.urdf'
+    path.write_text(text)
+    assert set(urdf.read_joints(path)) == set(states[0].name) == set(micromill.axis_names)
+    check = Path(sys.executable).with_name('check_urdf')
+    if check.exists():                                     # urdfdom, as robot_state_publisher parses it
+        parsed = subprocess.run([str(check), str(path)], capture_output=True, text=True, timeout=60)
+        assert parsed.returncode == 0 and 'Successfully Parsed XML' in parsed.stdout, parsed.stderr
 
 
 def test_a_fault_refuses_goals_until_hw_sim_is_reset(micromill, graph, client):

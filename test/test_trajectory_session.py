@@ -5,10 +5,14 @@ import math
 
 import numpy as np
 import pytest
+from limit_checks import assert_within_limits
 
+from machine_ctrl import contract
 from trajectory import toolpath
 from trajectory.moves import AxisState, move_to
 from trajectory.session import Answer, Session, State, plan_path
+
+NO_STATE = f'the machine state is not known yet (no {contract.JOINT_STATES.name})'
 
 CHUNK, LOOKAHEAD = 500, 1000
 HERE = [1e-3, -0.5e-3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
@@ -20,6 +24,7 @@ class Recorder:
 
     def __init__(self):
         self.by_step, self.chunks, self.states, self.logs, self.warnings = {}, [], [], [], []
+        self.goal_changes = []
         self.session = None
 
     def rows(self, first, positions, velocities, accelerations):
@@ -29,6 +34,9 @@ class Recorder:
 
     def status(self):
         self.states.append(self.session.status_values()['state'])
+
+    def goal(self, goal):
+        self.goal_changes.append((goal.uuid, goal.state.text, goal.reason))
 
     def log(self, text):
         self.logs.append(text)
@@ -69,13 +77,16 @@ def streamed(out):
 def test_before_the_first_state_goals_are_refused_and_nothing_streams(micromill, out):
     session = session_of(micromill, out)
     assert not session.accept_joint_goal(['x_c'], [[2e-3]], [0.0])
-    assert session.home() == Answer(False, 'home: the machine state is not known yet (no /joint_states)')
+    assert session.home() == Answer(False, f'home: {NO_STATE}')
     values = session.status_values()
     assert values['state'] == 'idle' and values['rejected_goals'] == 2 and values['streamed_to_step'] == ''
     assert values['progress'] == '0' and values['feed_override'] == '1'
-    assert values['last_rejection'] == 'home: the machine state is not known yet (no /joint_states)'
+    assert values['last_rejection'] == f'home: {NO_STATE}'
     assert out.by_step == {} and out.states == ['idle', 'idle']
-    assert out.warnings[0] == 'rejected joint goal: the machine state is not known yet (no /joint_states)'
+    assert out.warnings[0] == f'rejected joint goal: {NO_STATE}'
+    # both goals are entered, aborted with the reason
+    assert [(state, reason) for _, state, reason in out.goal_changes] == [
+        ('aborted', f'joint goal: {NO_STATE}'), ('aborted', f'home: {NO_STATE}')]
 
 
 def test_the_first_state_is_held_lookahead_rows_ahead(micromill, out):
@@ -90,7 +101,8 @@ def test_the_first_state_is_held_lookahead_rows_ahead(micromill, out):
 
 
 KEYS = ['state', 'step', 'progress', 'motion', 'motion_start_step', 'motion_end_step', 'streamed_to_step',
-        'feed_override', 'feed_override_setting', 'fault', 'rejected_goals', 'last_rejection']
+        'feed_override', 'feed_override_setting', 'fault', 'rejected_goals', 'last_rejection', 'goal_id',
+        'goal_status']
 
 
 def test_a_joint_goal_runs_from_the_first_row_not_streamed_and_ends_idle(micromill, out):
@@ -146,36 +158,157 @@ def test_feed_override_is_a_fraction_and_sets_the_next_motions_feed(micromill, o
     assert abs(took - 2 * (full - 1)) <= 2                          # half the feed, twice the time
 
 
-def test_hold_resume_and_stop(micromill, out):
+def test_hold_resume_and_stop_a_joint_move(micromill, out):
+    """A joint move runs at the axis limits, where a feed ramp would take longer than the
+    move: a hold cuts it with a time-optimal stop instead, for real, and resume goes on to
+    the goal (the goal stays one goal: accepted, executing, succeeded)."""
     session = session_of(micromill, out, start_step=0)
     for command in (session.hold, session.resume, session.stop):
         assert command() == Answer(False, 'not applicable while idle')
-    session.set_feed_override(0.25)                                   # a long motion
-    session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
+    session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0], stamp=(7, 5))      # full feed: 0.35 s from step 1000
+    goal = session.goal
     session.tick(2000)
-    assert session.hold() == Answer(True, 'feed 0 from step 2500')    # a chunk beyond the newest step
+    answer = session.hold()
+    assert answer.success and answer.message.startswith('stopping from step 2500, at rest at step ')
     assert session.state == State.HOLDING
     for step in range(2500, 40000, CHUNK):                            # the hold keeps the motion
         session.tick(step)
     assert session.state == State.HOLDING and session.status_values()['feed_override'] == '0.0000'
     _, rows = streamed(out)
+    assert_within_limits(micromill, rows)
     still = rows[-1]
-    assert -40e-3 < still[0] < HERE[0] and (rows[-5000:] == still).all()
+    assert -30e-3 < still[0] < HERE[0] - 1e-3 and (rows[-5000:] == still).all()   # stopped on the way
     assert session.home().message == 'home: busy (holding); one motion at a time'
-    assert session.resume().message == 'feed 0.25 from step 40000' and session.state == State.RUNNING
-    session.tick(40500)
-    assert session.stop().success and session.state == State.HOLDING
-    assert session.resume() == Answer(False, 'not applicable while holding')   # a stop is not resumed
+    rest = len(move_to(micromill, [-40e-3] + HERE[1:], AxisState.at_rest(still)))
+    first = session.stream.next_step                                  # the first row not yet streamed
+    assert session.resume() == Answer(True, f'resuming from step {first}: {rest} steps to the end')
+    assert session.state == State.RUNNING
     run_until_idle(session)
     _, rows = streamed(out)
-    assert -40e-3 < rows[-1][0] < still[0] and (rows[-1000:] == rows[-1]).all()
+    assert_within_limits(micromill, rows)
+    assert abs(rows[-1][0] + 40e-3) < 1e-15                          # the goal, after all
+    assert [c for c in out.goal_changes if c[0] == goal.uuid] == [
+        (goal.uuid, 'accepted', ''), (goal.uuid, 'executing', ''), (goal.uuid, 'succeeded', '')]
+    assert goal.stamp == (7, 5) and out.goal_changes[-2][1:] == ('aborted', 'home: busy (holding); one motion at a time')
+
+    # stop: at rest short of the goal, the rest dropped, the goal canceled
+    session.accept_joint_goal(['x_c'], [[40e-3]], [0.0])
+    start = session.status_values()['motion_start_step']
+    session.tick(start + 500)
+    assert session.stop().success and session.state == State.HOLDING
+    assert session.resume() == Answer(False, 'not applicable while holding (stopping)')   # a stop is not resumed
+    assert session.goals.goals[-1].state.text == 'canceling'
+    run_until_idle(session)
+    _, rows = streamed(out)
+    assert_within_limits(micromill, rows)
+    assert -40e-3 < rows[-1][0] < 0.0 and (rows[-1000:] == rows[-1]).all()
+    stopped = session.goals.goals[-1].uuid
+    assert out.goal_changes[-2:] == [(stopped, 'canceling', 'stopped'), (stopped, 'canceled', 'stopped')]
     assert out.states.count('holding') >= 3 and out.states[-1] == 'idle'
+
+
+def test_a_hold_too_late_is_refused_and_the_goal_succeeds(micromill, out):
+    session = session_of(micromill, out, start_step=0)
+    session.accept_joint_goal(['x_c'], [[3e-3]], [0.0])              # 863 steps from step 1000
+    session.tick(1200)                                                # acts from 1700: braking already
+    answer = session.hold()
+    assert not answer.success and answer.message.startswith('too late: the joint goal (1 points) is braking')
+    session.tick(1500)                                                # acts from 2000: after the end
+    assert session.stop() == Answer(False, 'too late: the joint goal (1 points) ends at step 1862 at rest, '
+                                           'before a stop could act (from step 2000)')
+    assert session.state == State.RUNNING
+    run_until_idle(session)
+    assert out.goal_changes[-1][1] == 'succeeded'
+
+
+def test_waypoints_held_and_resumed_still_stop_at_each_waypoint(micromill, out):
+    session = session_of(micromill, out, start_step=0)
+    session.accept_joint_goal(['x_c', 'y_c'], [[-20e-3, 0.0], [-20e-3, 10e-3]], [0.0, 0.0])
+    session.tick(500)
+    assert session.hold().success                                     # at the first step of the motion
+    session.tick(5000)
+    _, rows = streamed(out)
+    assert (rows[1000:] == HERE).all()                                # held before it began
+    assert session.resume().success
+    run_until_idle(session)
+    _, rows = streamed(out)
+    at_first = np.flatnonzero(np.abs(rows - ([-20e-3, 0.0] + HERE[2:])).max(axis=1) < 1e-12)
+    assert at_first.size and abs(rows[-1][1] - 10e-3) < 1e-15
+
+    # held in the first move: resume heads for the first waypoint, then the second
+    session.accept_joint_goal(['x_c', 'y_c'], [[20e-3, 10e-3], [20e-3, -10e-3]], [0.0, 0.0])
+    start = session.status_values()['motion_start_step']
+    session.tick(start - 300)
+    assert session.hold().success
+    session.tick(start + 5000)
+    _, rows = streamed(out)
+    still = rows[-1]
+    assert -20e-3 < still[0] < 20e-3
+    assert session.resume().success
+    run_until_idle(session)
+    _, rows = streamed(out)
+    assert_within_limits(micromill, rows)
+    after = rows[start + 5000:]
+    assert np.flatnonzero(np.abs(after[:, :2] - [20e-3, 10e-3]).max(axis=1) < 1e-12).size
+    np.testing.assert_allclose(rows[-1][:2], [20e-3, -10e-3], rtol=0, atol=1e-15)
+
+
+def test_timed_waypoint_held_still_arrives_no_earlier_than_asked(micromill, out):
+    session = session_of(micromill, out, start_step=0)
+    session.accept_joint_goal(['x_c'], [[2e-3]], [1.0])              # 1 mm in no less than 1 s
+    start = session.status_values()['motion_start_step']
+    session.tick(start + 1000)                                        # hold at 0.15 s of planned time
+    assert session.hold().success
+    session.tick(start + 5000)
+    assert session.resume().success
+    resumed = session.stream.motion
+    cut = start + 1500
+    assert (len(resumed.reference) - 1) * micromill.control_period >= 1.0 - (cut - start) * 1e-4 - 1e-9
+
+
+def test_cancel_acts_on_the_active_goal_by_id(micromill, out):
+    from trajectory.session import CancelCode
+    session = session_of(micromill, out, start_step=0)
+    assert session.cancel() == (CancelCode.NONE, [])                 # nothing to cancel
+    session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0], stamp=(1, 0))
+    goal = session.goal
+    assert session.cancel(b'x' * 16) == (CancelCode.UNKNOWN_GOAL_ID, [])
+    assert session.cancel(None, before=(0, 5)) == (CancelCode.NONE, [])   # accepted after that stamp
+    session.tick(1500)
+    assert session.cancel(goal.id) == (CancelCode.NONE, [goal])
+    assert goal.state.text == 'canceling' and goal.reason == 'canceled'
+    run_until_idle(session)
+    assert goal.state.text == 'canceled' and session.goal is None
+    assert session.cancel(goal.id) == (CancelCode.GOAL_TERMINATED, [])
+    # while planning: the plan is dropped
+    session.planning('path of 24 points', stamp=(2, 0))
+    planned = session.goal
+    assert session.cancel() == (CancelCode.NONE, [planned])
+    assert planned.state.text == 'canceled' and session.state == State.IDLE and not session.awaiting_plan
+
+
+def test_goal_ids_are_deterministic_and_the_book_keeps_the_recent_goals(micromill):
+    from trajectory.goals import GoalBook, GoalState
+    changes = []
+    runs = []
+    for _ in range(2):
+        book = GoalBook(changes.append, keep=3)
+        active = book.new('path', 'path of 6 points', (5, 10))
+        book.set(active, GoalState.ACCEPTED)
+        for i in range(5):
+            book.refuse('joint goal', 'joint goal (1 points)', (6, i), 'joint goal: busy (planning)')
+        runs.append([g.uuid for g in book.goals])
+        assert book.goals[0] is active and len(book.goals) == 3       # the active goal is kept
+        assert book.goals[-1].state == GoalState.ABORTED and book.goals[-1].reason == 'joint goal: busy (planning)'
+    assert runs[0] == runs[1] and len(set(runs[0])) == 3
+    assert active.values()['stamp'] == '5.000000010' and active.values()['status'] == 'accepted'
 
 
 def test_home_moves_to_the_machine_home(micromill, out):
     session = session_of(micromill, out, start_step=0)
     expected = len(move_to(micromill, micromill.home, AxisState.at_rest(HERE)))
-    assert session.home() == Answer(True, f'homing in {expected} steps')
+    answer = session.home()
+    assert answer.success and answer.message == f'homing in {expected} steps (goal {session.goal.uuid})'
     assert session.status_values()['motion'] == 'home'
     run_until_idle(session)
     np.testing.assert_allclose(streamed(out)[1][-1], micromill.home, rtol=0, atol=1e-15)
@@ -192,6 +325,9 @@ def test_a_planned_path_starts_after_an_approach_and_a_failed_one_is_refused(mic
     assert session.state == State.IDLE and not session.awaiting_plan
     assert session.rejections.last == 'path: planning failed: the path is out of reach inside the strokes'
     assert out.states[-2:] == ['idle', 'idle']                         # the state, then the refusal
+    assert [c[1:] for c in out.goal_changes] == [
+        ('accepted', ''), ('aborted', 'joint goal: busy (planning); one motion at a time'),
+        ('aborted', 'path: planning failed: the path is out of reach inside the strokes')]
 
     # "the path": a move from A to B; the session approaches A from where the stream holds
     a, b = [2e-3] + HERE[1:], [2e-3, 1e-3] + HERE[2:]
@@ -219,6 +355,7 @@ def test_a_fault_drops_the_motion_holds_the_fault_step_and_refuses_until_reset(m
     session.tick(3000)
     session.machine_status(True, 'missing command for x_c', '2500')
     assert session.state == State.FAULT and session.faulted and session.fault == 'missing command for x_c'
+    assert out.goal_changes[-1][1:] == ('aborted', 'machine faulted: missing command for x_c') and session.goal is None
     values = session.status_values()
     assert values['state'] == 'fault' and values['fault'] == 'missing command for x_c' and values['motion'] == ''
     _, rows = streamed(out)
@@ -250,3 +387,34 @@ def test_plan_path_reports_why_a_path_cannot_be_planned(micromill, micromill_kin
     p = np.column_stack([tip[0] + 0.2 + 1e-3 * (np.cos(th) - 1), tip[1] + 1e-3 * np.sin(th), np.full(24, tip[2])])
     reference, reason = plan_path(micromill, toolpath.from_arrays(p, np.tile([0.0, 0.0, 1.0], (24, 1))), 0.01)
     assert reference is None and 'x_c at -0.19' in reason and 'ingular' not in reason
+
+
+def test_a_path_is_held_on_the_path_and_its_approach_by_a_stop(micromill, out):
+    """On the path part a hold is the feed ramp (it stays on the path); during the approach
+    (a point-to-point move) the approach is cut, and resume approaches the path again."""
+    a, b = [-40e-3] + HERE[1:], [-40e-3, 1e-3] + HERE[2:]
+    path = move_to(micromill, b, AxisState.at_rest(a), scale=0.05)            # "the path": slow
+    approach = len(move_to(micromill, a, AxisState.at_rest(HERE)))
+    session = session_of(micromill, out, start_step=0)
+    session.planning('path of 24 points')
+    session.path_planned(path)
+    start = session.status_values()['motion_start_step']
+    session.tick(start + 500)                                         # in the approach: cut
+    answer = session.hold()
+    assert answer.success and 'time-optimal stop of the move' in answer.message
+    session.tick(start + 5000)
+    still = streamed(out)[1][-1]
+    assert -40e-3 + 1e-3 < still[0] < HERE[0] - 1e-3
+    assert session.resume().success
+    restart = session.status_values()['motion_start_step']
+    session.tick(restart + len(move_to(micromill, a, AxisState.at_rest(still))) + 1000)   # on the path
+    answer = session.hold()
+    assert answer.success and answer.message.startswith('feed 0 from step ')
+    session.tick(session.step + 40000)
+    assert session.state == State.HOLDING and session.status_values()['feed_override'] == '0.0000'
+    assert session.resume().success
+    run_until_idle(session)
+    _, rows = streamed(out)
+    assert_within_limits(micromill, rows)
+    np.testing.assert_allclose(rows[-1], b, rtol=0, atol=1e-15)
+    assert out.goal_changes[-1][1] == 'succeeded' and approach > 3000

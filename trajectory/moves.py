@@ -5,11 +5,15 @@ goals, return home, and a smooth stop (feed hold) from any state.
 Every move starts from the machine's current state (position, velocity, acceleration of
 each axis) and respects each axis's velocity, acceleration and jerk limits from the
 machine config (optionally scaled down). Durations are whole control periods (Ruckig's
-discrete duration), so the last sample is exactly the goal, at rest. A goal outside the
-strokes, or a stop that cannot end inside them, is refused with the reason.
+discrete duration), so the last sample is exactly the goal, at rest. Refused with a reason
+naming the axis (ValueError): a goal outside its stroke (by how much) or, on an unlimited
+axis, beyond its range (axis_limits.unlimited_range), a stop that cannot end inside the
+strokes; for joint goals also the point: a time_from_start the axes cannot meet (with the
+earliest they can), a goal longer than MAX_GOAL_STEPS.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +22,14 @@ from ruckig import (ControlInterface, DurationDiscretization, InputParameter, Re
 
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.reference import Reference
+from trajectory.axis_limits import amount, outside_range, outside_stroke
+
+# assumed: a joint goal lasts at most 2^20 control steps (105 s on the micromill at 10 kHz,
+# 17.5 min on trt_5axis at 1 kHz). Its references are sampled whole before the motion starts
+# (3 x 8 bytes per axis and step: 226 MB for 9 axes) in the trajectory node's thread
+# (~6 µs per step: ~6 s); a longer goal would hold the node and its memory (a 1e9 rad goal
+# on c_f would take 1.6e8 s).
+MAX_GOAL_STEPS = 2**20
 
 
 @dataclass(frozen=True)
@@ -34,16 +46,19 @@ class AxisState:
 
 
 def validate_goal(machine: MachineConfig, goal) -> np.ndarray:
-    """Goal positions (axis order) as an array; ValueError naming the first problem."""
+    """Goal positions (axis order, m / rad) as an array; ValueError naming the first problem
+    and its axis: wrong count, NaN or inf, outside the stroke (by how much), beyond the
+    range of an unlimited axis (axis_limits.unlimited_range)."""
     goal = np.asarray(goal, dtype=float)
     if goal.shape != (len(machine.axes),):
         raise ValueError(f'goal needs {len(machine.axes)} positions ({" ".join(machine.axis_names)}), '
                          f'got {goal.size}')
-    if not np.isfinite(goal).all():
-        raise ValueError('goal holds NaN or inf')
     for axis, value in zip(machine.axes, goal):
-        if not axis.in_stroke(value):
-            raise ValueError(f'goal {value:g} {axis.unit} for {axis.name} is outside its stroke {axis.stroke}')
+        if not math.isfinite(value):
+            raise ValueError(f'{axis.name} at {value}: NaN or inf is not a position')
+        problem = outside_stroke(axis, value) or outside_range(axis, value, machine.control_period)
+        if problem:
+            raise ValueError(problem)
     return goal
 
 
@@ -66,30 +81,41 @@ def _input(machine: MachineConfig, start: AxisState, scale: float) -> InputParam
     return inp
 
 
-def _plan(machine: MachineConfig, inp: InputParameter) -> Reference:
+def _calculate(machine: MachineConfig, inp: InputParameter) -> Trajectory:
+    """Ruckig's trajectory for `inp`; ValueError when Ruckig cannot plan it."""
     otg = Ruckig(len(machine.axes), machine.control_period)
     trajectory = Trajectory(len(machine.axes))
     result = otg.calculate(inp, trajectory)
     if result not in (Result.Working, Result.Finished):
         raise ValueError(f'Ruckig cannot plan this move: {result}')
-    steps = int(round(trajectory.duration / machine.control_period))
-    samples = [trajectory.at_time(k * machine.control_period) for k in range(steps + 1)]
-    position, velocity, acceleration = (np.array([s[i] for s in samples]) for i in range(3))
+    return trajectory
+
+
+def _steps(machine: MachineConfig, trajectory: Trajectory) -> int:
+    return int(round(trajectory.duration / machine.control_period))
+
+
+def _sample(machine: MachineConfig, trajectory: Trajectory) -> Reference:
+    """The trajectory sampled at the control period; ValueError if it leaves a stroke."""
     _check_extrema(machine, trajectory)
+    samples = [trajectory.at_time(k * machine.control_period) for k in range(_steps(machine, trajectory) + 1)]
+    position, velocity, acceleration = (np.array([s[i] for s in samples]) for i in range(3))
     return Reference(machine.axis_names, machine.control_period, position, velocity, acceleration)
+
+
+def _plan(machine: MachineConfig, inp: InputParameter) -> Reference:
+    return _sample(machine, _calculate(machine, inp))
 
 
 def _check_extrema(machine: MachineConfig, trajectory: Trajectory) -> None:
     for axis, extrema in zip(machine.axes, trajectory.position_extrema):
-        if axis.stroke is not None and not (axis.stroke[0] <= extrema.min and extrema.max <= axis.stroke[1]):
-            raise ValueError(f'{axis.name} would reach [{extrema.min:.6g}, {extrema.max:.6g}] {axis.unit}, '
-                             f'outside its stroke {axis.stroke}')
+        problem = outside_stroke(axis, extrema.min, 'would reach') or outside_stroke(axis, extrema.max, 'would reach')
+        if problem:
+            raise ValueError(problem)
 
 
-def move_to(machine: MachineConfig, goal, start: AxisState | None = None, scale: float = 1.0,
-            minimum_duration: float = 0.0) -> Reference:
-    """Time-optimal jerk-limited move from `start` (default: at rest at home) to `goal`
-    (at rest), sampled at the control period; it takes at least `minimum_duration` s."""
+def _move_input(machine: MachineConfig, goal, start: AxisState | None, scale: float,
+                minimum_duration: float) -> InputParameter:
     goal = validate_goal(machine, goal)
     start = start or AxisState.at_rest(machine.home)
     inp = _input(machine, start, scale)
@@ -98,15 +124,25 @@ def move_to(machine: MachineConfig, goal, start: AxisState | None = None, scale:
     inp.target_acceleration = [0.0] * len(goal)
     if minimum_duration > 0.0:
         inp.minimum_duration = minimum_duration
-    return _plan(machine, inp)
+    return inp
+
+
+def move_to(machine: MachineConfig, goal, start: AxisState | None = None, scale: float = 1.0,
+            minimum_duration: float = 0.0) -> Reference:
+    """Time-optimal jerk-limited move from `start` (default: at rest at home) to `goal`
+    (at rest), sampled at the control period; it takes at least `minimum_duration` s."""
+    return _plan(machine, _move_input(machine, goal, start, scale, minimum_duration))
 
 
 def through_waypoints(machine: MachineConfig, start, names, points, times) -> Reference:
     """Joint goal (trajectory_msgs/JointTrajectory semantics): from `start` (axis positions,
     at rest) through every point of `points` (values for the axes `names`, a subset; the
     others keep their position), stopping at each. `times` (s from the start) are either
-    all zero (each move time-optimal) or strictly increasing: arrive at point i no earlier
-    than times[i]. ValueError naming the first problem."""
+    all zero (each move time-optimal) or strictly increasing: the move to point i takes
+    times[i] - times[i - 1], rounded up to whole control periods. ValueError naming
+    the point and the first problem: a bad name, value or time, an axis position its axis
+    does not accept (validate_goal), a time the axes cannot meet within their limits (with
+    the earliest they can), a goal longer than MAX_GOAL_STEPS control steps."""
     index = _axis_columns(machine, names)
     if not points:
         raise ValueError('joint goal has no points')
@@ -118,6 +154,10 @@ def through_waypoints(machine: MachineConfig, start, names, points, times) -> Re
     timed = any(t != 0.0 for t in times)
     if timed and not all(b > a for a, b in zip([0.0] + times, times)):
         raise ValueError(f'time_from_start must be all zero or strictly increasing from > 0, got {times}')
+    longest = MAX_GOAL_STEPS * machine.control_period
+    if times[-1] > longest:
+        raise ValueError(f'point {len(times) - 1}: time_from_start {times[-1]:g} s is beyond the '
+                         f'{longest:g} s a joint goal may last ({MAX_GOAL_STEPS} control steps)')
     position = np.array(start, dtype=float)
     goals = []
     for i, values in enumerate(points):
@@ -130,12 +170,41 @@ def through_waypoints(machine: MachineConfig, start, names, points, times) -> Re
             goals.append(validate_goal(machine, position))
         except ValueError as exc:
             raise ValueError(f'point {i}: {exc}') from None
-    segments, state, previous = [], AxisState.at_rest(start), 0.0
-    for goal, t in zip(goals, times):
-        segment = move_to(machine, goal, state, minimum_duration=(t - previous) if timed else 0.0)
-        segments.append(segment)
+    trajectories, state, previous, steps = [], AxisState.at_rest(start), 0.0, 0
+    for i, (goal, t) in enumerate(zip(goals, times)):
+        trajectory = _calculate(machine, _move_input(machine, goal, state, 1.0, (t - previous) if timed else 0.0))
+        if timed and max(trajectory.independent_min_durations) > t - previous:
+            raise ValueError(f'point {i}: ' + _too_early(machine, state.position, goal, t, previous, trajectory))
+        steps += _steps(machine, trajectory)
+        if steps > MAX_GOAL_STEPS:
+            raise ValueError(f'point {i}: the joint goal would last {steps * machine.control_period:.6g} s '
+                             f'up to it, beyond the {longest:g} s a joint goal may last '
+                             f'({MAX_GOAL_STEPS} control steps)')
+        trajectories.append(trajectory)
         state, previous = AxisState.at_rest(goal), t
-    return concatenate(segments)
+    return concatenate([_sample(machine, trajectory) for trajectory in trajectories])
+
+
+def _too_early(machine: MachineConfig, start, goal, t: float, previous: float, trajectory: Trajectory) -> str:
+    """Why a move from `start` (at time `previous`) cannot reach `goal` at time `t`: the axis
+    whose own time-optimal move takes longest (Ruckig's independent minimum durations, which
+    exceed t - previous), its distance, the speed the time asks for (against its limit) and
+    the earliest time it can be there, the next control step after its time-optimal move."""
+    fastest = trajectory.independent_min_durations
+    k = int(np.argmax(fastest))
+    axis = machine.axes[k]
+    distance = abs(goal[k] - start[k])
+    window = t - previous
+    speed = distance / window
+    limits = axis.limits
+    if speed > limits.velocity:
+        needs = f'needs {amount(speed, axis.unit + "/s")} (limit {amount(limits.velocity, axis.unit + "/s")})'
+    else:
+        needs = (f'needs more than its acceleration and jerk limits allow ({limits.acceleration:g} '
+                 f'{axis.unit}/s², {limits.jerk:g} {axis.unit}/s³)')
+    earliest = previous + math.ceil(fastest[k] / machine.control_period) * machine.control_period
+    return (f'{amount(distance, axis.unit)} in {amount(window, "s")} on {axis.name} {needs}; earliest '
+            f'time_from_start {earliest:.6g} s (on the control-period grid)')
 
 
 def _axis_columns(machine: MachineConfig, names) -> list[int]:
@@ -151,13 +220,16 @@ def _axis_columns(machine: MachineConfig, names) -> list[int]:
 
 
 def stroke_violation(machine: MachineConfig, reference: Reference) -> str:
-    """'' if every sampled position is inside its axis's stroke, else the first offender."""
+    """'' if every sampled position is inside its axis's stroke, else the first offender:
+    'x_c reaches 0.0512 m at t = 1.2 s, outside its stroke [-0.05, 0.05] m by 1.2 mm'."""
     for i, axis in enumerate(machine.axes):
         if axis.stroke is None:
             continue
-        lo, hi = reference.position[:, i].min(), reference.position[:, i].max()
-        if lo < axis.stroke[0] or hi > axis.stroke[1]:
-            return f'{axis.name} reaches [{lo:.6g}, {hi:.6g}] {axis.unit}, outside its stroke {axis.stroke}'
+        column = reference.position[:, i]
+        k = int(np.argmax(np.maximum(axis.stroke[0] - column, column - axis.stroke[1])))
+        problem = outside_stroke(axis, column[k], 'reaches', f' at t = {k * reference.period:.6g} s')
+        if problem:
+            return problem
     return ''
 
 

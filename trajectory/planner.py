@@ -6,9 +6,11 @@ and the strokes, and the tool pose of the sampled q checked against R(s).
 Results, not exceptions (in the spirit of Ruckig's Result): :func:`plan` returns a
 :class:`PlanResult` whose `status` (:class:`PlanStatus`) says whether it planned and, if
 not, which kind of problem stopped it, with `reason`, a sentence naming it (never a bare
-numpy message such as "Singular matrix"). The plan itself (:class:`PlannedPath`) is
-`result.plan`; `result.unwrap()` returns it or raises :class:`PlanError` (a ValueError)
-with the reason.
+numpy message such as "Singular matrix") and the input that causes it: the point of the
+path, the axis and by how much. Before the long stages, trajectory.reach checks the path's
+geometry, workspace and strokes in a fraction of a second. The plan itself
+(:class:`PlannedPath`) is `result.plan`; `result.unwrap()` returns it or raises
+:class:`PlanError` (a ValueError) with the reason.
 """
 from __future__ import annotations
 
@@ -22,11 +24,12 @@ import numpy as np
 from machine_ctrl.model.config import MachineConfig, load_machine
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.model.reference import Reference
-from trajectory import toolpath
+from trajectory import reach, toolpath
+from trajectory.axis_limits import TOLERANCE
 from trajectory.feedrate import FeedLimits, FeedProfile, optimize_feed
 from trajectory.moves import stroke_violation
 from trajectory.redundancy import (RedundancySettings, Resolution, ResolutionFailed, initial_configuration,
-                                   resolve, start_out_of_stroke)
+                                   point_before, resolve, stroke_problems)
 from trajectory.sampling import LimitsExceeded, SepticInterpolant, Sampling, local_rule, sample, sample_within
 from trajectory.spline import ArcLengthPath
 
@@ -37,8 +40,6 @@ DEFAULT_FEED = 10e-3
 # assumed: <= 1000 feed nodes (optimize_feed takes ~2 s for 9 axes at this size; its grid
 # error is a few %, which the sampler's verification absorbs).
 MAX_FEED_NODES = 1000
-# Issue [3/7]: every sampled reference within 1.001 x its velocity, acceleration and jerk limit.
-TOLERANCE = 1.001
 # assumed: at most 8 local slow-down passes (each one LP re-solve, warm-started, and one
 # sampling); what is left after them is removed by a global time stretch.
 LOCAL_PASSES = 8
@@ -47,8 +48,10 @@ LOCAL_PASSES = 8
 class PlanStatus(StrEnum):
     """What :func:`plan` came to (the value is the status's name in text and JSON)."""
     OK = 'ok'
-    INVALID_INPUT = 'invalid_input'        # the feed, the machine, the tool path or the settings
-    UNREACHABLE = 'unreachable'            # the path's start pose cannot be reached by the axes
+    INVALID_INPUT = 'invalid_input'        # the feed, the machine, the tool path (too few points, too
+                                           # close, too short, ...) or the settings
+    UNREACHABLE = 'unreachable'            # a pose of the path cannot be reached by the axes (beyond
+                                           # the workspace, or the start with the active axes)
     OUT_OF_STROKE = 'out_of_stroke'        # the path needs an axis beyond its stroke
     SINGULAR = 'singular'                  # the kinematics lose rank along the path (inside the strokes)
     EXCEEDS_LIMITS = 'exceeds_limits'      # no sampling within the velocity/acceleration/jerk limits
@@ -68,7 +71,7 @@ class PlannedPath:
     """A successful plan."""
     reference: Reference
     traversal_time: float            # s, first to last sample
-    planning_time: float             # s, wall: fit + resolve + feed + sampling (not the pose check)
+    planning_time: float             # s, wall: reach check + fit + resolve + feed + sampling (not the pose check)
     max_position_deviation: float    # m, |FK(q(t_k)) - P(s_k)| over every sample
     max_orientation_deviation: float  # rad, angle between FK tool axis and O(s_k)
     peak_ratios: dict                # axis -> {'velocity', 'acceleration', 'jerk'}: peak / limit
@@ -182,18 +185,29 @@ def plan(cl_or_name, machine, feed: float = DEFAULT_FEED, settings: RedundancySe
         return failed(PlanStatus.INVALID_INPUT, str(exc))
     start = time.perf_counter()
     try:
+        refusal = reach.check(cl, kinematics, machine, settings, q0)
+    except ValueError as exc:          # settings, q0
+        return failed(PlanStatus.INVALID_INPUT, str(exc))
+    if refusal:
+        return failed(PlanStatus(refusal.status), refusal.reason)
+    try:
         path = ArcLengthPath.fit(cl)
     except ValueError as exc:
         return failed(PlanStatus.INVALID_INPUT, f'tool path: {exc}')
     try:
         if q0 is None:
             q0 = initial_configuration(path, kinematics, machine, settings)
-            reason = start_out_of_stroke(machine, q0)
-            if reason:
-                return failed(PlanStatus.OUT_OF_STROKE, reason)
+            problems = stroke_problems(machine, q0)
+            if problems:    # reach.check found the start pose inside the strokes: elsewhere
+                return failed(PlanStatus.OUT_OF_STROKE, 'point 0 is reachable inside the strokes, but not in the '
+                                                        'start configuration the planner takes (from home, each axis '
+                                                        'moved in proportion to its stroke): ' + '; '.join(problems))
         res = resolve(path, kinematics, machine, settings, q0)
     except ResolutionFailed as exc:
-        return failed(PlanStatus(exc.kind), exc.reason)
+        exact = None
+        if exc.kind == 'out_of_stroke':   # a pose out of reach between the checked samples?
+            exact = reach.out_of_reach_near(cl, kinematics, machine, point_before(path.knot_s, exc.s), settings, q0)
+        return failed(PlanStatus(exact.status), exact.reason) if exact else failed(PlanStatus(exc.kind), exc.reason)
     except np.linalg.LinAlgError:
         return failed(PlanStatus.SINGULAR, 'the kinematics are singular at the start of the path')
     except ValueError as exc:          # settings, q0
@@ -222,7 +236,7 @@ def plan(cl_or_name, machine, feed: float = DEFAULT_FEED, settings: RedundancySe
     ref = sampling.reference
     problem = stroke_violation(machine, ref)
     if problem:
-        return PlanResult(PlanStatus.OUT_OF_STROKE, f'planned path leaves a stroke: {problem}', planning_time)
+        return PlanResult(PlanStatus.OUT_OF_STROKE, f'the sampled references leave a stroke: {problem}', planning_time)
     ep, eo = pose_deviations(kinematics, ref.position, *path.evaluate(sampling.s))
     ratios = {name: {'velocity': float(r[0]), 'acceleration': float(r[1]), 'jerk': float(r[2])}
               for name, r in zip(machine.axis_names, sampling.peak_ratios)}

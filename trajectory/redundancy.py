@@ -4,7 +4,8 @@ at fixed displacement steps s[n] = n Δs.
 
 The toolpath R(s) = [P(s); O(s)] (Eq. 3.12) is any object with ``length`` (m),
 ``evaluate(s) -> (P, O)`` and ``derivatives(s, order) -> (d^kP/ds^k, d^kO/ds^k)`` that take
-an array s (M,) and return (M, 3) arrays (as spline.ArcLengthPath).
+an array s (M,) and return (M, 3) arrays (as spline.ArcLengthPath); when it also has
+``knot_s``, the arc lengths of its CL points, a failure names the points where.
 
 Resolved rate (Eq. 3.27, with the errata of seed-notes.md applied)::
 
@@ -58,17 +59,19 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
+from trajectory.axis_limits import amount, outside_stroke, stroke_text
 
 
 class ResolutionFailed(ValueError):
     """:func:`resolve` could not follow the path. `kind` is 'unreachable' (R(0) cannot be
     reached: :func:`initial_configuration`), 'out_of_stroke' (the axes left their strokes
-    before the integration broke down: the path is out of reach inside them) or 'singular'
-    (the task Jacobian lost rank inside the strokes); `s` the arc length (m) where; `reason`
-    a sentence naming the problem (also the exception text)."""
+    before the integration broke down) or 'singular' (the task Jacobian lost rank inside the
+    strokes); `s` the arc length (m) where; `reason` a sentence naming the problem and where
+    (also the exception text)."""
 
     def __init__(self, kind: str, reason: str, s: float):
         super().__init__(reason)
@@ -76,28 +79,44 @@ class ResolutionFailed(ValueError):
 
 
 def stroke_problems(machine: MachineConfig, q) -> list[str]:
-    """'<axis> at <value> <unit>, outside its stroke [lo, hi]' for each axis of q (one
-    configuration) outside its stroke; [] when every one is inside."""
-    return [f'{axis.name} at {value:.6g} {axis.unit}, outside its stroke '
-            f'[{axis.stroke[0]:g}, {axis.stroke[1]:g}]'
-            for axis, value in zip(machine.axes, q)
-            if axis.stroke is not None and not axis.stroke[0] <= value <= axis.stroke[1]]
+    """'<axis> at <value> <unit>, outside its stroke [lo, hi] <unit> by <excess>' for each
+    axis of q (one configuration) outside its stroke; [] when every one is inside."""
+    return [problem for problem in (outside_stroke(axis, value) for axis, value in zip(machine.axes, q)) if problem]
 
 
 def start_out_of_stroke(machine: MachineConfig, q0) -> str | None:
-    """Why a path whose start configuration is q0 cannot be followed inside the strokes, or
-    None when q0 is inside every stroke."""
+    """Why a path cannot be followed from the start configuration q0, or None when q0 is
+    inside every stroke."""
     problems = stroke_problems(machine, q0)
-    return 'the path starts out of reach inside the strokes: ' + '; '.join(problems) if problems else None
+    return 'the start configuration is outside the strokes: ' + '; '.join(problems) if problems else None
 
 
-def _failure(machine: MachineConfig, s, qs) -> ResolutionFailed:
+def point_before(knot_s, s: float) -> int:
+    """The CL point i whose span [knot_s[i], knot_s[i + 1]] holds the arc length s (m), for
+    the arc lengths knot_s of the CL points (the last span holds the end)."""
+    return min(int(np.searchsorted(knot_s, s, side='right')) - 1, len(knot_s) - 2)
+
+
+def where_on(path, s: float) -> str:
+    """'between points 38 and 39 (s = 49.52 mm)' (or 'at point 38 (...)'): where the arc
+    length s (m) lies among the CL points of `path` when it has their arc lengths
+    (`knot_s`, as spline.ArcLengthPath), else 'at s = 49.52 mm'."""
+    knots = getattr(path, 'knot_s', None)
+    if knots is None:
+        return f'at s = {s * 1e3:.6g} mm'
+    i = point_before(knots, s)
+    at = f'at point {i}' if s == knots[i] else f'between points {i} and {i + 1}'
+    return f'{at} (s = {s * 1e3:.6g} mm)'
+
+
+def _failure(machine: MachineConfig, s, qs, path=None) -> ResolutionFailed:
     """Why the integration broke down (a numpy LinAlgError or a non-finite rate) after the
-    configurations qs (K, n) at the arc lengths s[:K]. When the path is out of the strokes'
-    reach, the stroke cost holds the axes inside until one reaches the end of its stroke;
-    then the resolution leaves the strokes, runs away and breaks down: out_of_stroke, named
-    by the axes at (>= 99 % of the way to) a stroke end in the last configuration inside
-    (or, if the first is outside already, its axes outside). Singular if none left."""
+    configurations qs (K, n) at the arc lengths s[:K] of `path` (named by where_on). When
+    the axes must go to a stroke end, the stroke cost holds them inside until one is there
+    and the stiff barrier throws the integration out of the strokes: out_of_stroke, named
+    by the axes at (>= 99 % of the way to) a stroke end in the last configuration inside,
+    with their distance to it (or, if the first is outside already, its axes outside).
+    Singular if none left."""
     limited = [i for i, a in enumerate(machine.axes) if a.stroke is not None]
     lo = np.array([machine.axes[i].stroke[0] for i in limited])
     hi = np.array([machine.axes[i].stroke[1] for i in limited])
@@ -105,19 +124,23 @@ def _failure(machine: MachineConfig, s, qs) -> ResolutionFailed:
     outside = np.flatnonzero(np.any((q < lo) | (q > hi) | ~np.isfinite(q), axis=1))
     if not len(outside):
         j = len(qs) - 1
-        return ResolutionFailed('singular', f'the kinematics are singular at s = {s[j] * 1e3:.6g} mm of '
-                                'the path (the task Jacobian loses rank; the redundancy resolution cannot '
-                                'follow the path there)', float(s[j]))
+        return ResolutionFailed('singular', f'the kinematics are singular {where_on(path, s[j])} (the task '
+                                'Jacobian loses rank; the redundancy resolution cannot follow the path there)',
+                                float(s[j]))
     j = int(outside[0])
     if j == 0:
         return ResolutionFailed('out_of_stroke', start_out_of_stroke(machine, qs[0]), 0.0)
     last = q[j - 1]
     share = np.abs(last - 0.5 * (lo + hi)) / (0.5 * (hi - lo))      # 1 at a stroke end
     ends = np.flatnonzero(share >= 0.99) if np.any(share >= 0.99) else [int(np.argmax(share))]
-    named = '; '.join(f'{machine.axes[limited[k]].name} at {last[k]:.6g} {machine.axes[limited[k]].unit} '
-                      f'(stroke [{lo[k]:g}, {hi[k]:g}])' for k in ends)
-    return ResolutionFailed('out_of_stroke', f'the path leaves the reach of the strokes at s = '
-                            f'{s[j - 1] * 1e3:.6g} mm: {named}', float(s[j - 1]))
+    named = []
+    for k in ends:
+        axis, value = machine.axes[limited[k]], last[k]
+        margin = min(value - axis.stroke[0], axis.stroke[1] - value)
+        named.append(f'{axis.name} at {value:.6g} {axis.unit}, {amount(margin, axis.unit)} from the end of its '
+                     f'stroke {stroke_text(axis)}')
+    return ResolutionFailed('out_of_stroke', f'the redundancy resolution cannot keep the axes inside their strokes '
+                            f'{where_on(path, s[j - 1])}: {"; ".join(named)}', float(s[j - 1]))
 
 
 @dataclass(frozen=True)
@@ -340,20 +363,79 @@ def _path_samples(path, s):
     return p, o, dp, do
 
 
+class PoseSolver:
+    """Configurations q (axis order, m / rad) that put the tool at single poses (tool tip P,
+    unit tool axis O, workpiece frame), each from a start configuration, moving only the
+    active axes of `settings`: :meth:`weighted`, the stroke-weighted least-norm Newton solve
+    of :func:`initial_configuration` (every axis moves in proportion to its stroke; strokes
+    are not enforced), and :meth:`inside`, the configuration inside the strokes closest to
+    the pose (bounded least squares)."""
+
+    def __init__(self, kinematics: Kinematics, machine: MachineConfig, settings: RedundancySettings | None = None):
+        self.settings = settings or RedundancySettings()
+        self.resolver = _Resolver(kinematics, machine, self.settings)
+        self.kinematics, self.machine = kinematics, machine
+        active = [machine.axes[i] for i in self.resolver.active]
+        self.lower = np.array([-np.inf if a.stroke is None else a.stroke[0] for a in active])
+        self.upper = np.array([np.inf if a.stroke is None else a.stroke[1] for a in active])
+
+    def weighted(self, p, o, start) -> tuple[np.ndarray, float, float]:
+        """q from `start` by the stroke-weighted Newton solve, its position error (m) and
+        orientation error (rad): both <= 1e-14 when it converged."""
+        q, ep, eo, _ = self.resolver.project(p, o, np.array(start, dtype=float), self.settings.initial_iterations,
+                                             1e-14, weighted=True)
+        return q, ep, eo
+
+    def inside(self, p, o, start) -> tuple[np.ndarray, float, float]:
+        """The configuration inside the strokes nearest to the pose (least squares of the
+        position and tool-axis errors), its position error (m) and orientation error (rad):
+        both ~0 when the pose is reachable inside the strokes. Solved from `start` moved into
+        the strokes and from it with each unlimited axis turned by a quarter, a half and
+        three quarters of a turn (at a turn of the table where a pose lies straight beside
+        the reach of the linear axes, turning it is a saddle of the error: a start there
+        never turns). The best of these local solutions: a larger error is evidence, not
+        proof."""
+        active = self.resolver.active
+        q = np.array(start, dtype=float)
+        o = np.asarray(o, dtype=float)
+
+        def errors(x):
+            q[active] = x
+            tip, axis = self.kinematics.forward(q)
+            return np.concatenate((tip - p, axis - o))
+
+        def jacobian(x):
+            q[active] = x
+            return self.kinematics.forward_and_jacobian(q)[2][:, active]
+
+        first = np.clip(q[active], self.lower, self.upper)
+        turns = [turn * (np.arange(len(first)) == k)
+                 for k in np.flatnonzero(np.isinf(self.upper)) for turn in (0.5 * np.pi, np.pi, -0.5 * np.pi)]
+        starts = [first] + [first + turn for turn in turns]
+        best = None
+        for x0 in starts:
+            # dogbox: ~10 evaluations here where scipy's default trust region takes hundreds
+            fit = least_squares(errors, x0, jacobian, method='dogbox', bounds=(self.lower, self.upper),
+                                xtol=1e-12, ftol=1e-12, gtol=1e-12)
+            if best is None or fit.cost < best.cost:
+                best = fit
+            if best.cost < 1e-24:              # reached: errors ~1e-12 or below
+                break
+        q[active] = best.x
+        tip, axis = self.kinematics.forward(q)
+        return q, float(np.linalg.norm(tip - p)), _angle(axis, o)
+
+
 def initial_configuration(path, kinematics: Kinematics, machine: MachineConfig,
                           settings: RedundancySettings | None = None, start=None) -> np.ndarray:
-    """q0 matching R(0): Newton iterations from `start` (default: the machine's home) with
-    the stroke-weighted least-norm step dq = W (J_t W)^+ e_t (W = diag of the half-strokes,
+    """q0 matching R(0): :meth:`PoseSolver.weighted` from `start` (default: the machine's
+    home), dq = W (J_t W)^+ e_t per Newton step (W = diag of the half-strokes,
     `unlimited_scale` for c_f), so each active axis moves in proportion to its stroke and
     the fine axes stay near home. Raises ResolutionFailed('unreachable'), a ValueError, when
     R(0) cannot be reached with the active axes (e.g. a z offset with only x-y axes active)."""
-    settings = settings or RedundancySettings()
-    res = _Resolver(kinematics, machine, settings)
-    q = np.array(machine.home if start is None else start, dtype=float)
-    res.rank = _task_rank(res, q)
     pd, od = _path_samples(path, np.zeros(1))[:2]
-    q, ep, eo, _ = res.project(pd[0], od[0], q, settings.initial_iterations, 1e-14,
-                               weighted=True)
+    q, ep, eo = PoseSolver(kinematics, machine, settings).weighted(pd[0], od[0],
+                                                                   machine.home if start is None else start)
     if ep > 1e-12 or eo > 1e-12:
         raise ResolutionFailed('unreachable', f'cannot reach R(0) with the active axes: residual '
                                f'{ep:.3g} m, {eo:.3g} rad', 0.0)
@@ -413,9 +495,9 @@ def resolve(path, kinematics: Kinematics, machine: MachineConfig,
         k = n_steps
         dq[-1] = res.rate(at(2 * n_steps), q, task)[1]
     except np.linalg.LinAlgError:       # "Singular matrix": say why, and where
-        raise _failure(machine, s, qs[:k + 1]) from None
+        raise _failure(machine, s, qs[:k + 1], path) from None
     bad = ~(np.isfinite(qs).all(axis=1) & np.isfinite(dq).all(axis=1))
     if bad.any():                       # the rate blew up without a LinAlgError
-        raise _failure(machine, s, qs[:int(np.argmax(bad)) + 1])
+        raise _failure(machine, s, qs[:int(np.argmax(bad)) + 1], path)
     return Resolution(s, qs, dq, _along_s(dq, ds, 1), _along_s(dq, ds, 2), max_ep, max_eo,
                       tuple(machine.axis_names))

@@ -9,22 +9,47 @@ States (:class:`State`; the values are the message of the node's status):
 * planning: a tool path is being planned (the node runs the planner; :meth:`Session.path_planned`
   takes its outcome); success starts the motion after a jerk-limited approach from the
   held position, failure refuses the path and returns to idle.
-* running: a motion is streamed; :meth:`Session.hold` ramps the feed to 0 (holding),
-  :meth:`Session.stop` too and drops the rest (holding until at rest, then idle).
-* holding: the motion stands on its path; :meth:`Session.resume` ramps back (running).
+* running: a motion is streamed; :meth:`Session.hold` brings it to rest and keeps it
+  (holding), :meth:`Session.stop` too and drops the rest (holding until at rest, then idle).
+* holding: the motion stands; :meth:`Session.resume` goes on with it (running).
 * fault: hw_sim reported a fault (:meth:`Session.machine_status`): the motion is dropped,
   the reference at the fault step held, goals refused until hw_sim is healthy again (idle).
 
 A motion that has played out returns the state to idle at the next :meth:`Session.tick`.
 Refused goals are counted and the last reason kept (`rejections`: machine_ctrl.diagnostics.Rejections).
 
+Goals (trajectory/goals.py): every goal received — path, joint goal, home — is entered in
+`goals` (a GoalBook) with its id and the request's stamp: aborted with the reason when
+refused; else accepted, executing once the sim time reaches its motion's first step,
+succeeded when the motion has played out, canceling / canceled on a stop or cancel,
+aborted on a planning failure or a fault. Hold and resume keep the goal executing.
+
+Hold and stop act on the motion `chunk_steps` after the newest step (beyond any row the
+servos may have taken), in one of two ways, by the part of the motion there (a motion is a
+program of parts: :class:`Program`):
+
+* a point-to-point move (a joint goal's waypoints, home, the approach to a path): Ruckig
+  moves run at the axis limits, where a time-warp ramp has almost no headroom and would take
+  longer than the move (so the axes would go on to the goal while "holding"). The move is
+  cut instead (trajectory/stream.py, `cut`): a time-optimal jerk-limited stop from the
+  state the stream gives there (moves.smooth_stop). It may leave the move's line in joint
+  space by a little (the axes brake at their own limits); a hold keeps the program, and
+  resume plans a move from where it stands to the waypoint it was heading for, then plays
+  the rest as planned (a timed waypoint still arrives no earlier than asked, in planned
+  time). A stop that would end outside a stroke is refused with the reason.
+* a tool path: the time warp (feed override to 0) stops on the path; resume ramps back.
+
+Either way a hold or stop that comes too late — the motion reaches its end before it could
+be at rest — is refused with the reason (the goal then succeeds), never answered success.
+
 Outputs go through an :class:`Outputs` object, in the order they happen: `rows` (a chunk of
 the stream to publish), `status` (publish the status now: :meth:`Session.status_values`),
-`log` and `warn`. The path planning itself runs outside (the node's planner process runs
-:func:`plan_path`).
+`goal` (a goal changed: publish the goal status), `log` and `warn`. The path planning
+itself runs outside (the node's planner process runs :func:`plan_path`).
 """
 from __future__ import annotations
 
+import signal
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Protocol
@@ -37,8 +62,11 @@ from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.model.reference import Reference
 from trajectory import moves, toolpath
+from trajectory.goals import Goal, GoalBook, GoalState
 from trajectory.planner import plan
 from trajectory.stream import ReferenceStream
+
+ZERO_STAMP = (0, 0)
 
 
 class State(StrEnum):
@@ -47,6 +75,14 @@ class State(StrEnum):
     RUNNING = 'running'
     HOLDING = 'holding'
     FAULT = 'fault'
+
+
+class CancelCode:
+    """action_msgs/srv/CancelGoal return codes."""
+    NONE = 0
+    REJECTED = 1
+    UNKNOWN_GOAL_ID = 2
+    GOAL_TERMINATED = 3
 
 
 @dataclass(frozen=True)
@@ -63,12 +99,66 @@ class Outputs(Protocol):
     def status(self) -> None:
         """The status changed (or is due): publish Session.status_values() now."""
 
+    def goal(self, goal: Goal) -> None:
+        """`goal` changed state: publish Session.goals.goals and the goal's entry."""
+
     def log(self, text: str) -> None: ...
 
     def warn(self, text: str) -> None: ...
 
 
+@dataclass
+class Program:
+    """A motion as its parts, in order: each a point-to-point move ('move') or a planned
+    tool path ('path') ending at rest at `goals[i]` on row `ends[i]` of `reference` (the
+    whole motion), to arrive no earlier than `arrivals[i]` s of planned time from the
+    motion's start (0: no constraint)."""
+    reference: Reference
+    kinds: list
+    goals: list
+    ends: list
+    arrivals: list
+
+    def part(self, tau: float) -> int:
+        """The part under way at planned time `tau` (rows): the first not yet ended."""
+        return next((i for i, end in enumerate(self.ends) if tau < end), len(self.ends) - 1)
+
+    def rest_from(self, i: int, first: Reference, arrival: float) -> Program:
+        """The program from part i on, its move i replaced by `first` (which must end at
+        goals[i], at rest): the later parts play as planned."""
+        end = self.ends[i]
+        tail = [Reference(first.axis_names, first.period, self.reference.position[end:],
+                          self.reference.velocity[end:], self.reference.acceleration[end:])]
+        reference = moves.concatenate([first] + tail) if len(self.ends) > i + 1 else first
+        shift = len(first) - 1 - end
+        arrivals = [arrival] + [max(0.0, a - self.arrivals[i] + arrival) if a else 0.0 for a in self.arrivals[i + 1:]]
+        return Program(reference, self.kinds[i:], self.goals[i:], [e + shift for e in self.ends[i:]], arrivals)
+
+
+def waypoint_program(reference: Reference, goals, arrivals=None) -> Program:
+    """The program of moves through `goals` (each reached at rest; moves.through_waypoints):
+    part i ends at the first row at rest (velocity and acceleration exactly 0, as Ruckig
+    ends a move) within 1e-9 of goals[i] after the previous part's end."""
+    at_rest = (reference.velocity == 0.0).all(axis=1) & (reference.acceleration == 0.0).all(axis=1)
+    ends, row = [], 0
+    for goal in goals:
+        near = at_rest[row:] & (np.abs(reference.position[row:] - goal).max(axis=1) <= 1e-9)
+        hits = np.flatnonzero(near)
+        row = row + int(hits[0]) if hits.size else len(reference) - 1
+        ends.append(row)
+    ends[-1] = len(reference) - 1
+    return Program(reference, ['move'] * len(goals), [np.asarray(g, float) for g in goals], ends,
+                   list(arrivals) if arrivals is not None else [0.0] * len(goals))
+
+
 _kinematics: dict = {}
+
+
+def planner_process_init() -> None:
+    """Start of the node's planner process (it shares the node's process group): Ctrl-C
+    (SIGINT to the group) is for the node, which shuts the planner down — the planner
+    ignores it rather than die with a KeyboardInterrupt traceback while it waits for work."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def plan_path(machine: MachineConfig, cl: toolpath.CLData, feed: float) -> tuple[Reference | None, str]:
@@ -96,7 +186,20 @@ class Session:
         self.fault = ''
         self.override_setting = 1.0
         self.rejections = Rejections(outputs.warn)
-        self.planning_label = ''
+        self.goals = GoalBook(outputs.goal)
+        self.planning_goal: Goal | None = None
+        self.program: Program | None = None  # the motion under way, as parts
+        self.held: tuple[int, float] | None = None   # a cut hold: (part, planned time) to resume
+        self.stopping = False                # a stop or cancel: the goal ends canceled
+
+    @property
+    def goal(self) -> Goal | None:
+        """The active goal (planning, running or holding), or None."""
+        return self.goals.active
+
+    @property
+    def planning_label(self) -> str:
+        return self.planning_goal.label if self.planning_goal else ''
 
     # -- time and streaming ----------------------------------------------------------------
     def start_streaming(self, position, step: int) -> None:
@@ -107,11 +210,23 @@ class Session:
         self.out.status()
 
     def tick(self, step: int) -> None:
-        """The sim time is at `step`: keep `lookahead` rows streamed ahead; a motion that has
-        played out ends (idle)."""
+        """The sim time is at `step`: keep `lookahead` rows streamed ahead; the goal is
+        executing once the sim time reaches its motion; a motion that has played out ends
+        (idle; the goal succeeded, or canceled after a stop)."""
         self.step = max(self.step, step)
         self._fill()
-        if self.state in (State.RUNNING, State.HOLDING) and not self.stream.busy(self.step):
+        if self.state not in (State.RUNNING, State.HOLDING):
+            return
+        goal, motion = self.goal, self.stream.motion
+        if goal is not None and goal.state == GoalState.ACCEPTED and motion is not None and self.step >= motion.start:
+            self.goals.set(goal, GoalState.EXECUTING)
+        if self.held is None and not self.stream.busy(self.step):
+            if goal is not None:
+                if self.stopping:
+                    self.goals.set(goal, GoalState.CANCELED, goal.reason or 'stopped')
+                else:
+                    self.goals.set(goal, GoalState.SUCCEEDED)
+            self.program, self.stopping = None, False
             self._set_state(State.IDLE)
 
     def _fill(self) -> None:
@@ -121,15 +236,18 @@ class Session:
             self.out.rows(*self.stream.take(self.chunk_steps))
 
     # -- refusals --------------------------------------------------------------------------
-    def refuse(self, what: str, reason: str) -> None:
+    def refuse(self, what: str, reason: str, stamp: tuple[int, int] | None = None, label: str = '') -> None:
         """Refuse a goal or command: counted (and warned), and the status published with the
-        reason. (`rejections.add` counts a refused input without publishing the status.)"""
+        reason. With a `stamp` it is a goal: entered aborted with the reason. (`rejections.add`
+        counts a refused input without publishing the status.)"""
         self.rejections.add(what, reason)
+        if stamp is not None:
+            self.goals.refuse(what, label or what, stamp, self.rejections.last)
         self.out.status()
 
-    def may_accept(self, what: str) -> bool:
+    def may_accept(self, what: str, stamp: tuple[int, int] | None = ZERO_STAMP, label: str = '') -> bool:
         """True if a goal can be accepted now (idle, machine state known); else it is refused
-        with the reason and False."""
+        with the reason (a goal with `stamp` entered aborted) and False."""
         if self.stream is None:
             reason = f'the machine state is not known yet (no {contract.JOINT_STATES.name})'
         elif self.state == State.FAULT:
@@ -138,14 +256,16 @@ class Session:
             reason = f'busy ({self.state}); one motion at a time'
         else:
             return True
-        self.refuse(what, reason)
+        self.refuse(what, reason, stamp, label)
         return False
 
     # -- goals -----------------------------------------------------------------------------
-    def planning(self, label: str) -> None:
+    def planning(self, label: str, stamp: tuple[int, int] = ZERO_STAMP) -> Goal:
         """A tool path (`label`) accepted (after may_accept) and handed to the planner."""
-        self.planning_label = label
+        self.planning_goal = self.goals.new('path', label, stamp)
+        self.goals.set(self.planning_goal, GoalState.ACCEPTED)
         self._set_state(State.PLANNING)
+        return self.planning_goal
 
     @property
     def awaiting_plan(self) -> bool:
@@ -157,6 +277,7 @@ class Session:
         planning. Starts the approach and the path, or refuses the path (idle)."""
         if not self.awaiting_plan:
             return
+        goal = self.planning_goal
         if reference is not None and not failure:
             try:
                 here = self.stream.position(self.stream.next_step)
@@ -164,36 +285,54 @@ class Session:
             except Exception as exc:  # noqa: BLE001 - any planning error refuses the goal, the session goes on
                 failure = error_text(exc)
             else:
-                self._begin(moves.concatenate([approach, reference]), self.planning_label)
+                whole = moves.concatenate([approach, reference])
+                self._begin(Program(whole, ['move', 'path'], [reference.position[0], reference.position[-1]],
+                                    [len(approach) - 1, len(whole) - 1], [0.0, 0.0]), self.planning_label)
                 return
         self._set_state(State.IDLE)
         self.refuse('path', f'planning failed: {failure}')
+        if goal is not None:
+            self.goals.set(goal, GoalState.ABORTED, self.rejections.last)
 
-    def accept_joint_goal(self, names, points, times) -> bool:
+    def accept_joint_goal(self, names, points, times, stamp: tuple[int, int] = ZERO_STAMP) -> bool:
         """Axis goals (moves.through_waypoints: positions for the axes `names` at each point,
         `times` from the start in s); True if the motion started, else refused."""
-        if not self.may_accept('joint goal'):
+        label = f'joint goal ({len(points)} points)'
+        if not self.may_accept('joint goal', stamp, label):
             return False
         here = self.stream.position(self.stream.next_step)
         try:
             reference = moves.through_waypoints(self.machine, here, names, points, times)
         except ValueError as exc:
-            self.refuse('joint goal', str(exc))
+            self.refuse('joint goal', str(exc), stamp, label)
             return False
-        self._begin(reference, f'joint goal ({len(points)} points)')
+        columns = [self.machine.axis_names.index(n) for n in names]
+        goals, position = [], np.array(here, dtype=float)
+        for values in points:
+            position = position.copy()
+            position[columns] = values
+            goals.append(position)
+        timed = any(float(t) != 0.0 for t in times)
+        program = waypoint_program(reference, goals, [float(t) for t in times] if timed else None)
+        self._begin(program, label, self.goals.new('joint goal', label, stamp))
         return True
 
-    def home(self) -> Answer:
+    def home(self, stamp: tuple[int, int] = ZERO_STAMP) -> Answer:
         """Move to the machine's home at rest (a goal: only while idle)."""
-        if not self.may_accept('home'):
+        if not self.may_accept('home', stamp):
             return Answer(False, self.rejections.last)
         here = moves.AxisState.at_rest(self.stream.position(self.stream.next_step))
-        self._begin(moves.home(self.machine, here), 'home')
-        return Answer(True, f'homing in {len(self.stream.motion.reference)} steps')
+        reference = moves.home(self.machine, here)
+        goal = self.goals.new('home', 'home', stamp)
+        self._begin(waypoint_program(reference, [np.array(self.machine.home, dtype=float)]), 'home', goal)
+        return Answer(True, f'homing in {len(self.stream.motion.reference)} steps (goal {goal.uuid})')
 
-    def _begin(self, reference: Reference, label: str) -> None:
-        self.stream.start(reference, label, self.limits, self.override_setting)
-        self.out.log(f'{label}: {len(reference)} steps from step {self.stream.motion.start}')
+    def _begin(self, program: Program, label: str, goal: Goal | None = None) -> None:
+        self.stream.start(program.reference, label, self.limits, self.override_setting)
+        self.program, self.held, self.stopping = program, None, False
+        self.out.log(f'{label}: {len(program.reference)} steps from step {self.stream.motion.start}')
+        if goal is not None:
+            self.goals.set(goal, GoalState.ACCEPTED)
         self._set_state(State.RUNNING)
         self._fill()
 
@@ -206,23 +345,85 @@ class Session:
             return False
         self.override_setting = float(value)
         if self.state == State.RUNNING:
-            self._change_feed(self.override_setting, State.RUNNING)
+            try:
+                self._change_feed(self.override_setting, State.RUNNING)
+            except ValueError as exc:          # e.g. a ramp to 0 too late: the setting is for the next motion
+                self.out.log(f'feed override {value:g}: {exc}')
         self.out.status()
         return True
 
     def hold(self) -> Answer:
-        """Feed hold: ramp to 0, stand on the path (holding; the motion is kept)."""
-        return self._answer(self.state == State.RUNNING, lambda: self._change_feed(0.0, State.HOLDING))
+        """Feed hold: bring the motion to rest and keep it (holding; module docstring)."""
+        if self.state != State.RUNNING:
+            return Answer(False, f'not applicable while {self.state}')
+        return self._halt(keep=True)
 
     def resume(self) -> Answer:
-        """Ramp a held motion back to the override setting (running)."""
-        return self._answer(self.state == State.HOLDING and not self.stream.motion.stop_when_still,
-                            lambda: self._change_feed(self.override_setting, State.RUNNING))
+        """Go on with a held motion (running): a cut move re-planned from where it stands,
+        a path ramped back to the override setting."""
+        if self.state != State.HOLDING or self.stopping:
+            return Answer(False, f'not applicable while {self.state}' + (' (stopping)' if self.stopping else ''))
+        if self.held is None:
+            return self._answer(True, lambda: self._change_feed(self.override_setting, State.RUNNING))
+        part, tau = self.held
+        program = self.program
+        if self.stream.busy(self.stream.next_step):
+            return Answer(False, 'still coming to rest; resume once at rest')
+        here = self.stream.position(self.stream.next_step)
+        arrival = max(0.0, program.arrivals[part] - tau * self.machine.control_period) if program.arrivals[part] else 0.0
+        try:
+            first = moves.move_to(self.machine, program.goals[part], moves.AxisState.at_rest(here),
+                                  minimum_duration=arrival)
+        except ValueError as exc:
+            return Answer(False, f'cannot resume: {exc}')
+        label = self.stream.motion.label
+        rest = program.rest_from(part, first, arrival)
+        self.stream.start(rest.reference, label, self.limits, self.override_setting)
+        self.program, self.held = rest, None
+        self.out.log(f'{label}: resumed, {len(rest.reference)} steps from step {self.stream.motion.start}')
+        self._set_state(State.RUNNING)
+        self._fill()
+        return Answer(True, f'resuming from step {self.stream.motion.start}: {len(rest.reference)} steps to the end')
 
-    def stop(self) -> Answer:
-        """Ramp to 0 and drop the rest of the motion (holding, idle once at rest)."""
-        return self._answer(self.state in (State.RUNNING, State.HOLDING),
-                            lambda: self._change_feed(0.0, State.HOLDING, stop=True))
+    def stop(self, reason: str = 'stopped') -> Answer:
+        """Bring the motion to rest and drop the rest of it (holding until at rest, then
+        idle; the goal canceled with `reason`)."""
+        if self.state == State.HOLDING and not self.stopping:
+            if self.held is not None:        # at rest already (or braking): drop the program
+                self.held, self.stopping = None, True
+                self._canceling(reason)
+                self.tick(self.step)
+                return Answer(True, 'held motion dropped')
+            return self._answer(True, lambda: self._stopping(self._change_feed(0.0, State.HOLDING, stop=True),
+                                                             reason))
+        if self.state != State.RUNNING:
+            return Answer(False, f'not applicable while {self.state}' + (' (stopping)' if self.stopping else ''))
+        return self._halt(keep=False, reason=reason)
+
+    def cancel(self, goal_id: bytes | None = None, before: tuple[int, int] | None = None) -> tuple[int, list]:
+        """action_msgs/srv/CancelGoal on the active goal: `goal_id` None (all zeros) for
+        any, `before` a stamp (None or zero: no limit): cancel a goal accepted with a stamp
+        at or before it. Returns (CancelCode, the goals now canceling)."""
+        goal = self.goal
+        if goal_id is not None:
+            if goal is None or goal.id != goal_id:
+                known = self.goals.find(goal_id)
+                return (CancelCode.GOAL_TERMINATED if known is not None and known.state.terminal
+                        else CancelCode.UNKNOWN_GOAL_ID), []
+        elif goal is None or (before is not None and before != ZERO_STAMP and goal.stamp > tuple(before)):
+            return CancelCode.NONE, []
+        if goal.state == GoalState.CANCELING:
+            return CancelCode.NONE, [goal]
+        if self.state == State.PLANNING:
+            self.planning_goal = None
+            self._set_state(State.IDLE)
+            self.goals.set(goal, GoalState.CANCELED, 'canceled while planning')
+            return CancelCode.NONE, [goal]
+        answer = self.stop('canceled')
+        if not answer.success:
+            self.out.warn(f'cancel of goal {goal.uuid} refused: {answer.message}')
+            return CancelCode.REJECTED, []
+        return CancelCode.NONE, [goal]
 
     def _answer(self, allowed: bool, action) -> Answer:
         if not allowed:
@@ -231,6 +432,55 @@ class Session:
             return Answer(True, action())
         except ValueError as exc:
             return Answer(False, str(exc))
+
+    def _halt(self, keep: bool, reason: str = 'stopped') -> Answer:
+        """Hold (`keep`) or stop the running motion from `chunk_steps` after the newest
+        step: a move is cut by a time-optimal stop, a path ramps its feed to 0."""
+        stream, at = self.stream, self.step + self.chunk_steps
+        motion = stream.motion
+        begin = max(at, motion.start)
+        while stream.next_step <= begin:           # the state there must be streamed
+            self.out.rows(*stream.take(self.chunk_steps))
+        tau = stream.tau_at(begin)
+        if not stream.busy(begin) or tau >= motion.last:
+            end = motion.end if motion.end is not None else begin
+            return Answer(False, f'too late: the {motion.label} ends at step {end} at rest, before a '
+                                 f'{"hold" if keep else "stop"} could act (from step {at})')
+        part = self.program.part(tau)
+        if self.program.kinds[part] == 'path':
+            answer = self._answer(True, lambda: self._change_feed(0.0, State.HOLDING, stop=not keep))
+            if answer.success and not keep:
+                self._stopping(answer.message, reason)
+            return answer
+        p, v, a = stream.state(begin)
+        try:
+            tail = moves.smooth_stop(self.machine, moves.AxisState(tuple(p), tuple(v), tuple(a)))
+        except ValueError as exc:
+            return Answer(False, f'cannot stop the move: {exc}')
+        if part == len(self.program.ends) - 1 and np.abs(tail.position[-1] - self.program.goals[part]).max() <= 1e-9:
+            return Answer(False, f'too late: the {motion.label} is braking to its end already (at rest at step '
+                                 f'{begin + len(tail) - 1}); a {"hold" if keep else "stop"} from step {at} would end '
+                                 'there too')
+        stream.cut(begin, tail)
+        while stream.busy(stream.next_step):      # the stop streamed to its end: resume starts after it
+            self.out.rows(*stream.take(self.chunk_steps))
+        self.held = (part, tau) if keep else None
+        if not keep:
+            self.stopping = True
+            self._canceling(reason)
+        self._set_state(State.HOLDING)
+        self._fill()
+        return Answer(True, f'stopping from step {begin}, at rest at step {begin + len(tail) - 1} '
+                            f'(time-optimal stop of the move{"; resume goes on to its goal" if keep else ""})')
+
+    def _stopping(self, message: str, reason: str) -> str:
+        self.stopping = True
+        self._canceling(reason)
+        return message
+
+    def _canceling(self, reason: str) -> None:
+        if self.goal is not None:
+            self.goals.set(self.goal, GoalState.CANCELING, reason)
 
     def _change_feed(self, value: float, state: State, stop: bool = False) -> str:
         """Ramp the override of the motion under way from `chunk_steps` after the newest step
@@ -249,7 +499,11 @@ class Session:
             if self.stream is not None and step_text.isdigit():
                 self.stream.abort(int(step_text) + 1)     # hw_sim stopped at the fault step
                 self._fill()
+            goal = self.goal
+            self.program, self.held, self.stopping, self.planning_goal = None, None, False, None
             self._set_state(State.FAULT)
+            if goal is not None:
+                self.goals.set(goal, GoalState.ABORTED, f'machine faulted: {reason}')
         elif not faulted and self.state == State.FAULT:
             self.fault = ''
             self._set_state(State.IDLE)
@@ -269,6 +523,7 @@ class Session:
         """The status (key -> value), as the node publishes it."""
         stream = self.stream
         motion = stream.motion if stream is not None else None
+        goal = self.goal
         return {'state': str(self.state), 'step': self.step,
                 'progress': f'{stream.progress(self.step):.4f}' if stream else '0',
                 'motion': motion.label if motion else '',
@@ -278,4 +533,6 @@ class Session:
                 'feed_override': f'{stream.override(self.step):.4f}' if stream else '1',
                 'feed_override_setting': self.override_setting,
                 'fault': self.fault, 'rejected_goals': self.rejections.count,
-                'last_rejection': self.rejections.last}
+                'last_rejection': self.rejections.last,
+                'goal_id': goal.uuid if goal is not None else '',
+                'goal_status': goal.state.text if goal is not None else ''}

@@ -27,7 +27,18 @@ and since the planned part shrinks only as k^2 (k^3) while k'' r' grows linearly
 ramp's start, the sum can exceed the jerk limit by a few % in theory; the tests check holds
 by finite differences at the control period. A change takes effect `at` a step the caller
 chooses (beyond what the servos may have taken) but not before the ramp under way has
-ended; rows from there on are handed out again (a re-send).
+ended; rows from there on are handed out again (a re-send). A ramp to 0 (a hold, a stop)
+that would not bring the motion to rest before its end is refused (:class:`TooLate`): the
+motion would reach its end anyway, and a hold that answered success would be a lie.
+
+Cut (:meth:`ReferenceStream.cut`). Where the planned motion runs at its limits — a
+time-optimal point-to-point move (joint goals, home, the approach to a path) accelerates
+and brakes at them — a time-warp ramp to 0 gets only the small RAMP_LIMIT_SHARE of the
+limits and takes seconds, longer than the move itself. Such a motion is stopped instead by
+cutting it: from a step on, the stream plays a `tail` reference that starts in the state
+the stream gives there (:meth:`ReferenceStream.state`: position, velocity, acceleration) —
+a time-optimal jerk-limited stop planned by the caller — and the motion ends where the
+tail ends.
 """
 from __future__ import annotations
 
@@ -111,6 +122,10 @@ class Ramp:
         return self.k0 + dk * s, dk * s1 / duration, dk * s2 / duration ** 2
 
 
+class TooLate(ValueError):
+    """A ramp to 0 asked for where the motion reaches its end before it could be at rest."""
+
+
 @dataclass
 class Motion:
     start: int                      # control step of the first row
@@ -121,6 +136,8 @@ class Motion:
     tau: list = field(default_factory=list)     # planned time (periods) of each streamed step
     end: int | None = None          # step of the last row, once streamed that far
     stop_when_still: bool = False   # a stop: the motion ends where the ramp to 0 does
+    cut: int | None = None          # from this step on the motion plays `tail` instead (a stop)
+    tail: Reference | None = None
 
     @property
     def last(self) -> float:
@@ -150,6 +167,12 @@ class ReferenceStream:
         zeros = (0.0,) * len(self.hold)
         if m is None or step < m.start:
             return tuple(self.hold), zeros, zeros
+        if m.cut is not None and step >= m.cut:
+            i, last = step - m.cut, len(m.tail) - 1
+            if i >= last:
+                m.end = m.cut + last if m.end is None else m.end
+                return tuple(m.tail.position[last]), zeros, zeros
+            return tuple(m.tail.position[i]), tuple(m.tail.velocity[i]), tuple(m.tail.acceleration[i])
         if m.end is not None and step >= m.end:
             return tuple(self.position(m.end)), zeros, zeros
         n = step - m.start
@@ -191,6 +214,8 @@ class ReferenceStream:
         m = self.motion
         if m is None or step < m.start:
             return self.hold.copy()
+        if m.cut is not None and step >= m.cut:
+            return m.tail.position[min(step - m.cut, len(m.tail) - 1)].copy()
         n = min(step - m.start, len(m.tau) - 1)
         return np.array(self._sample(m, m.tau[n])[0]) if n >= 0 else self.hold.copy()
 
@@ -210,23 +235,89 @@ class ReferenceStream:
                              Ramp(self.next_step, override, override, 0))
         return self.motion
 
+    def state(self, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity and acceleration the stream gives at `step`, a step already
+        handed out (or any step of the hold after the motion); ValueError for a row of the
+        motion not handed out yet."""
+        m = self.motion
+        zeros = np.zeros(len(self.hold))
+        if m is None or step < m.start:
+            return self.hold.copy(), zeros, zeros.copy()
+        if m.cut is not None and step >= m.cut:
+            i = step - m.cut
+            if i >= len(m.tail) - 1:
+                return m.tail.position[-1].copy(), zeros, zeros.copy()
+            return m.tail.position[i].copy(), m.tail.velocity[i].copy(), m.tail.acceleration[i].copy()
+        if m.end is not None and step >= m.end:
+            return self.position(m.end), zeros, zeros.copy()
+        n = step - m.start
+        if n >= len(m.tau):
+            raise ValueError(f'step {step} is not streamed yet')
+        tau = m.tau[n]
+        k, dk, _ = m.ramp.at(step, self.period)
+        if tau >= m.last:
+            return self.position(step), zeros, zeros.copy()
+        p, v, a = self._sample(m, tau)
+        return np.array(p), k * np.asarray(v), k * k * np.asarray(a) + dk * np.asarray(v)
+
+    def tau_at(self, step: int) -> float:
+        """Planned time (periods) of the motion at `step` (extrapolated at the override
+        there beyond the rows handed out)."""
+        m = self.motion
+        if m is None:
+            return 0.0
+        n = step - m.start
+        if n <= 0:
+            return 0.0
+        if n < len(m.tau):
+            return m.tau[n]
+        known, tau = (len(m.tau) - 1, m.tau[-1]) if m.tau else (0, 0.0)
+        return min(tau + (n - known) * m.ramp.at(step, self.period)[0], m.last)
+
     def set_override(self, value: float, at: int, stop: bool = False) -> int:
         """Ramp the feed override to `value` (0..1) from step `at` (or from the end of a
         ramp under way); with `stop`, the motion ends where it comes to rest (value 0).
-        Returns the step the ramp starts at. Rows from there are handed out again."""
+        Returns the step the ramp starts at. Rows from there are handed out again.
+        :class:`TooLate` (nothing changed) for a ramp to 0 that would not come to rest
+        before the motion's end."""
         m = self.motion
         if m is None or not self.busy(at):
             raise ValueError('no motion under way')
+        if m.cut is not None:
+            raise ValueError('the motion is being stopped')
         if not 0.0 <= value <= 1.0:
             raise ValueError(f'feed override must be within [0, 1], got {value!r}')
         begin = max(at, m.ramp.end, m.start)
         k0 = m.ramp.at(begin, self.period)[0]
-        tau = m.tau[begin - m.start] if begin - m.start < len(m.tau) else 0.0
+        tau = self.tau_at(begin)
         steps = 0 if value == k0 else round(m.ramps.duration(tau, k0, value, self.period) / self.period)
+        if value == 0.0 and k0 > 0.0 and tau + 0.5 * k0 * steps >= m.last:
+            end = begin + (m.last - tau) / k0
+            raise TooLate(f'too late: the motion reaches its end (about step {end:.0f}) before a ramp to 0 from '
+                          f'step {begin} could bring it to rest')
         m.ramp = Ramp(begin, k0, value, steps)
         m.stop_when_still = stop
         m.end = None if m.end is None or m.end > begin else m.end
         del m.tau[begin - m.start + 1:]
+        self.next_step = min(self.next_step, begin + 1)
+        return begin
+
+    def cut(self, at: int, tail: Reference) -> int:
+        """Play `tail` from step `at` (or the motion's first step, if later) on instead of
+        the rest of the motion: a stop planned from :meth:`state` there (its first row is
+        that state). The motion ends where the tail does; its progress stays where it was
+        cut, the override reported ramps to 0 over the tail. Rows after the cut step are
+        handed out again. Returns the cut step."""
+        m = self.motion
+        if m is None or not self.busy(at):
+            raise ValueError('no motion under way')
+        if tail.axis_names != self.axis_names or tail.period != self.period:
+            raise ValueError('stop is for other axes or another control period')
+        begin = max(at, m.start)
+        k0 = m.ramp.at(begin, self.period)[0]
+        m.cut, m.tail, m.end, m.stop_when_still = begin, tail, None, False
+        del m.tau[begin - m.start + 1:]
+        m.ramp = Ramp(begin, k0, 0.0, len(tail) - 1)
         self.next_step = min(self.next_step, begin + 1)
         return begin
 

@@ -18,9 +18,11 @@ from typing import Callable
 
 import numpy as np
 
-# Fewest points a path may have: the quintic spline of trajectory.spline needs k + 1 = 6.
-# assumed: 8, so the not-a-knot end conditions still leave interior points free.
-MIN_POINTS = 8
+# Fewest points a path may have: the quintic (degree k = 5) interpolating spline of
+# trajectory.spline needs k + 1 = 6 (with 6 points it is the one quintic polynomial through
+# them; scipy's make_interp_spline refuses fewer without end derivatives). Nothing after the
+# fit depends on the number of points (the resolution has its own grid).
+MIN_POINTS = 6
 
 # m. Consecutive points closer than this are a repeated point (degenerate arc length).
 # assumed: 1 nm, far below the 20 nm table sensors (CIRP seed 002 section 2) and far above
@@ -30,6 +32,12 @@ MIN_SPACING = 1e-9
 # A tool axis (or quaternion) shorter than this is zero-length.
 # assumed: 1e-9; shorter vectors are zero up to rounding of typical inputs.
 MIN_AXIS_NORM = 1e-9
+
+# An orientation quaternion (x, y, z, w) is unit when |x² + y² + z² + w² - 1| is below this:
+# tf2's QUATERNION_NORMALIZATION_TOLERANCE (ros2/geometry2, tf2/src/buffer_core.cpp, 10e-3 on
+# the squared norm; rviz's validateQuaternions uses the same), so a pose tf2 accepts is
+# accepted here; it is then normalized.
+QUATERNION_TOLERANCE = 10e-3
 
 COLUMNS = ('px', 'py', 'pz', 'oi', 'oj', 'ok')
 
@@ -72,12 +80,9 @@ class CLData:
         bad = np.flatnonzero(norm < MIN_AXIS_NORM)
         if len(bad):
             raise CLDataError(f'point {bad[0]}: zero-length tool axis', int(bad[0]))
-        step = np.linalg.norm(np.diff(p, axis=0), axis=1)
-        bad = np.flatnonzero(step < MIN_SPACING)
-        if len(bad):
-            i = int(bad[0]) + 1
-            raise CLDataError(f'point {i} repeats point {i - 1} (spacing {step[i - 1]:.3g} m '
-                              f'< {MIN_SPACING:g} m)', i)
+        bad = closer_than(p, MIN_SPACING)
+        if bad is not None:
+            raise CLDataError(f'point {bad + 1} repeats point {bad}: {spacing_text(p, bad, MIN_SPACING)}', bad + 1)
         o = o / norm[:, None]
         p.setflags(write=False)
         o.setflags(write=False)
@@ -92,6 +97,19 @@ class CLData:
         return float(np.max(np.arccos(np.clip(self.axes[:, 2], -1.0, 1.0))))
 
 
+def closer_than(positions: np.ndarray, spacing: float) -> int | None:
+    """The first i whose tool tips i and i + 1 (positions (N, 3), m) are closer than
+    `spacing` (m), or None."""
+    bad = np.flatnonzero(np.linalg.norm(np.diff(positions, axis=0), axis=1) < spacing)
+    return int(bad[0]) if len(bad) else None
+
+
+def spacing_text(positions: np.ndarray, i: int, spacing: float) -> str:
+    """'points 4 and 5 are 1e-12 m apart (need >= 1e-09 m)'."""
+    gap = float(np.linalg.norm(positions[i + 1] - positions[i]))
+    return f'points {i} and {i + 1} are {gap:.3g} m apart (need >= {spacing:.3g} m)'
+
+
 def from_arrays(positions, axes) -> CLData:
     """CL data from arrays (N, 3) of tool tips (m) and tool axes (any length > 0)."""
     return CLData(np.asarray(positions, dtype=float), np.asarray(axes, dtype=float))
@@ -99,16 +117,22 @@ def from_arrays(positions, axes) -> CLData:
 
 def axes_from_quaternions(q_xyzw) -> np.ndarray:
     """The z-axis (third column of the rotation matrix) of each quaternion (x, y, z, w),
-    shape (N, 4) -> (N, 3): the tool axis of a pose whose z-axis is the tool axis.
-    Quaternions are normalized first; a zero or non-finite quaternion is a ValueError."""
+    shape (N, 4) -> (N, 3): the tool axis of a pose whose z-axis is the tool axis. Each
+    quaternion must be finite and unit within QUATERNION_TOLERANCE (then it is normalized);
+    otherwise a CLDataError naming the pose (its index) and the norm."""
     q = np.asarray(q_xyzw, dtype=float)
     if q.ndim != 2 or q.shape[1] != 4:
         raise ValueError(f'quaternions must have shape (N, 4), got {q.shape}')
-    if not np.isfinite(q).all():
-        raise ValueError(f'quaternion {np.flatnonzero(~np.isfinite(q).all(axis=1))[0]} is not finite')
+    bad = np.flatnonzero(~np.isfinite(q).all(axis=1))
+    if len(bad):
+        raise CLDataError(f'pose {bad[0]}: orientation quaternion is not finite (NaN or inf)', int(bad[0]))
     n = np.linalg.norm(q, axis=1)
-    if (n < MIN_AXIS_NORM).any():
-        raise ValueError(f'quaternion {np.flatnonzero(n < MIN_AXIS_NORM)[0]} has zero length')
+    bad = np.flatnonzero(~(np.abs(n * n - 1.0) < QUATERNION_TOLERANCE))
+    if len(bad):
+        i = int(bad[0])
+        what = 'zero length' if n[i] < MIN_AXIS_NORM else f'norm {n[i]:.6g}'
+        raise CLDataError(f'pose {i}: orientation quaternion has {what}, not unit (|x² + y² + z² + w² - 1| '
+                          f'must be below {QUATERNION_TOLERANCE:g})', i)
     x, y, z, w = (q / n[:, None]).T
     return np.column_stack((2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)))
 

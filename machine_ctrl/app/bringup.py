@@ -4,9 +4,11 @@ hw_sim, the servo nodes, dual_stage, trajectory, contour_error and (with a model
 compensation, each in its own process under :class:`machine_ctrl.app.processes.Supervisor`, or
 all in one process (``python -m machine_ctrl.ros.graph``); with ``record`` the recorder runs in
 a process of its own (always: it must close its bag) and hw_sim holds at step 0 until it is
-matched. :class:`Bringup` waits until every node is on the ROS graph and the trajectory
-node streams, follows /trajectory/status, and stops everything (graph first, then the
-recorder, which drains, closes the bag and prints its per-topic counts).
+matched. :class:`Bringup` waits until every node is on the ROS graph and hw_sim says the
+graph is ready (contract.READY: it has completed its first step, so every node has its first
+state), follows /trajectory/status, and stops everything (graph first, then the recorder,
+which drains, closes the bag and prints its per-topic counts). With a `namespace` every node
+(the recorder too) runs in it, and so must the clients (:func:`client_session`).
 
 The shell is :func:`main`: prints the command API (:data:`API`), the state changes, and
 stops on Ctrl-C / SIGTERM. The demo (:mod:`machine_ctrl.app.demo`) drives a :class:`Bringup`
@@ -39,16 +41,18 @@ API = [(item.name, item.type.replace('/msg/', '/').replace('/srv/', '/'), item.d
 
 
 def graph_specs(machine: MachineConfig, dual_stage: bool = True, compensation: str | None = None,
-                record: bool = False) -> list[NodeSpec]:
-    """The bringup graph: the default graph with the trajectory node and contour_error;
-    with a recording, hw_sim waits at step 0 for every /joint_states reader and the recorder."""
+                record: bool = False, namespace: str = '') -> list[NodeSpec]:
+    """The bringup graph: the default graph with the trajectory node and contour_error, in
+    `namespace`; with a recording, hw_sim waits at step 0 for every joint-state reader and
+    the recorder."""
     specs = default_graph(machine, contour=None, dual_stage=dual_stage, compensation_model=compensation,
-                          contour_error=True)
+                          contour_error=True, namespace=namespace)
     if not record:
         return specs
     hw = {'min_subscribers': sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1,
           'recorder_window': RECORDER_WINDOW}
-    return [NodeSpec(s.name, s.module, s.cls, {**s.parameters, **hw}) if s.name == 'hw_sim' else s for s in specs]
+    return [NodeSpec(s.name, s.module, s.cls, {**s.parameters, **hw}, s.namespace) if s.name == 'hw_sim' else s
+            for s in specs]
 
 
 def single_process_argv(specs: list[NodeSpec], directory) -> list[str]:
@@ -59,9 +63,9 @@ def single_process_argv(specs: list[NodeSpec], directory) -> list[str]:
     return [sys.executable, '-m', 'machine_ctrl.ros.graph', '--specs', str(path)]
 
 
-def recorder_spec(machine: MachineConfig, output: str) -> NodeSpec:
+def recorder_spec(machine: MachineConfig, output: str, namespace: str = '') -> NodeSpec:
     return NodeSpec('recorder', 'machine_ctrl.ros.recorder_node', 'RecorderNode',
-                    {'output': str(output), 'machine': str(machine.yaml_path)})
+                    {'output': str(output), 'machine': str(machine.yaml_path)}, namespace=namespace)
 
 
 class Bringup:
@@ -69,9 +73,10 @@ class Bringup:
 
     def __init__(self, machine: MachineConfig, *, single_process: bool = False, record: str | None = None,
                  dual_stage: bool = True, compensation: str | None = None, env=None,
-                 log_dir: str | None = None):
+                 log_dir: str | None = None, namespace: str = ''):
         self.machine, self.single_process, self.record = machine, single_process, record
-        self.specs = graph_specs(machine, dual_stage, compensation, record is not None)
+        self.namespace = namespace
+        self.specs = graph_specs(machine, dual_stage, compensation, record is not None, namespace)
         self.dual_stage, self.compensation = dual_stage, compensation
         self.log_dir = Path(log_dir or tempfile.mkdtemp(prefix='machine_ctrl_bringup_'))
         self.graph = Supervisor(env, log_dir=self.log_dir, stop_timeout=5.0)
@@ -85,7 +90,7 @@ class Bringup:
 
     def start(self) -> None:
         if self.record is not None:      # parameter files beside the logs
-            self.recorder.start('recorder', recorder_spec(self.machine, self.record).argv(self.log_dir))
+            self.recorder.start('recorder', recorder_spec(self.machine, self.record, self.namespace).argv(self.log_dir))
         if self.single_process:
             self.graph.start('graph', single_process_argv(self.specs, self.log_dir))
             return
@@ -97,14 +102,15 @@ class Bringup:
         self.graph.check()
 
     def wait_ready(self, client, timeout: float = READY_TIMEOUT) -> float:
-        """Wait until every node is on the ROS graph and the trajectory node streams;
-        returns the seconds waited."""
+        """Wait until every node is on the ROS graph (in the namespace) and the graph is
+        ready (contract.READY); returns the seconds waited."""
         started = time.monotonic()
-        client.wait(lambda: self.node_names <= set(client.node.get_node_names()), 'every node on the ROS graph',
-                    timeout, self.check)
-        left = timeout - (time.monotonic() - started)
-        client.wait(lambda: client.status().get('streamed_to_step', '') != '', 'the trajectory node streaming',
-                    left, self.check)
+        namespace = self.namespace or '/'
+        client.wait(lambda: self.node_names <= {name for name, ns in client.node.get_node_names_and_namespaces()
+                                                if ns == namespace},
+                    'every node on the ROS graph', timeout, self.check)
+        left = max(timeout - (time.monotonic() - started), 0.0)
+        client.wait_ready(left, self.check)
         return time.monotonic() - started
 
     def stop(self) -> list[str]:
@@ -130,24 +136,28 @@ class Bringup:
         self.stop()
 
 
-def client_node(name: str, domain_id: int | None = None):
+def client_node(name: str, domain_id: int | None = None, namespace: str = ''):
     """An rclpy context + node for a command-line client (rclpy's signal handlers off:
-    the shell decides what Ctrl-C does), in `domain_id` (default: ROS_DOMAIN_ID).
-    Returns (context, node)."""
+    the shell decides what Ctrl-C does), in `domain_id` (default: ROS_DOMAIN_ID) and in
+    the graph's `namespace` (its relative names then resolve to the graph's). Returns
+    (context, node)."""
     import rclpy
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
     context = Context()
     rclpy.init(args=['machine-ctrl'], context=context, domain_id=domain_id,
                signal_handler_options=SignalHandlerOptions.NO)
-    return context, rclpy.create_node(name, context=context)
+    return context, rclpy.create_node(name, namespace=namespace or None, context=context)
 
 
 def listening(client, publisher) -> bool:
-    """Whether the trajectory node subscribes `publisher`'s topic and every subscriber of
-    the topic is matched with it (a message published now reaches the trajectory node)."""
+    """Whether the trajectory node of the client's namespace subscribes `publisher`'s
+    topic and every subscriber of the topic is matched with it (a message published now
+    reaches the trajectory node)."""
     infos = client.node.get_subscriptions_info_by_topic(publisher.topic_name)
-    return any(info.node_name == 'trajectory' for info in infos) and publisher.get_subscription_count() >= len(infos)
+    namespace = client.node.get_namespace()
+    return (any(info.node_name == 'trajectory' and info.node_namespace == namespace for info in infos)
+            and publisher.get_subscription_count() >= len(infos))
 
 
 class StateReporter:
@@ -177,7 +187,7 @@ class StateReporter:
 def describe(state: str, values: dict) -> str:
     """One line for a /trajectory/status."""
     text = f'state {state}'
-    if values.get('motion'):
+    if values.get('motion') and state in ('running', 'holding'):      # idle / planning: the last motion is done
         text += f": {values['motion']} (progress {float(values.get('progress', 0)) * 100:.0f} %)"
     if state == 'fault' and values.get('fault'):
         text += f" -- {values['fault']}"
@@ -186,10 +196,12 @@ def describe(state: str, values: dict) -> str:
     return text
 
 
-def api_table() -> str:
-    width = max(len(name) for name, _, _ in API)
-    type_width = max(len(kind) for _, kind, _ in API)
-    return '\n'.join(f'  {name:{width}s}  {kind:{type_width}s}  {what}' for name, kind, what in API)
+def api_table(namespace: str = '') -> str:
+    """The command API with the fully qualified names in `namespace`."""
+    rows = [(contract.absolute(name, namespace), kind, what) for name, kind, what in API]
+    width = max(len(name) for name, _, _ in rows)
+    type_width = max(len(kind) for _, kind, _ in rows)
+    return '\n'.join(f'  {name:{width}s}  {kind:{type_width}s}  {what}' for name, kind, what in rows)
 
 
 class Stopped(Exception):
@@ -206,11 +218,11 @@ def stop_on_signals() -> dict:
 
 
 @contextlib.contextmanager
-def client_session(machine: MachineConfig, name: str, domain_id: int | None = None):
-    """A command-line client of the graph: MachineClient on a context of its own, closed,
-    destroyed and shut down on leaving."""
+def client_session(machine: MachineConfig, name: str, domain_id: int | None = None, namespace: str = ''):
+    """A command-line client of the graph (in `namespace`): MachineClient on a context of
+    its own, closed, destroyed and shut down on leaving."""
     from machine_ctrl.app.client import MachineClient
-    context, node = client_node(name, domain_id)
+    context, node = client_node(name, domain_id, namespace)
     client = MachineClient(node, machine)
     try:
         yield client
@@ -221,11 +233,11 @@ def client_session(machine: MachineConfig, name: str, domain_id: int | None = No
 
 
 @contextlib.contextmanager
-def monitor(machine: MachineConfig, name: str, domain_id: int | None = None):
+def monitor(machine: MachineConfig, name: str, domain_id: int | None = None, namespace: str = ''):
     """client_session with SIGINT / SIGTERM raising Stopped meanwhile."""
     previous = stop_on_signals()
     try:
-        with client_session(machine, name, domain_id) as client:
+        with client_session(machine, name, domain_id, namespace) as client:
             yield client
     finally:
         for sig, handler in previous.items():
@@ -248,17 +260,21 @@ def run(args, machine: MachineConfig) -> int:
     from machine_ctrl.app.client import Timeout
     from machine_ctrl.app.processes import ChildExited
     status = 0
+    namespace = getattr(args, 'namespace', '')
     try:
-        with monitor(machine, 'bringup_monitor') as client, \
+        with monitor(machine, 'bringup_monitor', namespace=namespace) as client, \
                 Bringup(machine, single_process=args.single_process, record=args.record,
-                        dual_stage=not args.no_dual_stage, compensation=args.compensation) as bringup:
+                        dual_stage=not args.no_dual_stage, compensation=args.compensation,
+                        namespace=namespace) as bringup:
             try:
                 print(f'starting {len(bringup.specs)} nodes ({"one process" if args.single_process else "one process each"})'
                       f'{", recording to " + args.record if args.record else ""}; logs in {bringup.log_dir}', flush=True)
                 bringup.start()
                 waited = bringup.wait_ready(client)
                 print(f'all nodes ready after {waited:.1f} s: {" ".join(sorted(bringup.node_names))}')
-                print(f'commands (ROS_DOMAIN_ID={client.node.context.get_domain_id()}):\n{api_table()}', flush=True)
+                where = f', namespace {namespace}' if namespace else ''
+                print(f'commands (ROS_DOMAIN_ID={client.node.context.get_domain_id()}{where}):\n{api_table(namespace)}',
+                      flush=True)
                 reporter = StateReporter(client)
                 while True:
                     bringup.check()

@@ -1,14 +1,28 @@
 """The caller's side of the trajectory node's command API (README "Node graph"): send tool
-paths and joint goals, call the services, follow /trajectory/status. What another robot or
-program does, packaged for `machine-ctrl send` / `move`, the demo and the graph tests.
-Spins its own node in a background thread."""
+paths and joint goals, call the services, follow /trajectory/status and the goal status.
+What another robot or program does, packaged for `machine-ctrl send` / `move`, the demo and
+the graph tests. Spins its own node in a background thread.
+
+Readiness: hw_sim publishes contract.READY (latched) once the graph has completed its first
+step; :meth:`MachineClient.wait_ready` waits for it with a timeout and a clear message.
+
+Goals: a goal sent with a stamp (:meth:`MachineClient.stamp_now`: the wall clock, unique per
+request) is found in the latched goal status (action_msgs/GoalStatusArray) by that stamp —
+GoalInfo.stamp is the request's header.stamp — which gives its id (:meth:`goal_of`); its
+states and, from the trajectory node's /diagnostics goal entries, the reason it was aborted
+or canceled and its label are kept by id (:attr:`goal_states`, :attr:`goal_entries`).
+"""
 from __future__ import annotations
 
 import threading
 import time
+import uuid
 
-from diagnostic_msgs.msg import DiagnosticStatus
+from action_msgs.msg import GoalStatusArray
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
+from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from nav_msgs.msg import Path
@@ -18,6 +32,12 @@ from machine_ctrl import contract
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.model.config import MachineConfig
 
+READY_TIMEOUT = 30.0            # s (wall) a command-line client waits for the graph
+NOT_READY = 'the graph is not ready after {timeout:g} s: is it up? machine-ctrl bringup'
+# action_msgs/GoalStatus codes -> the names the trajectory node gives them (trajectory.goals)
+GOAL_STATES = {0: 'unknown', 1: 'accepted', 2: 'executing', 3: 'canceling', 4: 'succeeded', 5: 'canceled',
+               6: 'aborted'}
+TERMINAL = ('succeeded', 'canceled', 'aborted')
 
 
 class Timeout(RuntimeError):
@@ -29,8 +49,17 @@ class MachineClient:
         self.node, self.machine = node, machine
         self.clock = ros_io.StepClock.of(machine)
         self.statuses: list[DiagnosticStatus] = []
+        self.ready: bool | None = None                     # None: nothing heard from hw_sim yet
+        self.goal_ids: dict[tuple[int, int], str] = {}     # request stamp -> goal id (uuid text)
+        self.goal_states: dict[str, list[str]] = {}        # goal id -> states seen, in order
+        self.goal_entries: dict[str, dict] = {}            # goal id -> its newest /diagnostics values
         node.create_subscription(DiagnosticStatus, contract.TRAJECTORY_STATUS.name, self.statuses.append,
                                  ros_io.qos(contract.LATCHED_READER_QOS))
+        node.create_subscription(Bool, contract.READY.name, self._on_ready, ros_io.qos(contract.READY.qos))
+        node.create_subscription(GoalStatusArray, contract.GOAL_STATUS.name, self._on_goals,
+                                 ros_io.qos(contract.LATCHED_READER_QOS))
+        node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self._on_diagnostics,
+                                 ros_io.qos(contract.DIAGNOSTICS_READER_QOS))
         self.pub_path = node.create_publisher(Path, contract.PATH.name, ros_io.qos(contract.PATH.qos))
         self.pub_goal = node.create_publisher(JointTrajectory, contract.JOINT_GOAL.name, ros_io.qos(contract.JOINT_GOAL.qos))
         self.pub_override = node.create_publisher(Float64, contract.FEED_OVERRIDE.name, ros_io.qos(contract.FEED_OVERRIDE.qos))
@@ -50,6 +79,26 @@ class MachineClient:
         self._thread.join(timeout=2)
         self.executor.shutdown()
 
+    # -- subscriptions (the spin thread) ---------------------------------------------------
+    def _on_ready(self, msg: Bool) -> None:
+        self.ready = bool(msg.data)
+
+    def _on_goals(self, msg: GoalStatusArray) -> None:
+        for status in msg.status_list:
+            info = status.goal_info
+            goal_id = str(uuid.UUID(bytes=bytes(info.goal_id.uuid)))
+            self.goal_ids.setdefault((info.stamp.sec, info.stamp.nanosec), goal_id)
+            seen = self.goal_states.setdefault(goal_id, [])
+            state = GOAL_STATES.get(status.status, str(status.status))
+            if not seen or seen[-1] != state:
+                seen.append(state)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if 'goal_id' in values and 'status_code' in values:
+                self.goal_entries[values['goal_id']] = values
+
     # -- state -----------------------------------------------------------------------------
     def status(self) -> dict:
         """Values of the newest /trajectory/status ({} before the first)."""
@@ -66,6 +115,14 @@ class MachineClient:
                 check()
             time.sleep(0.05)
 
+    def wait_ready(self, timeout: float = READY_TIMEOUT, check=None) -> None:
+        """Wait until hw_sim says the graph is ready (contract.READY, latched); Timeout with
+        a message that says what to do."""
+        try:
+            self.wait(lambda: self.ready, 'the graph', timeout, check)
+        except Timeout:
+            raise Timeout(NOT_READY.format(timeout=timeout)) from None
+
     def states_seen(self, after: int, states) -> bool:
         """The statuses after the first `after` went through `states` in this order."""
         wanted = list(states)
@@ -77,13 +134,49 @@ class MachineClient:
     def wait_states(self, after: int, states, timeout: float = 120.0, check=None) -> None:
         self.wait(lambda: self.states_seen(after, states), f'states {list(states)}', timeout, check)
 
-    # -- commands --------------------------------------------------------------------------
-    def send_path(self, cl, frame: str | None = None) -> None:
-        self.pub_path.publish(ros_io.path_message(cl, frame or self.machine.workpiece_frame))
+    # -- goals -----------------------------------------------------------------------------
+    @staticmethod
+    def stamp_now() -> Time:
+        """A request stamp: the wall clock (unique per request, so it names the goal)."""
+        sec, nanosec = contract.split_ns(time.time_ns())
+        return Time(sec=sec, nanosec=nanosec)
 
-    def send_goal(self, names, points, times=None) -> None:
-        """Joint goal: `points` hold values for `names`; `times` (s) earliest arrivals."""
+    def goal_of(self, stamp: Time) -> str | None:
+        """The id of the goal sent with `stamp`, once the goal status has it."""
+        return self.goal_ids.get((stamp.sec, stamp.nanosec))
+
+    def goal_state(self, goal_id: str) -> str:
+        """The goal's newest state ('' before any)."""
+        seen = self.goal_states.get(goal_id)
+        return seen[-1] if seen else ''
+
+    def wait_goal(self, stamp: Time, states, timeout: float = 120.0, check=None) -> str:
+        """Wait until the goal sent with `stamp` has gone through `states` (in order; states
+        between may have been missed by the latched status, never the last); its id."""
+        def seen() -> bool:
+            goal_id = self.goal_of(stamp)
+            history = self.goal_states.get(goal_id, []) if goal_id else []
+            wanted = list(states)
+            for state in history:
+                if wanted and state == wanted[0]:
+                    wanted.pop(0)
+            return not wanted
+        self.wait(seen, f'goal states {list(states)}', timeout, check)
+        return self.goal_of(stamp)
+
+    # -- commands --------------------------------------------------------------------------
+    def send_path(self, cl, frame: str | None = None, stamp: Time | None = None) -> Time:
+        """A tool path; returns the request's stamp (`stamp`, default now)."""
+        msg = ros_io.path_message(cl, frame or self.machine.workpiece_frame)
+        msg.header.stamp = stamp or self.stamp_now()
+        self.pub_path.publish(msg)
+        return msg.header.stamp
+
+    def send_goal(self, names, points, times=None, stamp: Time | None = None) -> Time:
+        """Joint goal: `points` hold values for `names`; `times` (s) earliest arrivals.
+        Returns the request's stamp (`stamp`, default now)."""
         msg = JointTrajectory()
+        msg.header.stamp = stamp or self.stamp_now()
         msg.joint_names = list(names)
         for i, values in enumerate(points):
             point = JointTrajectoryPoint(positions=[float(v) for v in values])
@@ -91,6 +184,7 @@ class MachineClient:
                 point.time_from_start = self.clock.duration(self.clock.steps(times[i]))
             msg.points.append(point)
         self.pub_goal.publish(msg)
+        return msg.header.stamp
 
     def set_feed_override(self, fraction: float) -> None:
         """Feed override, a fraction 0..1 of the planned feed (the node refuses others)."""
@@ -108,3 +202,19 @@ class MachineClient:
         self.wait(future.done, f'the answer of {service}', timeout)
         answer = future.result()
         return answer.success, answer.message
+
+    def cancel(self, goal_id: str | None = None, timeout: float = 30.0):
+        """action_msgs/CancelGoal on the trajectory node (`goal_id` None: the active goal);
+        returns (return code, ids of the goals now canceling)."""
+        from action_msgs.srv import CancelGoal
+        client = self._services.get(contract.CANCEL.name) or self._services.setdefault(
+            contract.CANCEL.name, self.node.create_client(CancelGoal, contract.CANCEL.name))
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise Timeout(f'service {contract.CANCEL.name} is not available')
+        request = CancelGoal.Request()
+        if goal_id is not None:
+            request.goal_info.goal_id.uuid = list(uuid.UUID(goal_id).bytes)
+        future = client.call_async(request)
+        self.wait(future.done, f'the answer of {contract.CANCEL.name}', timeout)
+        answer = future.result()
+        return answer.return_code, [str(uuid.UUID(bytes=bytes(g.goal_id.uuid))) for g in answer.goals_canceling]

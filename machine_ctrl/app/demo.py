@@ -3,10 +3,11 @@
 1. a simulated laser measurement campaign and its fit (thesis Ch. 5; compensation/) give
    the geometric error model: OUT/measurement.csv, OUT/model.yaml;
 2. bringup (machine_ctrl.app.bringup) of the whole graph, each node its own process, in a ROS
-   domain of its own, recording into OUT/bag, dual stage on, compensation on with that model;
+   domain of its own, recording into OUT/bag, dual stage on, compensation on with that model,
+   until hw_sim says the graph is ready (contract.READY);
 3. the CIRP helix (seed 002 §5; trajectory.toolpath.helix, shortened to ``turns`` so the
-   demo takes a few minutes here) sent as a nav_msgs/Path, as another robot would, with the
-   progress shown until the machine is idle again;
+   demo takes a few minutes here) sent as a nav_msgs/Path, as another robot would, followed
+   by its goal id (machine_ctrl.app.goals) with the progress shown until it has succeeded;
 4. everything stopped (the bag closed, counts printed), then machine_ctrl.recording.analysis on the
    bag: the table (tracking, dual-stage, tool-tip tracking and contour errors, drive-limit
    and fine-stroke usage) and the PNG plots in OUT, next to the bag.
@@ -105,7 +106,7 @@ def run_graph(machine, path, out: Path, model: Path, clock: Clock) -> int:
                     clock.lap('bringup')
                     print(f'sending the helix ({len(path)} points) on {contract.PATH.name}', flush=True)
                     client.wait(lambda: listening(client, client.pub_path), 'the path subscriber', 30)
-                    status = follow_goal(client, lambda: client.send_path(path), 3600.0)
+                    status = follow_goal(client, lambda stamp: client.send_path(path, stamp=stamp), 3600.0)
                     clock.lap('motion')
                 except (ChildExited, Timeout) as exc:
                     print(f'machine-ctrl: demo: {exc}', file=sys.stderr)

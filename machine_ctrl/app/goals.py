@@ -1,49 +1,68 @@
 """Following a goal sent to the running graph, client side (``machine-ctrl send|move`` and
-the demo): the outcome of a goal from the trajectory node's status, and the progress shown
-until the motion ends."""
+the demo): the request is stamped (the wall clock), the goal found by that stamp in the
+trajectory node's goal status (its id), and followed by id until it ends — its states and
+the motion's progress shown — with the outcome as the exit status."""
 from __future__ import annotations
 
 import sys
 import time
 
+# s (wall) to wait for a finished goal's /diagnostics entry (its reason, its label), which
+# travels on another topic than the goal status
+REASON_WAIT = 2.0
 
-def goal_outcome(client, after: int, refused: int) -> str | None:
-    """'refused', 'fault', 'done' or None (not yet) for a goal sent when `after` statuses
-    and `refused` refusals had been seen."""
-    status = client.status()
-    if int(status.get('rejected_goals', 0)) > refused:
-        return 'refused'
-    if any(s.message == 'fault' for s in client.statuses[after:]):
-        return 'fault'
-    return 'done' if client.states_seen(after, ['running', 'idle']) else None
+
+def goal_outcome(client, stamp) -> tuple[str | None, str | None]:
+    """(goal id or None, its newest state or None) for the goal sent with `stamp`."""
+    goal_id = client.goal_of(stamp)
+    return goal_id, (client.goal_state(goal_id) or None) if goal_id else None
+
+
+def _entry(client, goal_id: str, state: str) -> dict:
+    """The goal's /diagnostics entry for `state`, waited for a little ({} if it never came)."""
+    deadline = time.monotonic() + REASON_WAIT
+    while True:
+        entry = client.goal_entries.get(goal_id, {})
+        if entry.get('status') == state or time.monotonic() > deadline:
+            return entry
+        time.sleep(0.02)
 
 
 def follow_goal(client, publish, timeout: float, out=sys.stdout) -> int:
-    """Send with `publish()`, show the progress until the motion ends; 0 when it ran to
-    its end, 1 when refused, faulted, stopped early or timed out (reason on stderr)."""
+    """Send with `publish(stamp)`, follow the goal by its id, show its states and the
+    progress until it ends: 0 when it succeeded; 1 when refused or aborted (planning failed,
+    machine faulted), canceled (stopped) or timed out, with the reason on stderr."""
     from machine_ctrl.app.bringup import StateReporter
-    after, refused = len(client.statuses), int(client.status().get('rejected_goals', 0))
-    publish()
+    from machine_ctrl.app.client import TERMINAL
+    stamp = client.stamp_now()
     reporter = StateReporter(client, out)
-    reporter.seen = after
+    reporter.seen = len(client.statuses)
+    publish(stamp)
     deadline = time.monotonic() + timeout
-    while (outcome := goal_outcome(client, after, refused)) is None:
-        if time.monotonic() > deadline:
-            print(f'machine-ctrl: timed out after {timeout:g} s; status {client.status()}', file=sys.stderr)
-            return 1
+    shown: list[str] = []
+    goal_id = state = None
+    while True:
+        goal_id, state = goal_outcome(client, stamp)
+        history = client.goal_states.get(goal_id, []) if goal_id else []
+        for seen in history[len(shown):]:
+            shown.append(seen)
+            print(f'goal {goal_id}: {seen}', file=out, flush=True)
         reporter.poll()
+        if state in TERMINAL:
+            break
+        if time.monotonic() > deadline:
+            where = f'goal {goal_id} {state}' if goal_id else 'the goal never appeared in the goal status'
+            print(f'machine-ctrl: timed out after {timeout:g} s; {where}; status {client.status()}', file=sys.stderr)
+            return 1
         time.sleep(0.05)
-    reporter.poll()
-    status = client.status()
-    if outcome == 'refused':
-        print(f'machine-ctrl: refused: {status["last_rejection"]}', file=sys.stderr)
-        return 1
-    if outcome == 'fault':
-        print(f'machine-ctrl: machine faulted: {status.get("fault", "")}', file=sys.stderr)
-        return 1
-    progress = float(status.get('progress', 0))
-    if progress < 1.0:
-        print(f'machine-ctrl: the motion ended at {progress * 100:.1f} % (stopped)', file=sys.stderr)
-        return 1
-    print(f'done: {status.get("motion", "")}', file=out)
-    return 0
+    entry = _entry(client, goal_id, state)
+    reason = entry.get('reason') or client.status().get('last_rejection', '') or state
+    if state == 'succeeded':
+        print(f'done: {entry.get("label") or client.status().get("motion", "")} (goal {goal_id})', file=out)
+        return 0
+    if state == 'aborted':
+        verb = 'refused' if 'executing' not in shown and 'machine faulted' not in reason else 'aborted'
+        print(f'machine-ctrl: {verb}: {reason}', file=sys.stderr)
+    else:
+        print(f'machine-ctrl: canceled: {reason}', file=sys.stderr)
+    return 1

@@ -10,13 +10,17 @@ pre-warping — the lead-lag at its centre frequency 1/(T sqrt(alpha)) (the desi
 crossover omega_m, where its phase lead must survive), each notch at its own omega (so the
 notch stays on the resonance), the integrator without pre-warping (its corner is far below
 Nyquist). At 10 kHz the crossover's phase is then exact and the gain error < 0.1 %.
+
+No live gains: every gain is folded into the coefficients of the filter sections, whose
+states belong to those coefficients; new coefficients on old states would be a jump in the
+table's command (retune accepts only the gains in use).
 """
 from __future__ import annotations
 
 import math
 
 from machine_ctrl.control.filters import tustin
-from machine_ctrl.control.law import Parameter
+from machine_ctrl.control.law import Parameter, gains_change_problem, retune_checked
 from machine_ctrl.model.config import AxisConfig, LeadLagGains
 
 
@@ -34,6 +38,7 @@ class LeadLagController:
         return cls(gains, period)
 
     def __init__(self, gains: LeadLagGains, period: float):
+        self.gains = gains
         k, alpha, t = gains.gain, gains.alpha, gains.time_constant
         sections = [tustin([k * alpha * t, k], [t, 1.0], period, prewarp=1.0 / (t * math.sqrt(alpha)))]
         if gains.integral > 0.0:
@@ -43,6 +48,12 @@ class LeadLagController:
             sections.append(tustin([1.0, 2.0 * notch.zeta_num * w, w * w],
                                    [1.0, 2.0 * notch.zeta_den * w, w * w], period, prewarp=w))
         self.sections = sections
+
+    def retune_problem(self, gains: LeadLagGains) -> str | None:
+        return gains_change_problem(self, gains)
+
+    def retune(self, gains: LeadLagGains) -> None:
+        retune_checked(self, gains)
 
     def reset(self) -> None:
         for section in self.sections:

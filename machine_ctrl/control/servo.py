@@ -5,6 +5,13 @@ feed-forward. No ROS; the servo node and the offline runner both call :meth:`Ser
 Feed-forward can be switched off (``feedforward=False``): the law then sees only the
 reference position (v_r = a_r = 0) and no friction feed-forward — the servo loop alone, as
 used to measure closed-loop bandwidths.
+
+While running, :meth:`ServoGroup.set_feedforward` switches it at the first step whose
+reference is at rest on every axis of the group (v_r = a_r = 0): under motion a switch would
+step the command by (K_s + m_e lambda) v_r + m_e a_r for sliding mode (1.4-4.4 V of the
+micromill's 5 V at 10 mm/s), at rest it changes nothing but the friction feed-forward, whose bristle state
+starts from zero when switched on. :meth:`ServoGroup.retune` gives an axis's law new gains
+from the next step (the law's own rules, machine_ctrl/control/law.py).
 """
 from __future__ import annotations
 
@@ -26,8 +33,19 @@ class AxisServo:
         self.law = make_law(axis, period, law)
         self.law_name = law or axis.control.law
         uses_friction_ff = law_entry(self.law_name).friction_feedforward
-        self.friction = make_friction_feedforward(axis, period) if feedforward and uses_friction_ff else None
+        # built whether or not feed-forward is on at start, so that it can be switched on
+        self.friction = make_friction_feedforward(axis, period) if uses_friction_ff else None
         self.feedforward = feedforward
+        self._friction_active = self.friction if feedforward else None
+
+    def set_feedforward(self, on: bool) -> None:
+        """Feed-forward on/off from the next step (ServoGroup.set_feedforward waits for a rest);
+        switched on, the friction feed-forward starts from zero bristle deflection."""
+        on = bool(on)
+        if on and not self.feedforward and self.friction is not None:
+            self.friction.reset()
+        self.feedforward = on
+        self._friction_active = self.friction if on else None
 
     def reset(self) -> None:
         self.law.reset()
@@ -38,8 +56,8 @@ class AxisServo:
         if not self.feedforward:
             v_r = a_r = 0.0
         u = self.law.step(x_r, v_r, a_r, x, v)
-        if self.friction is not None:
-            u += self.friction.step(v_r)
+        if self._friction_active is not None:
+            u += self._friction_active.step(v_r)
         return u
 
 
@@ -55,6 +73,22 @@ class ServoGroup:
         self.axis_names = tuple(axis_names)
         self.servos = [AxisServo(machine.axis(n), machine.control_period, laws.get(n), feedforward)
                        for n in self.axis_names]
+        self.feedforward = feedforward
+        self.feedforward_requested: bool | None = None      # a switch waiting for a rest
+
+    def servo(self, axis: str) -> AxisServo:
+        return self.servos[self.axis_names.index(axis)]
+
+    def set_feedforward(self, on: bool) -> None:
+        """Feed-forward on/off at the first step whose reference is at rest on every axis of
+        the group (module docstring); `feedforward` says what is in effect."""
+        on = bool(on)
+        self.feedforward_requested = None if on == self.feedforward else on
+
+    def retune(self, axis: str, gains) -> None:
+        """New gains for the law of `axis` from the next step (ValueError with the law's
+        reason, nothing changed, when refused)."""
+        self.servo(axis).law.retune(gains)
 
     def reset(self) -> None:
         for servo in self.servos:
@@ -62,5 +96,9 @@ class ServoGroup:
 
     def step(self, ref_pos, ref_vel, ref_acc, pos, vel) -> list[float]:
         """One command per axis of the group; all arguments in group order."""
+        if self.feedforward_requested is not None and not any(ref_vel) and not any(ref_acc):
+            for servo in self.servos:
+                servo.set_feedforward(self.feedforward_requested)
+            self.feedforward, self.feedforward_requested = self.feedforward_requested, None
         return [s.step(xr, vr, ar, x, v)
                 for s, xr, vr, ar, x, v in zip(self.servos, ref_pos, ref_vel, ref_acc, pos, vel)]

@@ -8,20 +8,36 @@ section 4.2.3, Eqs. 4.46-4.57), in the drive's command unit (V for the linear mo
 
 with m_e = m / (K_a K_t), b_e = b / (K_a K_t) (Eq. 4.46). SI units: the thesis's K_s in
 V s/mm and rho in V/mm are multiplied by 1000 in the machine config.
+
+Live gains (:meth:`SlidingModeController.retune`): lambda, K_s and rho may change between
+two steps. The law's only state is d_hat, an estimate of the disturbance that does not
+depend on them; at the step of the change the command moves by (Delta K_s) sigma +
+(Delta lambda) [m_e (v_r - v) + K_s (x_r - x)], i.e. in proportion to the tracking error. A new set
+must keep the discrete loop well inside its stability limit: T (K_s / m_e + lambda) < 1, the
+velocity-error pole 1 - T (K_s / m_e + lambda) of the sampled loop then stays in (0, 1)
+(the shipped gains: 0.03-0.05 on the micromill, 0.22-0.63 on trt_5axis; Sencer's printed
+K_s, 1.7-4.3 on three trt axes, diverged). The disturbance bounds stay as built: d_hat may
+already lie outside new ones.
 """
 from __future__ import annotations
 
-from machine_ctrl.control.law import Parameter
+import dataclasses
+
+from machine_ctrl.control.law import Parameter, gains_change_problem, retune_checked
 from machine_ctrl.model.config import AxisConfig, SlidingModeGains
 
 
 class SlidingModeController:
     parameters = (
-        Parameter('bandwidth', '1/s', 'lambda, sliding-surface bandwidth, Eq. (4.47)'),
-        Parameter('gain', 'V*s/m (V*s/rad)', 'K_s, gain on the sliding variable sigma, Eq. (4.57)'),
-        Parameter('adaptation', 'V/m (V/rad)', 'rho, disturbance adaptation gain, Eq. (4.49)'),
+        Parameter('bandwidth', '1/s', 'lambda, sliding-surface bandwidth, Eq. (4.47)',
+                  live='a step of (Delta lambda) [m_e (v_r - v) + K_s (x_r - x)] in the command, ~ the tracking error'),
+        Parameter('gain', 'V*s/m (V*s/rad)', 'K_s, gain on the sliding variable sigma, Eq. (4.57)',
+                  live='a step of (Delta K_s) sigma in the command, ~ the tracking error'),
+        Parameter('adaptation', 'V/m (V/rad)', 'rho, disturbance adaptation gain, Eq. (4.49)',
+                  live='changes only the rate of the estimate d_hat, not its value'),
         Parameter('disturbance_bounds', 'V', '(d-, d+), range of the disturbance estimate, Eq. (4.50)'),
     )
+    STABILITY = 1.0           # T (K_s / m_e + lambda) must stay below this (module docstring)
 
     @classmethod
     def from_axis(cls, gains: SlidingModeGains, axis: AxisConfig, period: float) -> SlidingModeController:
@@ -31,10 +47,29 @@ class SlidingModeController:
 
     def __init__(self, gains: SlidingModeGains, equivalent_mass: float, equivalent_damping: float,
                  period: float):
+        self.gains = gains
         self.lam, self.k_s, self.rho = gains.bandwidth, gains.gain, gains.adaptation
         self.d_low, self.d_high = gains.disturbance_bounds
         self.m_e, self.b_e, self.period = equivalent_mass, equivalent_damping, period
         self.reset()
+
+    def retune_problem(self, gains: SlidingModeGains) -> str | None:
+        problem = gains_change_problem(self, gains)
+        if problem is None and gains != self.gains:
+            margin = self.period * (gains.gain / self.m_e + gains.bandwidth)
+            if margin >= self.STABILITY:
+                changed = [f.name for f in dataclasses.fields(gains)
+                           if getattr(gains, f.name) != getattr(self.gains, f.name)]
+                problem = (f'{", ".join(changed)}: T (K_s / m_e + lambda) = {margin:.3g} must be < {self.STABILITY:g} '
+                           f'(the sampled loop would oscillate or diverge; K_s {gains.gain:g}, '
+                           f'lambda {gains.bandwidth:g}, m_e {self.m_e:.4g}, T {self.period:g})')
+        return problem
+
+    def retune(self, gains: SlidingModeGains) -> None:
+        """From the next step on (d_hat kept)."""
+        retune_checked(self, gains)
+        self.gains = gains
+        self.lam, self.k_s, self.rho = gains.bandwidth, gains.gain, gains.adaptation
 
     def reset(self) -> None:
         self.d_hat = 0.0

@@ -36,9 +36,9 @@ from machine_ctrl.recording.bag import Bag, BagError
 from machine_ctrl.model.config import MachineConfig, load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.model.kinematics import Kinematics
-from machine_ctrl.recording.recorder import MACHINE_FILE_KEY, MACHINE_KEY
+from machine_ctrl.recording.recorder import MACHINE_FILE_KEY, MACHINE_KEY, namespace_of
 
-REQUIRED = {topic.name: topic.type for topic in (contract.JOINT_STATES, contract.REFERENCE)}
+REQUIRED = (contract.JOINT_STATES, contract.REFERENCE)
 # assumed: the tool tip lags its reference by far less than 50 ms at the feeds we run
 # (10 mm/s: 0.5 mm of path), so the nearest reference point lies within this window.
 CONTOUR_WINDOW = 0.05      # s
@@ -90,22 +90,23 @@ def machine_of(bag: Bag, machine: str | MachineConfig | None) -> MachineConfig:
 def load(path, machine: str | MachineConfig | None = None) -> Run:
     """Decode and align a bag; AnalysisError / BagError (one line) when it cannot be used."""
     with Bag(path) as bag:
-        for topic, type_name in REQUIRED.items():
-            info = bag.topics.get(topic)
+        namespace = namespace_of(bag.custom_data)
+        states_topic, reference_topic = (topic.full(namespace) for topic in REQUIRED)
+        for topic in REQUIRED:
+            info = bag.topics.get(topic.full(namespace))
             if info is None or info.count == 0:
-                raise AnalysisError(f'{bag.path}: no {topic} messages in the bag; analysis needs '
-                                    f'{" and ".join(REQUIRED)}')
-            if info.type != type_name:
-                raise AnalysisError(f'{bag.path}: {topic} is {info.type}, expected {type_name}')
+                raise AnalysisError(f'{bag.path}: no {topic.full(namespace)} messages in the bag; analysis needs '
+                                    f'{states_topic} and {reference_topic}')
+            if info.type != topic.type:
+                raise AnalysisError(f'{bag.path}: {topic.full(namespace)} is {info.type}, expected {topic.type}')
         config = machine_of(bag, machine)
         period_ns = contract.StepClock.of(config).period_ns
         names = list(config.axis_names)
-        states = _states(bag, period_ns, names)
-        reference = _reference(bag, period_ns, names)
+        states = _states(bag, states_topic, period_ns, names)
+        reference = _reference(bag, reference_topic, period_ns, names)
     steps = np.array(sorted(set(states) & set(reference)), dtype=np.int64)
     if len(steps) == 0:
-        raise AnalysisError(f'{path}: no control step has both a {contract.JOINT_STATES.name} and a '
-                            f'{contract.REFERENCE.name} row')
+        raise AnalysisError(f'{path}: no control step has both a {states_topic} and a {reference_topic} row')
     return Run(config, steps, np.array([states[k] for k in steps]), np.array([reference[k] for k in steps]),
                str(path))
 
@@ -118,8 +119,7 @@ def _columns(message_names, wanted, topic) -> list[int]:
     return [index[w] for w in wanted]
 
 
-def _states(bag: Bag, period_ns: int, names) -> dict[int, list[float]]:
-    topic = contract.JOINT_STATES.name
+def _states(bag: Bag, topic: str, period_ns: int, names) -> dict[int, list[float]]:
     decode = _decoder(bag, topic)
     rows: dict[int, list[float]] = {}
     picks = None
@@ -134,8 +134,7 @@ def _states(bag: Bag, period_ns: int, names) -> dict[int, list[float]]:
     return rows
 
 
-def _reference(bag: Bag, period_ns: int, names) -> dict[int, list[float]]:
-    topic = contract.REFERENCE.name
+def _reference(bag: Bag, topic: str, period_ns: int, names) -> dict[int, list[float]]:
     decode = _decoder(bag, topic)
     rows: dict[int, list[float]] = {}
     end = 0

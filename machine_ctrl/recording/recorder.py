@@ -32,15 +32,26 @@ from machine_ctrl.recording import msgdefs
 from machine_ctrl.recording.bag import BagWriter
 from machine_ctrl.model.errors import InvalidMessage
 
-# ROS's log and parameter traffic, and our own flow-control reports
-DEFAULT_EXCLUDED = (contract.ROSOUT, contract.PARAMETER_EVENTS, contract.RECORDER_PROGRESS.name)
+
+
+def default_excluded(namespace: str = '') -> tuple[str, ...]:
+    """ROS's log and parameter traffic, and our own flow-control reports."""
+    return contract.ROSOUT, contract.PARAMETER_EVENTS, contract.RECORDER_PROGRESS.full(namespace)
+
+
 # assumed: a report every 10 states costs the recorder < 1 % (one small publish per ~40
 # messages of the graph) and keeps hw_sim's view of it at most 10 steps (+ transit) stale,
 # small beside the windows that make sense (~100 steps: README).
 PROGRESS_EVERY = 10
 PROGRESS_PERIOD = 0.005    # s (wall): a newer progress goes out at least this often
-# the per-step topics of the machine_ctrl graph; each publisher on them is a stream (Progress)
-PROGRESS_STREAM_TOPICS = tuple(topic.name for topic in contract.PER_STEP_TOPICS)
+
+
+def progress_stream_topics(namespace: str = '') -> tuple[str, ...]:
+    """The per-step topics of the machine_ctrl graph; each publisher on them is a stream
+    (Progress)."""
+    return tuple(topic.full(namespace) for topic in contract.PER_STEP_TOPICS)
+
+
 # assumed: DDS repairs a lost sample within a few seconds (the writers' periodic heartbeat,
 # 3 s by default in Fast DDS); a stream silent for longer has lost its publisher (a node
 # that left) and must no longer hold the graph.
@@ -52,38 +63,46 @@ QUEUE_DEPTH = 1_000_000
 _TOPIC = re.compile(r'^/?[A-Za-z_~{][A-Za-z0-9_/{}~]*$')
 MACHINE_KEY = 'machine_ctrl.machine'
 MACHINE_FILE_KEY = 'machine_ctrl.machine_file'
+NAMESPACE_KEY = 'machine_ctrl.namespace'        # the graph's namespace ('' for the root)
 LOST_KEY = 'machine_ctrl.lost'                  # + topic name: messages lost (stamp gaps)
 STAMPS_BACK_KEY = 'machine_ctrl.stamps_back'    # + topic name: stamps that went back
 
 
-def parse_topic(text: str) -> tuple[str, str | None]:
-    """('/name', 'pkg/msg/Type' or None) from 'NAME' or 'NAME:TYPE'; ValueError otherwise."""
+def namespace_of(custom_data: dict) -> str:
+    """The namespace of the graph a bag recorded ('' for the root, and for bags without it)."""
+    return custom_data.get(NAMESPACE_KEY, '')
+
+
+def parse_topic(text: str, namespace: str = '') -> tuple[str, str | None]:
+    """('/ns/name', 'pkg/msg/Type' or None) from 'NAME' or 'NAME:TYPE' (a relative NAME is
+    in `namespace`, as ROS resolves it); ValueError otherwise."""
     name, _, type_name = text.partition(':')
     name = name.strip()
     if not _TOPIC.match(name) or name.endswith('/') or '//' in name:
         raise ValueError(f'{text!r} is not a topic name (or NAME:pkg/msg/Type)')
-    if not name.startswith('/'):
-        name = '/' + name
-    return name, (msgdefs.full_name(type_name.strip()) if type_name else None)
+    return contract.absolute(name, namespace), (msgdefs.full_name(type_name.strip()) if type_name else None)
 
 
-def wanted_topics(specs) -> dict[str, str | None]:
+def wanted_topics(specs, namespace: str = '') -> dict[str, str | None]:
     """Topic name -> type (or None: from discovery) for the topic arguments."""
     result: dict[str, str | None] = {}
     for spec in specs:
-        name, type_name = parse_topic(spec)
+        name, type_name = parse_topic(spec, namespace)
         result[name] = type_name or result.get(name)
     return result
 
 
-def to_subscribe(available: dict[str, list[str]], wanted: dict | None, excluded, done) -> dict[str, str]:
-    """Of the discovered topics (name -> types), those to subscribe now: selected (all but
-    the excluded, or the wanted), not yet subscribed, with exactly one type."""
+def to_subscribe(available: dict[str, list[str]], wanted: dict | None, excluded, done,
+                 namespace: str = '') -> dict[str, str]:
+    """Of the discovered topics (name -> types), those to subscribe now: selected (all of
+    the `namespace` but the excluded, or the wanted), not yet subscribed, with exactly one
+    type. A recorder in a namespace records its own graph, not another machine's."""
+    prefix = contract.normal_namespace(namespace) + '/'
     chosen = {}
     for name, types in available.items():
         if name in done or name in excluded and not (wanted and name in wanted):
             continue
-        if wanted is not None and name not in wanted:
+        if wanted is not None and name not in wanted or wanted is None and not name.startswith(prefix):
             continue
         if len(types) == 1:
             chosen[name] = msgdefs.full_name(types[0])
@@ -187,8 +206,9 @@ class Progress:
     publisher left). P never exceeds the newest /joint_states stamp; 0 before the first.
     Due after every ``every``-th /joint_states message; :meth:`take` also serves a timer."""
 
-    def __init__(self, topics=None, every: int = None, silence: float = None):
-        self.topics = frozenset(PROGRESS_STREAM_TOPICS if topics is None else topics) | {contract.JOINT_STATES.name}
+    def __init__(self, topics=None, every: int = None, silence: float = None, namespace: str = ''):
+        self.states_topic = contract.JOINT_STATES.full(namespace)
+        self.topics = frozenset(progress_stream_topics(namespace) if topics is None else topics) | {self.states_topic}
         self.every = PROGRESS_EVERY if every is None else every
         self.silence = STREAM_SILENCE if silence is None else silence
         self.streams: dict[tuple, Stream] = {}
@@ -207,11 +227,11 @@ class Progress:
                 self.streams[key] = Stream(stamp, now)
             else:
                 stream.add(stamp, now)
-            self._since_sent += topic == contract.JOINT_STATES.name
+            self._since_sent += topic == self.states_topic
         return self._since_sent >= self.every
 
     def value(self, now: float) -> int:
-        states = [s for (topic, _), s in self.streams.items() if topic == contract.JOINT_STATES.name]
+        states = [s for (topic, _), s in self.streams.items() if topic == self.states_topic]
         if not states:
             return 0
         state = max(states, key=lambda s: s.seen)
@@ -231,16 +251,17 @@ class Progress:
 
 
 class Recording:
-    """The bag being written plus what the report needs. With the machine's control period
-    (``period_ns``) the loss check runs on /joint_states (grid = the period) and /clock
-    (grid inferred)."""
+    """The bag being written plus what the report needs: the graph of `namespace` (kept in
+    the bag's custom_data). With the machine's control period (``period_ns``) the loss check
+    runs on joint_states (grid = the period) and clock (grid inferred)."""
 
-    def __init__(self, directory, custom_data: dict | None = None, period_ns: int | None = None):
+    def __init__(self, directory, custom_data: dict | None = None, period_ns: int | None = None,
+                 namespace: str = ''):
         self.writer = BagWriter(directory)
-        self.custom_data = dict(custom_data or {})
-        self.gaps = ({contract.JOINT_STATES.name: StampGaps(period_ns), contract.CLOCK.name: StampGaps()}
-                     if period_ns else {})
-        self.progress = Progress()
+        self.custom_data = {**(custom_data or {}), NAMESPACE_KEY: contract.normal_namespace(namespace)}
+        self.gaps = ({contract.JOINT_STATES.full(namespace): StampGaps(period_ns),
+                      contract.CLOCK.full(namespace): StampGaps()} if period_ns else {})
+        self.progress = Progress(namespace=namespace)
 
     def add_topic(self, name: str, type_name: str, offers) -> None:
         self.writer.add_topic(name, type_name, offers)

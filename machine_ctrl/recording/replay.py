@@ -56,10 +56,12 @@ def select(bag: Bag, topics=None, start_offset: float = 0.0) -> list[BagMessage]
 
 
 class ClockSource:
-    """Turns replayed messages into the /clock stamps to publish (strictly increasing)."""
+    """Turns replayed messages into the stamps to publish on the clock `topic` (the bag's, or
+    derived from the log times; strictly increasing)."""
 
-    def __init__(self, messages: list[BagMessage]):
-        recorded = [clock_ns(m.data) for m in messages if m.topic == contract.CLOCK.name]
+    def __init__(self, messages: list[BagMessage], topic: str):
+        self.topic = topic
+        recorded = [clock_ns(m.data) for m in messages if m.topic == topic]
         self.from_bag = bool(recorded)
         values = recorded or [m.log_time for m in messages]
         steps = [b - a for a, b in zip(values, values[1:]) if b > a]
@@ -73,7 +75,7 @@ class ClockSource:
     def stamp_for(self, message: BagMessage) -> int | None:
         """The clock (ns) to publish when `message` goes out, or None (no clock now)."""
         if self.from_bag:
-            if message.topic != contract.CLOCK.name:
+            if message.topic != self.topic:
                 return None
             value = clock_ns(message.data) + self.offset
         else:

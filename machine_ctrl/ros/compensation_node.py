@@ -6,9 +6,9 @@ Subscribes `input_topic` (default /trajectory/reference) and publishes every chu
 first step and format (ros_io.trajectory_chunk; trajectory_msgs/JointTrajectory, SI units,
 all machine axes, transient-local like every reference stream).
 Parameters: `machine`, `model` (required: error model YAML, e.g. from machine-ctrl
-fit-errors --out), `enabled` (start on/off), `input_topic`, `output_topic`.
-Service /compensation/enable (std_srvs/SetBool) switches it at runtime (ramped, see
-stream.py). A malformed chunk is refused (reason on /diagnostics and the log), nothing is
+fit-errors --out), `enabled` (live: on/off from the next chunk, ramped, see stream.py),
+`input_topic`, `output_topic`. The service /compensation/enable (std_srvs/SetBool) sets
+`enabled`, so parameter, service and the status agree. A malformed chunk is refused (reason on /diagnostics and the log), nothing is
 forwarded for it and the node keeps running. /diagnostics (1 Hz wall): enabled, chunks,
 refused chunks, rows stopped by the iteration cap, largest predicted residual.
 """
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory
 
@@ -33,7 +34,7 @@ class CompensationNode(Node):
     def __init__(self, name: str = 'compensation', **kwargs):
         super().__init__(name, **kwargs)
         self.machine = machine_parameter(self)
-        values = declare_parameters(self, parameters.COMPENSATION)
+        values = declare_parameters(self, parameters.COMPENSATION, on_change={'enabled': self.on_enabled})
         model, enabled, input_topic, output_topic = values.model, values.enabled, values.input_topic, values.output_topic
         try:
             compensator = Compensator.from_map(self.machine, load_error_map(model, self.machine.axis_names))
@@ -57,10 +58,15 @@ class CompensationNode(Node):
         q, v, a, _ = self.stream.transform(first, positions, velocities, accelerations)
         self.pub.publish(ros_io.trajectory_chunk(self.clock, first, self.machine.axis_names, q, v, a))
 
+    def on_enabled(self, on: bool) -> None:
+        self.stream.set_enabled(on)
+
     def on_enable(self, request, response):
-        self.stream.set_enabled(bool(request.data))
-        response.success = True
-        response.message = f'compensation {"on" if request.data else "off"} from the next chunk (ramped)'
+        """The service sets the parameter (one switch, whichever way it is used)."""
+        (result,) = self.set_parameters([Parameter('enabled', value=bool(request.data))])
+        response.success = result.successful
+        response.message = (f'compensation {"on" if request.data else "off"} from the next chunk (ramped)'
+                            if result.successful else result.reason)
         return response
 
     def publish_diagnostics(self) -> None:

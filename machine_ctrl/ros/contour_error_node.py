@@ -13,10 +13,19 @@ there (states of steps already done — hw_sim's re-sends — are ignored):
     /contour_error/orientation_magnitude  std_msgs/Float64              rad
 
 published in that order, stamp = the state's stamp. Parameters: `machine`, `estimator`
-(basic | shifted | compensated). A state whose reference row has not arrived waits for it
-(so start-up timing cannot change what is published); after MAX_SHIFT worth of steps
-without it the oldest waiting state is given up (counted on /diagnostics). A refused
-message is reported and the node keeps running.
+(basic | shifted | compensated; live, from the next step). A state whose reference row has
+not arrived waits for it (so start-up timing cannot change what is published); after
+MAX_SHIFT worth of steps without it the oldest waiting state is given up. A refused message
+is reported and the node keeps running.
+
+States without a reference row are a state of the node, not a flood (:class:`PendingStates`):
+states from before the reference began (the machine stepped before the reference source
+streamed: paced mode, a late or restarted source) are start-up, counted once
+(`steps_before_reference`, one info line) and given up as soon as the reference shows they
+precede it; a gap in a reference that had begun is a fault of the stream: one warning with
+the reason when it begins, one info line when rows come back, WARN on /diagnostics only
+while it lasts (`skipped_steps` and `gaps` keep the counts). Before, both kinds were one
+lifetime counter and the status said "steps without reference" for the rest of the run.
 """
 from __future__ import annotations
 
@@ -38,13 +47,13 @@ from machine_ctrl.ros.node_common import (main_for, rejections, subscribe_joint_
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 
 
-
 class ContourErrorNode(Node):
     def __init__(self, name: str = 'contour_error', **kwargs):
         super().__init__(name, **kwargs)
         use_sim_time(self)
         self.machine = machine_parameter(self)
-        method = declare_parameters(self, parameters.CONTOUR_ERROR).estimator
+        method = declare_parameters(self, parameters.CONTOUR_ERROR,
+                                    on_change={'estimator': self.on_estimator}).estimator
         self.kinematics = Kinematics.from_config(self.machine)
         try:
             self.estimator = ContourEstimator(self.kinematics, method)
@@ -54,9 +63,8 @@ class ContourErrorNode(Node):
         self.clock = ros_io.StepClock.of(self.machine)
         self.trajectory = ToolTrajectory(self.machine.control_period)
         self.history = int(math.ceil(MAX_SHIFT / self.machine.control_period)) + 2
-        self.last_step = -1
-        self.pending: deque = deque()      # states waiting for their reference row
-        self.skipped = 0
+        logger = self.get_logger()
+        self.pending = PendingStates(self.history, logger.warning, logger.info)
         self.rejections = rejections(self)
         self.frame = self.machine.workpiece_frame
         self.pubs = [self.create_publisher(kind, topic, ros_io.STEP_QOS) for kind, topic in (
@@ -71,8 +79,14 @@ class ContourErrorNode(Node):
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: {method} estimator')
 
+    def on_estimator(self, method: str) -> None:
+        """From the next step: the estimators differ only in their formula (Eqs. 20, 22, 26),
+        the state they keep (the direction of travel at rests) is shared."""
+        self.estimator.tip.method = method
+
     def on_reference(self, first: int, q, qd, qdd) -> None:
         self.trajectory.add(first, *tool_reference(self.kinematics, q, qd, qdd))
+        self.pending.reference_from(first)
         self.process()
 
     def on_state(self, msg: JointStateData) -> None:
@@ -82,19 +96,12 @@ class ContourErrorNode(Node):
         except ros_io.InvalidMessage as exc:
             self.rejections.add('state', str(exc))
             return
-        if step <= self.last_step:
-            return
-        self.last_step = step
-        self.pending.append((step, q))
-        if len(self.pending) > self.history:       # no reference for that long: give the oldest up
-            self.pending.popleft()
-            self.skipped += 1
-        self.process()
+        if self.pending.add(step, q):
+            self.process()
 
     def process(self) -> None:
         """Estimate the waiting states, in step order, as far as their reference rows are here."""
-        while self.pending and self.trajectory.has(self.pending[0][0]):
-            step, q = self.pending.popleft()
+        for step, q in self.pending.ready(self.trajectory):
             self.trajectory.drop_before(step - self.history)
             estimate = self.estimator.update(self.trajectory, step, q)
             for pub, message in zip(self.pubs, self.messages(self.clock.stamp(step), estimate)):
@@ -110,14 +117,97 @@ class ContourErrorNode(Node):
         return out
 
     def publish_diagnostics(self) -> None:
-        problems = self.skipped or self.rejections.count
-        values = {'estimator': self.estimator.tip.method, 'last_step': self.last_step,
-                  'skipped_steps': self.skipped, 'buffered_steps': len(self.trajectory),
+        pending = self.pending
+        values = {'estimator': self.estimator.tip.method, 'last_step': pending.last_step,
+                  'estimated_step': pending.estimated_step, 'waiting_states': len(pending),
+                  'steps_before_reference': pending.before_reference, 'skipped_steps': pending.skipped,
+                  'gaps': pending.gaps, 'buffered_steps': len(self.trajectory),
                   'rejected_messages': self.rejections.count, 'last_rejection': self.rejections.last}
+        problems = pending.gap_since is not None or self.rejections.count
         self.pub_diag.publish(ros_io.diagnostics(
-            self.clock.stamp(max(self.last_step, 0)), self.get_name(),
-            DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
-            'steps without reference' if self.skipped else 'ok', values))
+            self.clock.stamp(max(pending.last_step, 0)), self.get_name(),
+            DiagnosticStatus.WARN if problems else DiagnosticStatus.OK, pending.state(), values))
+
+
+class PendingStates:
+    """The states waiting for their reference rows, in step order, and what became of those
+    that never got one (module docstring). ROS-free: `warn`/`info` take one line each."""
+
+    def __init__(self, history: int, warn, info):
+        self.history, self.warn, self.info = history, warn, info
+        self.queue: deque = deque()
+        self.last_step = -1                  # newest state taken
+        self.estimated_step = -1             # newest state handed out for estimation
+        self.first_reference: int | None = None     # first step of the first reference chunk
+        self.before_reference = 0            # given up: before the reference began (start-up)
+        self.skipped = 0                     # given up: the reference had begun, the row never came
+        self.gaps = 0
+        self.gap_since: int | None = None    # first step given up in the current gap
+        self.gap_steps = 0                   # steps given up in the current gap
+        self._started_told = False
+
+    def __len__(self) -> int:
+        return len(self.queue)
+
+    def state(self) -> str:
+        """The status message: what the node is doing about its reference."""
+        if self.gap_since is not None:
+            return f'no reference since step {self.gap_since} ({self.gap_steps} steps without it so far)'
+        if self.first_reference is None:
+            return 'waiting for the reference (never received)' if self.last_step >= 0 else 'waiting for states'
+        return 'ok'
+
+    def reference_from(self, first_step: int) -> None:
+        if self.first_reference is None:
+            self.first_reference = first_step
+
+    def add(self, step: int, q) -> bool:
+        """A state; False for one already taken (hw_sim's re-sends). No reference for
+        `history` steps: the oldest waiting state is given up."""
+        if step <= self.last_step:
+            return False
+        self.last_step = step
+        self.queue.append((step, q))
+        if len(self.queue) > self.history:
+            self._give_up(self.queue.popleft()[0], 'waited')
+        return True
+
+    def ready(self, trajectory):
+        """The waiting states whose rows `trajectory` holds, in step order; states it shows
+        can never get a row (older than its first row) are given up on the way."""
+        queue = self.queue
+        while queue:
+            step = queue[0][0]
+            if trajectory.has(step):
+                item = queue.popleft()
+                if self.gap_since is not None:
+                    self.info(f'reference rows back from step {step}: {self.gap_steps} steps from step '
+                              f'{self.gap_since} on had none (no contour error published for them)')
+                    self.gap_since, self.gap_steps = None, 0
+                self.estimated_step = step
+                if self.before_reference and not self._started_told:
+                    self._started_told = True
+                    self.info(f'{self.before_reference} states came before the reference began (step '
+                              f'{self.first_reference}): start-up, no contour error for them')
+                yield item
+            elif len(trajectory) and step < trajectory.first:
+                self._give_up(queue.popleft()[0], 'precedes')
+            else:
+                return
+
+    def _give_up(self, step: int, why: str) -> None:
+        if self.first_reference is None or step < self.first_reference:
+            self.before_reference += 1
+            return
+        self.skipped += 1
+        self.gap_steps += 1
+        if self.gap_since is None:
+            self.gap_since = step
+            self.gaps += 1
+            reason = (f'waited {self.history} steps for it' if why == 'waited'
+                      else 'the reference stream jumped past it')
+            self.warn(f'no reference row for step {step} ({reason}): its contour error is not published; '
+                      f'one line per gap, counted as skipped_steps on {contract.DIAGNOSTICS.name}')
 
 
 main = main_for(ContourErrorNode)

@@ -4,13 +4,16 @@
 Inputs: /joint_states and the reference stream /reference (all coupled axes). Waits for a
 reference stream that never started; once it has, waits up to `input_timeout` s (wall)
 for a missing row, then holds (see servo_node).
-Service /dual_stage/enable (std_srvs/SetBool) switches the coupling at runtime; while off
-the offsets are zero. Saturation at the fine stroke is counted and reported on /diagnostics.
+The live parameter `dual_stage` switches the coupling from the next step; while off the
+offsets are zero. The service /dual_stage/enable (std_srvs/SetBool) sets that parameter, so
+parameter, service and the `dual_stage` value of the /diagnostics status always agree.
+Saturation at the fine stroke is counted and reported on /diagnostics.
 """
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
+from rclpy.parameter import Parameter
 from std_srvs.srv import SetBool
 
 from machine_ctrl import contract, parameters
@@ -29,7 +32,8 @@ class DualStageNode(StepNode):
         if not self.machine.dual_stage:
             self.get_logger().fatal(f'{self.machine.name}: the machine config has no dual_stage pairs')
             raise SystemExit(2)
-        dual_stage = declare_parameters(self, parameters.DUAL_STAGE).dual_stage
+        dual_stage = declare_parameters(self, parameters.DUAL_STAGE,
+                                        on_change={'dual_stage': self.on_dual_stage}).dual_stage
         self.coupling = DualStageCoupling(self.machine, dual_stage=dual_stage)
         self.axes = self.machine.axis_names
         self.make_buffer(self.axes)
@@ -43,10 +47,15 @@ class DualStageNode(StepNode):
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: fine axes {" ".join(self.coupling.fine_axes)}')
 
+    def on_dual_stage(self, on: bool) -> None:
+        self.coupling.enabled = on
+
     def on_enable(self, request, response):
-        self.coupling.enabled = bool(request.data)
-        response.success = True
-        response.message = f'dual-stage coupling {"on" if request.data else "off"}'
+        """The service sets the parameter (one switch, whichever way it is used)."""
+        (result,) = self.set_parameters([Parameter('dual_stage', value=bool(request.data))])
+        response.success = result.successful
+        response.message = (f'dual-stage coupling {"on" if request.data else "off"}' if result.successful
+                            else result.reason)
         return response
 
     def compute(self, step: int, msg: JointStateData) -> bytes | None:
@@ -60,7 +69,7 @@ class DualStageNode(StepNode):
     def publish_diagnostics(self) -> None:
         problems = self.buffer.underruns or self.rejections.count or self.coupling.saturation_count
         step = self.responder.answered_step
-        values = {'enabled': self.coupling.enabled, 'answered_step': step,
+        values = {'dual_stage': self.coupling.enabled, 'answered_step': step,
                   'fine_stroke_saturations': self.coupling.saturation_count,
                   'reference_underruns': self.buffer.underruns, 'rejected_messages': self.rejections.count,
                   'last_rejection': self.rejections.last}

@@ -30,15 +30,18 @@ from trajectory.contours import contour_reference
 
 @dataclass(frozen=True)
 class NodeSpec:
-    """One node of a graph, as data: its name, where its class is, and its parameter
-    values — typed by the node's table (machine_ctrl.parameters), checked when the spec is
-    made (ValueError naming the node and the parameter)."""
+    """One node of a graph, as data: its name and namespace, where its class is, and its
+    parameter values — typed by the node's table (machine_ctrl.parameters), checked when
+    the spec is made (ValueError naming the node and the parameter). Every node remaps
+    ROS's /clock into its namespace (contract.CLOCK_REMAP)."""
     name: str
     module: str                       # python -m <module>
     cls: str                          # class in that module
     parameters: dict = field(default_factory=dict)
+    namespace: str = ''               # '' (the root) or '/mill1'
 
     def __post_init__(self):
+        object.__setattr__(self, 'namespace', contract.normal_namespace(self.namespace))
         table = self.table
         values = {}
         for key, value in self.parameters.items():
@@ -55,15 +58,24 @@ class NodeSpec:
     def table(self) -> parameters.NodeParameters:
         return parameters.table(self.module.rsplit('.', 1)[-1])
 
+    @property
+    def full_name(self) -> str:
+        return f'{self.namespace}/{self.name}'
+
     def params_document(self) -> dict:
         """This node's section of a ROS parameters file."""
-        return {f'/{self.name}': {'ros__parameters': dict(self.parameters)}}
+        return {self.full_name: {'ros__parameters': dict(self.parameters)}}
+
+    def ros_args(self) -> list[str]:
+        """The remapping arguments after --ros-args: name, namespace, clock."""
+        args = ['-r', f'__node:={self.name}', '-r', '{}:={}'.format(*contract.CLOCK_REMAP)]
+        return args + (['-r', f'__ns:={self.namespace}'] if self.namespace else [])
 
     def argv(self, params_dir=None) -> list[str]:
         """Command line of this node as its own process: the parameters go in a ROS
         parameters file (`params_dir`/<name>.params.yaml, or a temporary file kept until
         this process exits)."""
-        args = [sys.executable, '-m', self.module, '--ros-args', '-r', f'__node:={self.name}']
+        args = [sys.executable, '-m', self.module, '--ros-args', *self.ros_args()]
         if self.parameters:
             args += ['--params-file', str(write_params_file([self], params_dir, self.name))]
         return args
@@ -73,14 +85,17 @@ class NodeSpec:
         overrides."""
         module = __import__(self.module, fromlist=[self.cls])
         overrides = [Parameter(k, value=v) for k, v in self.parameters.items()]
-        return getattr(module, self.cls)(name=self.name, parameter_overrides=overrides)
+        return getattr(module, self.cls)(name=self.name, namespace=self.namespace or None,
+                                         cli_args=['--ros-args', *self.ros_args()], parameter_overrides=overrides)
 
     def to_data(self) -> dict:
-        return {'name': self.name, 'module': self.module, 'class': self.cls, 'parameters': dict(self.parameters)}
+        return {'name': self.name, 'namespace': self.namespace, 'module': self.module, 'class': self.cls,
+                'parameters': dict(self.parameters)}
 
     @classmethod
     def from_data(cls, data: dict) -> NodeSpec:
-        return cls(data['name'], data['module'], data['class'], dict(data.get('parameters') or {}))
+        return cls(data['name'], data['module'], data['class'], dict(data.get('parameters') or {}),
+                   data.get('namespace') or '')
 
 
 class _QuotedDumper(yaml.SafeDumper):
@@ -146,7 +161,7 @@ def read_specs(path) -> list[NodeSpec]:
 
 def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_stage: bool = True,
                   hw_sim: dict | None = None, compensation_model: str | None = None,
-                  contour_error: bool = False) -> list[NodeSpec]:
+                  contour_error: bool = False, namespace: str = '') -> list[NodeSpec]:
     fine_types = {machine.axis(p.fine).drive.type for p in machine.dual_stage}
     controlled = [a for a in machine.axes if a.control is not None]
     fine = [a.name for a in controlled if a.drive.type in fine_types]
@@ -175,7 +190,8 @@ def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_s
                               {**common, 'dual_stage': dual_stage}))
     if contour_error:
         sources.append(NodeSpec('contour_error', 'machine_ctrl.ros.contour_error_node', 'ContourErrorNode', common))
-    return specs + sources
+    specs = specs + sources
+    return [NodeSpec(s.name, s.module, s.cls, s.parameters, namespace) for s in specs] if namespace else specs
 
 
 def create_nodes(specs: list[NodeSpec]) -> list:
@@ -191,7 +207,7 @@ def main(argv=None) -> int:
     import argparse
 
     from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
-    from machine_ctrl.ros.node_common import spin
+    from machine_ctrl.ros.node_common import init, spin
 
     parser = argparse.ArgumentParser(prog='python -m machine_ctrl.ros.graph', description=main.__doc__)
     parser.add_argument('--specs', metavar='FILE', help='node specs (YAML); no other option then')
@@ -201,6 +217,7 @@ def main(argv=None) -> int:
         group.add_argument('--contour', help="test contour of the reference node (default circle), or 'none' "
                            'for the trajectory node'),
         group.add_argument('--no-dual-stage', action='store_true', help='start with the dual-stage coupling off'),
+        group.add_argument('--namespace', default='', help="ROS namespace (default: the root)"),
         group.add_argument('--hw-sim', action='append', default=[], metavar='KEY=VALUE',
                            help='hw_sim parameter (value as YAML), e.g. min_subscribers=4')]
     args = parser.parse_args(argv)
@@ -213,8 +230,8 @@ def main(argv=None) -> int:
         hw = {k: yaml.safe_load(v) for k, v in (item.split('=', 1) for item in args.hw_sim)}
         contour = 'circle' if args.contour is None else args.contour
         specs = default_graph(load_machine(args.machine or DEFAULT_MACHINE), None if contour == 'none' else contour,
-                              not args.no_dual_stage, hw)
-    rclpy.init()
+                              not args.no_dual_stage, hw, namespace=args.namespace)
+    init()
     try:
         nodes = create_nodes(specs)
     except SystemExit as exc:              # a node refused its parameters (one line logged)

@@ -12,6 +12,14 @@ once on a fault). Per-step states go out and commands come in as CDR bytes
 /servo_commands (sensor_msgs/JointState: name = axes, effort = commands, stamp = the stamp
 of the state answered). Service /hw_sim/reset (std_srvs/Trigger) clears a fault.
 
+For clients and tools, latched (transient local, depth 1): `ready` (std_msgs/Bool) false
+at start, true once the graph has completed its first step (hw_sim.session: every axis
+answered step 0 in lock-step mode, every axis commanded once when paced), so a client that
+waits for it finds every node with its first state; `robot_description` (std_msgs/String)
+the machine's URDF as its file says it, once at start: its movable joints are the axes, by
+the names of /joint_states, so robot_state_publisher turns /joint_states into /tf and RViz
+shows the machine, live or from a bag.
+
 Modes (parameter `mode`) and faults are hw_sim.session's (ROS-free, unit-tested in
 test/test_hw_sim_session.py), which decides when to advance, re-send, hold, refuse or fault; this
 node converts the messages, passes each event in with the wall time and publishes what the
@@ -43,6 +51,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 
 from hw_sim.session import LockStepSession, PacedSession
@@ -90,6 +99,12 @@ class HwSimNode(Node):
         self.pub_pose = self.create_publisher(PoseStamped, contract.TRUE_TOOL_POSE.name, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
+        self.pub_ready = self.create_publisher(Bool, contract.READY.name, ros_io.qos(contract.READY.qos))
+        self.pub_description = self.create_publisher(String, contract.ROBOT_DESCRIPTION.name,
+                                                     ros_io.qos(contract.ROBOT_DESCRIPTION.qos))
+        self.pub_description.publish(String(data=self.machine.urdf_path.read_text()))
+        self.ready_published = False
+        self.pub_ready.publish(Bool(data=False))
         subscribe_joint_states(self, contract.SERVO_COMMANDS.name, self.on_command, self.refuse_command)
         self.sub_progress = (self.create_subscription(Time, contract.RECORDER_PROGRESS.name, self.on_progress,
                                                      ros_io.qos(contract.PROGRESS_QOS))
@@ -164,6 +179,10 @@ class HwSimNode(Node):
         sec, nanosec = self.clock.split(step)
         m = self.sim.measurement
         self.pub_state.publish(self.encoder.encode(sec, nanosec, m.position, m.velocity, m.effort))
+        if not self.ready_published and self.session.ready:
+            self.ready_published = True
+            self.pub_ready.publish(Bool(data=True))
+            self.get_logger().info(f'graph ready at step {step}')
         if self.session.clock_due(step):
             self.pub_clock.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
         if self.session.truth_due(step):

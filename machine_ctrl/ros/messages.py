@@ -201,8 +201,12 @@ def path_message(cl, frame: str) -> Path:
 
 
 def path_to_cl(msg: Path, frame: str):
-    """CL data (trajectory.toolpath.CLData) of a nav_msgs/Path in the workpiece frame
-    `frame`; ValueError naming the first problem."""
+    """CL data (trajectory.toolpath.CLData: tool tips in m, unit tool axes) of a nav_msgs/Path
+    in the workpiece frame `frame`: pose position = tool tip, pose z-axis = tool axis.
+    ValueError naming the first problem and its pose: a frame, a quaternion that is not
+    finite or not unit (toolpath.QUATERNION_TOLERANCE, tf2's), too few poses, a position
+    that is not finite, repeated positions (toolpath.CLData). Whether the machine can reach
+    the poses is the planner's question (trajectory.reach)."""
     from trajectory import toolpath
     if msg.header.frame_id != frame:
         raise ValueError(f'frame_id {msg.header.frame_id!r} is not the workpiece frame {frame!r}')

@@ -3,6 +3,7 @@ to the per-step states and the reference chunks (decoded by machine_ctrl.recordi
 one or several nodes (one process per node, or all in one) with clean shutdown."""
 from __future__ import annotations
 
+import signal
 import sys
 import time
 
@@ -11,6 +12,7 @@ from rclpy.task import Future
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -39,33 +41,70 @@ def wall_timer(node: Node, period: float, callback):
     return node.create_timer(period, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
 
+# assumed: 0.1 s between returns to Python bounds the reaction to SIGINT/SIGTERM while no
+# callback runs (a busy node reacts at its next callback), far inside the 2 s a launch file
+# gives; one return per 0.1 s costs nothing measurable beside the per-step callbacks.
+SIGNAL_POLL = 0.1          # s (wall)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+_early_signals: list[int] = []     # SIGINT / SIGTERM received before spin() began
+
+
+def init(args=None, **kwargs) -> None:
+    """rclpy.init for a node process, without rclpy's signal handlers: SIGINT and SIGTERM
+    are :func:`spin`'s (rclpy's raise KeyboardInterrupt wherever the main thread happens to
+    be, executor.shutdown included). One that comes while the nodes are being made is
+    kept, and spin() then shuts down at once."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, lambda signum, _frame: _early_signals.append(signum))
+    rclpy.init(args=sys.argv if args is None else args, signal_handler_options=SignalHandlerOptions.NO, **kwargs)
+
+
 def spin(nodes, executor=None) -> None:
-    """Spin until Ctrl-C / SIGTERM (rclpy's handlers shut the context down). Not
-    executor.spin(): with rclpy 7.1's EventsExecutor, spinning without a timeout never fires
-    timers nor callbacks for other processes' messages, and ignores SIGINT/SIGTERM (checked
-    here). spin_until_future_complete on a future that never completes, with a finite
-    timeout, dispatches events inside the executor without returning to Python per event."""
+    """Spin until SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down, a supervisor) or the
+    context's shutdown, then shut down cleanly: further signals ignored (for the rest of the
+    process: spin is the end of a node process), executor shut down, nodes destroyed,
+    context shut down — no traceback, and the caller exits 0.
+
+    Not executor.spin(): with rclpy 7.1's EventsExecutor, spinning without a timeout never
+    fires timers nor callbacks for other processes' messages. spin_until_future_complete on
+    the stop future, with a finite timeout (:data:`SIGNAL_POLL`), dispatches events inside
+    the executor without returning to Python per event; the signal handlers (run by Python
+    in the main thread, at the latest when that call returns) complete the future."""
     executor = executor or DefaultExecutor()
     for node in nodes:
         executor.add_node(node)
     logger = nodes[0].get_logger()
-    never = Future()
+    stop = Future()
+
+    def request_stop(signum, _frame) -> None:
+        if not stop.done():
+            logger.info(f'{signal.Signals(signum).name}: shutting down')
+            stop.set_result(signum)
+
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, request_stop)
+    if _early_signals:
+        request_stop(_early_signals[0], None)
     try:
-        while rclpy.ok():
+        while rclpy.ok() and not stop.done():
             try:
-                executor.spin_until_future_complete(never, timeout_sec=1.0)
-            except (KeyboardInterrupt, ExternalShutdownException):
-                raise
+                executor.spin_until_future_complete(stop, timeout_sec=SIGNAL_POLL)
+            except ExternalShutdownException:
+                break
             except Exception as exc:  # noqa: BLE001 - a node never dies from a callback error
                 logger.error(f'callback failed: {type(exc).__name__}: {exc}', throttle_duration_sec=1.0)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
     finally:
+        # A second signal (a terminal's Ctrl-C reaches every process of the group, then
+        # launch sends its own) must not cut the shutdown short, nor raise KeyboardInterrupt
+        # while the interpreter exits: ignored from here to the end of the process.
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
+        executor.shutdown()
         for node in nodes:
             node.destroy_node()
-        executor.shutdown()
-        if rclpy.ok():
-            rclpy.try_shutdown()
+        rclpy.try_shutdown()
 
 
 def subscribe_joint_states(node: Node, topic: str, on_state, refuse):
@@ -103,7 +142,7 @@ def subscribe_reference(node: Node, topic: str, clock, wanted, on_chunk, refuse)
 def main_for(node_class):
     """`main()` of a node executable: `ros2 run machine_ctrl <exe> --ros-args ...`."""
     def main(args=None) -> int:
-        rclpy.init(args=sys.argv if args is None else args)
+        init(args)
         try:
             node = node_class()
         except SystemExit as exc:

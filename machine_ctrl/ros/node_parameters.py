@@ -1,16 +1,30 @@
 """Declared node parameters, the ROS side of :mod:`machine_ctrl.parameters`: each table entry
 declared with its rcl_interfaces ParameterDescriptor (type, description with the unit, range,
 read_only), overrides checked at start, every later set validated by an on-set callback
-(refused with the reason `ros2 param set` prints), live values kept current."""
+(refused with the reason `ros2 param set` prints), live values kept current and handed to
+the node's hooks after each accepted set.
+
+Also here: the servo's live law gains as parameters (:func:`gain_parameters`, one per axis
+and live gain of its law, ``gains.<axis>.<gain>``), the sim-time rule (a node that runs on
+the simulated clock refuses ``use_sim_time`` false, at start and later), and the shipped ROS
+parameter files of the bringup graph (``config/params/<machine>.yaml``,
+:func:`params_file_text`; ``python -m machine_ctrl.ros.node_parameters --write DIR`` writes
+them, ``--check DIR`` compares).
+"""
 from __future__ import annotations
 
+import dataclasses
 import sys
+from pathlib import Path
 
+import yaml
 from rclpy.node import Node
 
-from machine_ctrl import parameters
+from machine_ctrl import contract, parameters
 from machine_ctrl.model.config import MachineConfig, load_machine
 from machine_ctrl.model.errors import ConfigError
+
+USE_SIM_TIME = 'use_sim_time'
 
 
 class ParameterValues(dict):
@@ -54,24 +68,39 @@ def descriptor(spec: parameters.ParameterSpec, table: parameters.NodeParameters)
 
 class _Declared:
     """What declare_parameters keeps per node: the specs and checks declared, the values,
-    the hooks of live parameters."""
+    the hooks of live parameters, and whether the node runs on the simulated clock (its
+    use_sim_time when it first declared: node_common.use_sim_time sets it before)."""
 
     def __init__(self, node: Node):
         self.node = node
         self.values = ParameterValues()
         self.tables: dict[str, parameters.NodeParameters] = {}     # name -> its table
         self.on_change: dict[str, object] = {}
+        self.sim_time = node.has_parameter(USE_SIM_TIME) and node.get_parameter(USE_SIM_TIME).value is True
         node.add_on_set_parameters_callback(self.on_set)
         node.add_post_set_parameters_callback(self.after_set)
+        if self.sim_time:
+            from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+            node.set_descriptor(USE_SIM_TIME, ParameterDescriptor(
+                name=USE_SIM_TIME, type=ParameterType.PARAMETER_BOOL, additional_constraints='true',
+                description=parameters.SIM_TIME_REASON))
+
+    def sim_time_problem(self, value) -> str | None:
+        if self.sim_time and value is not True:
+            shown = str(value).lower() if isinstance(value, bool) else repr(value)
+            return f'{USE_SIM_TIME}: {parameters.SIM_TIME_REASON}, got {shown}'
+        return None
 
     def on_set(self, params):
         from rcl_interfaces.msg import SetParametersResult
         by_table: dict[int, tuple] = {}
         for param in params:
+            if param.name == USE_SIM_TIME and (problem := self.sim_time_problem(param.value)) is not None:
+                return SetParametersResult(successful=False, reason=problem)
             table = self.tables.get(param.name)
             if table is None:               # not ours (use_sim_time, ...) or being declared
                 continue
-            by_table.setdefault(id(table), (table, {}))[1][param.name] = param.value
+            by_table.setdefault(id(table), (table, {}))[1][param.name] = _plain(param.value)
         for table, changed in by_table.values():
             names = set(changed) | {n for c in table.checks if set(c.names) & set(changed) for n in c.names}
             values = {n: changed.get(n, self.values.get(n)) for n in names if n in changed or n in self.values}
@@ -81,12 +110,16 @@ class _Declared:
         return SetParametersResult(successful=True)
 
     def after_set(self, params) -> None:
+        """Every accepted value first, then the hooks (a hook may read several values: gains
+        of one axis set together)."""
+        ours = [param.name for param in params if param.name in self.tables and param.name in self.values]
         for param in params:
-            if param.name in self.tables and param.name in self.values:
+            if param.name in ours:
                 self.values[param.name] = _plain(param.value)
-                hook = self.on_change.get(param.name)
-                if hook is not None:
-                    hook(self.values[param.name])
+        for name in ours:
+            hook = self.on_change.get(name)
+            if hook is not None:
+                hook(self.values[name])
 
 
 def _plain(value):
@@ -98,6 +131,13 @@ def _problem_text(problems) -> str:
     return '; '.join(f'{name}: {reason}' for name, reason in problems)
 
 
+def _fatal(node: Node, problems) -> None:
+    what = f'parameter {problems[0][0]}: {problems[0][1]}' if len(problems) == 1 else \
+        f'parameters: {_problem_text(problems)}'
+    node.get_logger().fatal(what)
+    raise SystemExit(2)
+
+
 def declare_parameters(node: Node, table, defaults: dict | None = None, names=None,
                        on_change: dict | None = None) -> ParameterValues:
     """Declare the parameters of `table` (a machine_ctrl.parameters.NodeParameters, or a
@@ -105,10 +145,12 @@ def declare_parameters(node: Node, table, defaults: dict | None = None, names=No
     values of every parameter of the node declared so far.
 
     `names`: only these (a node may declare in steps when a default depends on another
-    value); parameters the node has already declared are skipped. `defaults`: the defaults
-    the table leaves to the node (default None). Every override is checked against the
-    table first: a bad one ends the node with one line on the log (exit 2). Later sets
-    are refused with the reason (read-only ones by rclpy); a live parameter needs an
+    value); parameters the node has already declared are skipped, and so are templates (a
+    node declares their instances as a table of its own). `defaults`: the defaults the
+    table leaves to the node (default None). Every override is checked against the table
+    first: a bad one ends the node with one line on the log (exit 2); so does
+    `use_sim_time:=false` for a node on the simulated clock. Later sets are refused with
+    the reason (read-only ones by rclpy); a live parameter needs an
     `on_change[name](value)` hook, called after each accepted set."""
     if not isinstance(table, parameters.NodeParameters):
         table = parameters.NodeParameters(node.get_name(), tuple(table))
@@ -116,8 +158,12 @@ def declare_parameters(node: Node, table, defaults: dict | None = None, names=No
     if state is None:
         state = _Declared(node)
         node._machine_ctrl_parameters = state
+        given_sim_time = node._parameter_overrides.get(USE_SIM_TIME)     # noqa: SLF001
+        if given_sim_time is not None and (problem := state.sim_time_problem(given_sim_time.value)) is not None:
+            _fatal(node, [(USE_SIM_TIME, problem.split(': ', 1)[1])])
     defaults, on_change = defaults or {}, on_change or {}
-    wanted = [spec for spec in table if (names is None or spec.name in names) and spec.name not in state.values]
+    wanted = [spec for spec in table if (names is None or spec.name in names) and spec.name not in state.values
+              and not spec.template]
     for spec in wanted:
         if spec.live != (spec.name in on_change):
             raise ValueError(f'{spec.name}: a live parameter needs an on_change hook, a read-only one has none')
@@ -134,10 +180,7 @@ def declare_parameters(node: Node, table, defaults: dict | None = None, names=No
     known = {**{n: v for n, v in state.values.items() if n in table.names}, **given}
     problems = [(n, r) for n, r in parameters.check_values(table, known) if n in given or n not in state.values]
     if problems:
-        what = f'parameter {problems[0][0]}: {problems[0][1]}' if len(problems) == 1 else \
-            f'parameters: {_problem_text(problems)}'
-        node.get_logger().fatal(what)
-        raise SystemExit(2)
+        _fatal(node, problems)
     for spec in wanted:
         value = node.declare_parameter(spec.name, default_of[spec.name], descriptor(spec, table)).value
         state.values[spec.name] = _plain(value)
@@ -156,3 +199,174 @@ def machine_parameter(node: Node) -> MachineConfig:
     except ConfigError as exc:
         node.get_logger().fatal(str(exc))
         raise SystemExit(2) from None
+
+
+# --- the servo's live law gains ---------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class GainParameter:
+    """One live gain of an axis's law as a ROS parameter (an instance of the servo table's
+    template ``gains.<axis>.<gain>``)."""
+    spec: parameters.ParameterSpec       # name gains.<axis>.<gain>, live, range as the config checks it
+    axis: str
+    gain: str                            # the field of the law's gains dataclass
+    default: float                       # the machine config's value
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+
+def gain_parameters(machine: MachineConfig, axes) -> list[GainParameter]:
+    """The live gains of the laws of `axes` (the law each axis's config names), in axis
+    order and the law's parameter order, from the law classes' declarations alone."""
+    from machine_ctrl.control.law import live_parameters, value_check
+    from machine_ctrl.control.registry import law_entry
+    template = parameters.SERVO.spec('gains.<axis>.<gain>')
+    result = []
+    for axis in axes:
+        control = machine.axis(axis).control
+        if control is None:
+            continue
+        entry = law_entry(control.law)
+        gains = getattr(control, control.law)
+        for p in live_parameters(entry.law):
+            check = value_check(entry.gains, p.name)
+            name = f'gains.{axis}.{p.name}'
+            spec = parameters.ParameterSpec(
+                name, parameters.DOUBLE, float(getattr(gains, p.name)), p.unit,
+                f'{axis} {control.law}: {p.description}; live from the next step: {p.live}',
+                low=0.0 if check else None, low_open=check == 'positive', live=True,
+                constraint=('> 0' if check == 'positive' else '>= 0' if check == 'nonnegative' else 'finite')
+                + f'; with the other gains of {axis}: the conditions of {control.law} (README "Node parameters")')
+            assert template.matches(name), name
+            result.append(GainParameter(spec, axis, p.name, spec.default))
+    return result
+
+
+# --- the shipped parameter files --------------------------------------------------------------
+
+PARAMS_DIR = Path(__file__).resolve().parents[2] / 'config' / 'params'
+SHIPPED_MACHINES = ('micromill_9axis', 'trt_5axis')
+
+
+def _section(table: parameters.NodeParameters, values: dict) -> dict:
+    """A node's ros__parameters: the table's defaults in table order, then `values` over them."""
+    out = {}
+    for spec in table.parameters:
+        if spec.template:
+            continue
+        if spec.name in values:
+            out[spec.name] = values[spec.name]
+        elif spec.default is not None and not (spec.required and not spec.default):
+            out[spec.name] = spec.default
+    for name, value in values.items():
+        if name not in out:
+            out[name] = value
+    if table.sim_time:
+        out[USE_SIM_TIME] = True
+    return out
+
+
+def _nested(flat: dict) -> dict:
+    """a.b.c keys as nested maps (how ros2 param dump writes them; rcl joins them back)."""
+    out: dict = {}
+    for key, value in flat.items():
+        *path, last = key.split('.')
+        node = out
+        for part in path:
+            node = node.setdefault(part, {})
+        node[last] = value
+    return out
+
+
+def params_document(machine: MachineConfig) -> dict:
+    """The ROS parameter file of `machine`'s bringup graph (machine_ctrl.ros.graph
+    default_graph with the trajectory node and contour_error, plus compensation when the
+    machine has a fine stage to compensate with, and the recorder), every node keyed
+    ``/**/<name>`` (any namespace): each node's table defaults, the graph's values, the
+    machine by name, the servos' live gains from the machine config, use_sim_time for the
+    nodes on the simulated clock. Required values without a default (compensation `model`,
+    recorder `output`) are left to the command line."""
+    from machine_ctrl.ros.graph import default_graph
+    nodes = []
+    for spec in default_graph(machine, contour=None, contour_error=True):
+        values = {**spec.parameters, 'machine': machine.name}
+        if spec.table is parameters.SERVO:
+            values.update({g.name: g.default for g in gain_parameters(machine, values['axes'])})
+        nodes.append((spec.name, spec.table, values))
+    if machine.dual_stage:
+        nodes.append(('compensation', parameters.COMPENSATION, {'machine': machine.name}))
+    nodes.append(('recorder', parameters.RECORDER, {'machine': machine.name}))
+    return {f'/**/{name}': {'ros__parameters': _nested(_section(table, values))} for name, table, values in nodes}
+
+
+class _Dumper(yaml.SafeDumper):
+    """Strings always quoted (rcl takes an unquoted true or 1e3 as a bool or a number),
+    lists in flow style, no aliases."""
+
+    def ignore_aliases(self, data) -> bool:
+        return True
+
+
+def _mapping(dumper, data):
+    """Keys plain (node and parameter names), values as their representers make them."""
+    pairs = [(yaml.ScalarNode('tag:yaml.org,2002:str', str(key)), dumper.represent_data(value))
+             for key, value in data.items()]
+    return yaml.MappingNode('tag:yaml.org,2002:map', pairs, flow_style=False)
+
+
+_Dumper.add_representer(str, lambda dumper, value: dumper.represent_scalar('tag:yaml.org,2002:str', value, style="'"))
+_Dumper.add_representer(list, lambda dumper, value: dumper.represent_sequence('tag:yaml.org,2002:seq', value,
+                                                                              flow_style=True))
+_Dumper.add_representer(dict, _mapping)
+
+
+def params_file_text(machine: MachineConfig) -> str:
+    between = contract.TRAJECTORY_REFERENCE.name
+    header = (
+        f'# ROS 2 parameters of the {machine.name} bringup graph, one section per node, keyed /**/<node>\n'
+        '# so that they apply in any namespace:\n'
+        f'#   <executable> --ros-args -r __node:=<node> --params-file config/params/{machine.name}.yaml\n'
+        '# Generated by `python -m machine_ctrl.ros.node_parameters --write config/params` from\n'
+        '# machine_ctrl/parameters.py, the bringup graph and the machine config (test/test_ros_parameters.py\n'
+        '# checks that this file is what the code generates): edit those, not this file.\n'
+        '# Left to the command line: compensation `model` (-p model:=MODEL.yaml; the trajectory node then\n'
+        f'# publishes on {between}: -p output_topic:={between}) and recorder `output`.\n')
+    return header + yaml.dump(params_document(machine), Dumper=_Dumper, sort_keys=False, width=120)
+
+
+def write_params_files(directory=PARAMS_DIR, machines=SHIPPED_MACHINES) -> list[Path]:
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name in machines:
+        path = directory / f'{name}.yaml'
+        path.write_text(params_file_text(load_machine(name)))
+        paths.append(path)
+    return paths
+
+
+def main(argv=None) -> int:
+    """python -m machine_ctrl.ros.node_parameters --write DIR | --check DIR"""
+    import argparse
+    parser = argparse.ArgumentParser(prog='python -m machine_ctrl.ros.node_parameters',
+                                     description='the shipped ROS parameter files of the bringup graphs')
+    group = parser.add_mutually_exclusive_group(required=True)
+    group.add_argument('--write', metavar='DIR', help='write <machine>.yaml for every shipped machine')
+    group.add_argument('--check', metavar='DIR', help='exit 1 when a file differs from what the code generates')
+    args = parser.parse_args(argv)
+    if args.write:
+        for path in write_params_files(args.write):
+            print(path)
+        return 0
+    stale = [name for name in SHIPPED_MACHINES
+             if not (Path(args.check) / f'{name}.yaml').is_file()
+             or (Path(args.check) / f'{name}.yaml').read_text() != params_file_text(load_machine(name))]
+    for name in stale:
+        print(f'{args.check}/{name}.yaml: differs from what the code generates (--write to update)', file=sys.stderr)
+    return 1 if stale else 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

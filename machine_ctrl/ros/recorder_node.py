@@ -2,8 +2,9 @@
 (:mod:`machine_ctrl.recording.recorder` decides what and how; :mod:`machine_ctrl.recording.bag` writes).
 
 Parameters: ``output`` (bag directory, must not exist or be empty), ``topics`` (names, or
-``NAME:pkg/msg/Type`` to subscribe before the topic exists; empty: every topic but
-``/rosout`` and ``/parameter_events``), ``machine`` (name or YAML path, stored in the bag's
+``NAME:pkg/msg/Type`` to subscribe before the topic exists; relative names are in the
+node's namespace; empty: every topic of the node's namespace but ``/rosout`` and
+``/parameter_events``), ``machine`` (name or YAML path, stored in the bag's
 custom_data for ``machine-ctrl analyze``), ``discovery_period`` (s, wall), ``duration``
 (s, wall; 0: until stopped).
 
@@ -81,10 +82,12 @@ class RecorderNode(Node):
         output, topics, machine = values.output, values.topics, values.machine
         self.discovery_period, self.duration = values.discovery_period, values.duration
         try:
-            self.wanted = recorder.wanted_topics([t for t in topics if t]) or None
+            namespace = self.get_namespace()
+            self.wanted = recorder.wanted_topics([t for t in topics if t], namespace) or None
             config = load_machine(machine) if machine else None
             self.recording = recorder.Recording(output, self._machine_data(config),
-                                                contract.StepClock.of(config).period_ns if config else None)
+                                                contract.StepClock.of(config).period_ns if config else None,
+                                                namespace)
         except (ValueError, ConfigError) as exc:      # BagError is a ValueError
             self.get_logger().fatal(str(exc))
             raise SystemExit(2) from None
@@ -92,7 +95,8 @@ class RecorderNode(Node):
         self.last_message = time.monotonic()
         self.started = time.monotonic()
         self.pub_progress = None
-        if self.wanted is None or contract.JOINT_STATES.name in self.wanted:
+        self.excluded = recorder.default_excluded(namespace)
+        if self.wanted is None or contract.JOINT_STATES.full(namespace) in self.wanted:
             self.pub_progress = self.create_publisher(Time, contract.RECORDER_PROGRESS.name, PROGRESS_QOS)
             self.publish_progress()                  # 0: a recorder is here, nothing written yet
             wall_timer(self, recorder.PROGRESS_PERIOD, self.publish_progress)
@@ -117,7 +121,7 @@ class RecorderNode(Node):
 
     def discover(self) -> None:
         available = {name: list(types) for name, types in self.get_topic_names_and_types()}
-        chosen = recorder.to_subscribe(available, self.wanted, recorder.DEFAULT_EXCLUDED, self.subscribed)
+        chosen = recorder.to_subscribe(available, self.wanted, self.excluded, self.subscribed, self.get_namespace())
         for topic, type_name in chosen.items():
             offers = [offered_profile(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
             if offers:                        # wait for a publisher: its QoS decides ours

@@ -20,6 +20,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from machine_ctrl import contract
 from machine_ctrl.recording import replay
 from machine_ctrl.recording.bag import Bag
+from machine_ctrl.recording.recorder import namespace_of
 from machine_ctrl import parameters
 from machine_ctrl.ros.node_parameters import declare_parameters
 from machine_ctrl.ros.recorder_node import message_class
@@ -57,12 +58,13 @@ class ReplayNode(Node):
                 self.messages = replay.select(bag, topics or None, start_offset)
                 offers = recorded_offers(bag)
                 types = {name: info.type for name, info in bag.topics.items()}
+                self.clock_topic = contract.CLOCK.full(namespace_of(bag.custom_data))
         except (ValueError, LookupError) as exc:          # BagError is a ValueError
             self.get_logger().fatal(str(exc))
             raise SystemExit(2) from None
-        self.clock = replay.ClockSource(self.messages)
+        self.clock = replay.ClockSource(self.messages, self.clock_topic)
         self.publishers_by_topic = {}
-        for topic in sorted({m.topic for m in self.messages} | {contract.CLOCK.name}):
+        for topic in sorted({m.topic for m in self.messages} | {self.clock_topic}):
             type_name = types.get(topic, contract.CLOCK.type)
             try:
                 cls = message_class(type_name)
@@ -96,8 +98,8 @@ class ReplayNode(Node):
                 time.sleep(min(ahead, 0.05))
             stamp = self.clock.stamp_for(message)
             if stamp is not None:
-                self.publish(contract.CLOCK.name, replay.clock_bytes(stamp))
-            if message.topic != contract.CLOCK.name:
+                self.publish(self.clock_topic, replay.clock_bytes(stamp))
+            if message.topic != self.clock_topic:
                 self.publish(message.topic, message.data)
         return rclpy.ok()
 

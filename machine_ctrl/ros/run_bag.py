@@ -57,7 +57,7 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
     has_offsets = bool(machine.dual_stage)
     for topic, qos in _TOPICS:
         if topic is not contract.DUAL_STAGE_OFFSETS or has_offsets:
-            writer.add_topic(topic.name, topic.type, [qos])
+            writer.add_topic(topic.full(), topic.type, [qos])
     clock = ros_io.StepClock.of(machine)
     axes = list(machine.axis_names)
     groups = [(g, [axes.index(a) for a in g]) for g in servo_groups(machine)]
@@ -72,19 +72,19 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
         ns = clock.ns(k)
         if k % CHUNK_STEPS == 0:
             rows = [reference.row(i) for i in range(k, k + CHUNK_STEPS)]
-            put(contract.REFERENCE.name, ros_io.trajectory_chunk(clock, k, axes, *zip(*rows)), ns)
+            put(contract.REFERENCE.full(), ros_io.trajectory_chunk(clock, k, axes, *zip(*rows)), ns)
         if k % CLOCK_DECIMATION == 0:
-            put(contract.CLOCK.name, Clock(clock=stamp), ns)
+            put(contract.CLOCK.full(), Clock(clock=stamp), ns)
         if k % TRUTH_DECIMATION == 0:
-            put(contract.TRUE_JOINT_STATES.name, ros_io.joint_state(stamp, axes, record.true[k]), ns)
-            put(contract.TRUE_TOOL_POSE.name, ros_io.pose_message(stamp, machine.workpiece_frame,
+            put(contract.TRUE_JOINT_STATES.full(), ros_io.joint_state(stamp, axes, record.true[k]), ns)
+            put(contract.TRUE_TOOL_POSE.full(), ros_io.pose_message(stamp, machine.workpiece_frame,
                                                                      true_tool_pose(record.true[k])), ns)
-        put(contract.JOINT_STATES.name, ros_io.joint_state(stamp, axes, record.measured[k],
+        put(contract.JOINT_STATES.full(), ros_io.joint_state(stamp, axes, record.measured[k],
                                                           record.measured_velocity[k], record.effort[k]), ns)
         if has_offsets:
-            put(contract.DUAL_STAGE_OFFSETS.name, ros_io.joint_state(stamp, record.fine_axes, record.offsets[k]), ns)
+            put(contract.DUAL_STAGE_OFFSETS.full(), ros_io.joint_state(stamp, record.fine_axes, record.offsets[k]), ns)
         for names, index in groups:
-            put(contract.SERVO_COMMANDS.name, ros_io.joint_state(stamp, names, effort=record.commands[k, index]), ns)
+            put(contract.SERVO_COMMANDS.full(), ros_io.joint_state(stamp, names, effort=record.commands[k, index]), ns)
     custom = {MACHINE_KEY: machine.name, MACHINE_FILE_KEY: str(machine.yaml_path)}
     if label:
         custom['machine_ctrl.run'] = label

@@ -11,8 +11,16 @@ reference row = hold the last reference position at rest (underrun, counted and 
 no offsets = zero offsets.
 A repeated state stamp (hw_sim re-sends while waiting) is answered with the command already
 computed, so no controller state is ever advanced twice.
+
+Parameters (machine_ctrl/parameters.py SERVO): `axes` must name controlled axes of the
+machine, each once. Live: `feedforward` (switched at the first step whose reference is at
+rest on every axis of the node) and `gains.<axis>.<gain>`, one per live gain of each axis's
+law (control/law.py: a new parameter set, checked by the law, applied between two steps).
+Their values in effect are in the node's /diagnostics status.
 """
 from __future__ import annotations
+
+import dataclasses
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
@@ -22,7 +30,7 @@ from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.control.dual_stage import apply_offsets
 from machine_ctrl.ros.node_common import main_for, subscribe_joint_states, wall_timer
-from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
+from machine_ctrl.ros.node_parameters import declare_parameters, gain_parameters, machine_parameter
 from machine_ctrl.control.servo import ServoGroup
 from machine_ctrl.ros.step_node import StepNode
 
@@ -32,14 +40,14 @@ class ServoNode(StepNode):
         super().__init__(name, parameters.SERVO, **kwargs)
         self.machine = machine_parameter(self)
         controlled = [a.name for a in self.machine.axes if a.control is not None]
-        values = declare_parameters(self, parameters.SERVO, {'axes': controlled}, names=('axes', 'feedforward'))
-        axes, self.feedforward = values.axes, values.feedforward
-        try:
-            self.servo = ServoGroup(self.machine, axes, feedforward=self.feedforward)
-        except ValueError as exc:
-            self.get_logger().fatal(f'parameter axes: {exc}')
-            raise SystemExit(2) from None
+        table = parameters.NodeParameters(parameters.SERVO.executable, parameters.SERVO.parameters,
+                                          parameters.SERVO.checks + (axes_check(self.machine, controlled),),
+                                          parameters.SERVO.sim_time)
+        values = declare_parameters(self, table, {'axes': controlled}, names=('axes', 'feedforward'),
+                                    on_change={'feedforward': self.on_feedforward})
+        self.servo = ServoGroup(self.machine, values.axes, feedforward=values.feedforward)
         self.axes = self.servo.axis_names
+        self.declare_gains()
         fine = {p.fine for p in self.machine.dual_stage}
         self.fine_slots = [i for i, a in enumerate(self.axes) if a in fine]
         self.fine_names = [self.axes[i] for i in self.fine_slots]
@@ -61,6 +69,37 @@ class ServoNode(StepNode):
                                    lambda reason: self.rejections.add('offsets', reason))
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: axes {" ".join(self.axes)}')
+
+    def declare_gains(self) -> None:
+        """One live parameter per live gain of each axis's law; the values given at start
+        (overrides, a parameters file) are applied before the first step."""
+        self.gains = gain_parameters(self.machine, self.axes)
+        by_axis: dict[str, list] = {}
+        for g in self.gains:
+            by_axis.setdefault(g.axis, []).append(g)
+        checks = tuple(parameters.Check(f'gains.{axis}', tuple(g.name for g in items), self._gains_test(axis, items),
+                                        f'the conditions of the {axis} law') for axis, items in by_axis.items())
+        table = parameters.NodeParameters(parameters.SERVO.executable, tuple(g.spec for g in self.gains), checks)
+        hooks = {g.name: (lambda _value, axis=g.axis: self.retune(axis)) for g in self.gains}
+        self.parameter_values = declare_parameters(self, table, on_change=hooks)       # kept current
+        for axis in by_axis:
+            self.retune(axis)
+
+    def _gains_test(self, axis: str, items):
+        law = self.servo.servo(axis).law
+
+        def test(values):
+            return law.retune_problem(dataclasses.replace(law.gains, **{g.gain: values[g.name] for g in items}))
+        return test
+
+    def retune(self, axis: str) -> None:
+        """The law of `axis` takes the gains of the parameters (checked before they were set)."""
+        law = self.servo.servo(axis).law
+        self.servo.retune(axis, dataclasses.replace(
+            law.gains, **{g.gain: self.parameter_values[g.name] for g in self.gains if g.axis == axis}))
+
+    def on_feedforward(self, on: bool) -> None:
+        self.servo.set_feedforward(on)
 
     def on_offsets(self, msg: JointStateData) -> None:
         try:
@@ -104,13 +143,30 @@ class ServoNode(StepNode):
     def publish_diagnostics(self) -> None:
         problems = self.buffer.underruns or self.missing_offsets or self.rejections.count
         step = self.responder.answered_step
+        requested = self.servo.feedforward_requested
         values = {'axes': ' '.join(self.axes), 'answered_step': step, 'waiting_for': self.waiting_for(),
                   'reference_underruns': self.buffer.underruns, 'buffered_steps': len(self.buffer),
                   'missing_offsets': self.missing_offsets, 'rejected_messages': self.rejections.count,
-                  'last_rejection': self.rejections.last}
+                  'last_rejection': self.rejections.last, 'feedforward': self.servo.feedforward,
+                  'feedforward_requested': '' if requested is None else requested,
+                  **{g.name: getattr(self.servo.servo(g.axis).law.gains, g.gain) for g in self.gains}}
         self.pub_diag.publish(ros_io.diagnostics(
             self.clock.stamp(step), self.get_name(), DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
             'reference underrun' if self.buffer.underruns else 'ok', values))
+
+
+def axes_check(machine, controlled) -> parameters.Check:
+    """`axes`: controlled axes of `machine`, each once, at least one."""
+    def test(values):
+        axes = values['axes']
+        unknown = [a for a in axes if a not in controlled]
+        repeated = sorted({a for a in axes if axes.count(a) > 1})
+        if not axes or unknown or repeated:
+            what = (f'unknown {", ".join(map(repr, unknown))}' if unknown else
+                    f'repeated {", ".join(repeated)}' if repeated else 'none')
+            return f'must name controlled axes of {machine.name} ({", ".join(controlled)}), each once; {what}'
+        return None
+    return parameters.Check('axes', ('axes',), test, '')     # the text: the table's constraint
 
 
 main = main_for(ServoNode)

@@ -14,12 +14,27 @@ Inputs (every one validated; a refused goal moves nothing and its reason is publ
 * `/trajectory/feed_override` (std_msgs/Float64): fraction 0..1 of the planned feed, for
   the motion under way and the next ones; a change is a smooth ramp (trajectory/stream.py)
   that keeps the motion on its path. Outside [0, 1] or not finite: refused.
-* `/trajectory/hold` (std_srvs/Trigger): feed hold, the override ramps to 0 and the motion
-  stops on its path (state holding, the program is kept); `/trajectory/resume` ramps back
-  to the override setting (running); `/trajectory/stop` ramps to 0 and drops the rest of
-  the motion (idle once at rest). Each acts `chunk_steps` after the newest /clock step
-  (beyond any row the servos may have taken) and re-sends the stream from there.
+* `/trajectory/hold` (std_srvs/Trigger): feed hold — on a tool path the override ramps to 0
+  and the motion stops on its path; a point-to-point move (joint goal, home, a path's
+  approach) is braked by a time-optimal jerk-limited stop — state holding, the program is
+  kept; `/trajectory/resume` goes on (ramps back to the override setting, or moves on from
+  where the move stopped to its waypoint), running; `/trajectory/stop` does the same as a
+  hold and drops the rest of the motion (idle once at rest). Each acts `chunk_steps` after
+  the newest /clock step (beyond any row the servos may have taken) and re-sends the stream
+  from there; one that cannot act before the motion ends answers `success: false` with
+  the reason (`too late: ...`).
 * `/trajectory/home` (std_srvs/Trigger): move to the machine's home at rest.
+* `/trajectory/cancel` (action_msgs/CancelGoal): cancel the active goal by id (zero id:
+  whatever goal is active; a stamp: only a goal stamped at or before it), as a stop.
+
+Goals (trajectory/goals.py): every path, joint goal and home gets an id (a UUID) and a
+lifecycle — accepted, executing, canceling, succeeded, canceled, aborted (refused on
+receipt too) — published latched on `/trajectory/goal_status`
+(action_msgs/GoalStatusArray: the recent goals, GoalInfo.stamp = the request's
+header.stamp; for home the sim time it came) and, with the reason, as a /diagnostics entry
+named `<node>/goal` (values goal_id, status, status_code, reason, kind, label, stamp).
+Hold, resume, stop and cancel act on the active goal and answer truthfully: a hold or stop
+that cannot act before the motion ends is refused with the reason (trajectory/session.py).
 
 Goals are accepted only while idle: one motion at a time, a goal during planning, a
 motion, a hold or a fault is refused. After a motion the last position is held. The state
@@ -29,7 +44,8 @@ converts messages to session calls and publishes what the session hands out.
 Outputs: `/reference` chunks (parameter `output_topic`; trajectory_msgs/JointTrajectory on
 the control grid, as the servos read them), `/trajectory/status` (diagnostic_msgs/DiagnosticStatus, latched:
 message = state idle | planning | running | holding | fault; values: progress, motion,
-last_rejection, ...), `/diagnostics`.
+last_rejection, goal_id and goal_status of the active goal, the `feed` parameter, ...),
+`/trajectory/goal_status`, `/diagnostics`.
 
 Timing: the node reads the sim step from /clock and keeps `lookahead_steps` rows streamed
 ahead; a new motion starts at the first row not yet streamed, so it begins up to
@@ -45,6 +61,8 @@ import multiprocessing
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
+from action_msgs.msg import GoalInfo, GoalStatus, GoalStatusArray
+from action_msgs.srv import CancelGoal
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Path
 from rclpy.node import Node
@@ -53,13 +71,15 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
+from unique_identifier_msgs.msg import UUID
 
 from machine_ctrl import contract, parameters
 from machine_ctrl.diagnostics import error_text
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.ros.node_common import main_for, use_sim_time, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
-from trajectory.session import Answer, Session, plan_path
+from trajectory.goals import Goal, GoalState
+from trajectory.session import Answer, Session, plan_path, planner_process_init
 
 LATCHED = ros_io.qos(contract.LATCHED_QOS)
 GOAL_QOS = ros_io.qos(contract.COMMAND_QOS)
@@ -78,6 +98,9 @@ class NodeOutputs:
 
     def status(self) -> None:
         self.node.publish_status()
+
+    def goal(self, goal: Goal) -> None:
+        self.node.publish_goal(goal)
 
     def log(self, text: str) -> None:
         self.node.get_logger().info(text)
@@ -104,6 +127,8 @@ class TrajectoryNode(Node):
 
         self.pub_reference = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
         self.pub_status = self.create_publisher(DiagnosticStatus, contract.TRAJECTORY_STATUS.name, LATCHED)
+        self.pub_goals = self.create_publisher(GoalStatusArray, contract.GOAL_STATUS.name,
+                                               ros_io.qos(contract.GOAL_STATUS.qos))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
         self.sub_state = self.create_subscription(JointState, contract.JOINT_STATES.name, self.on_first_state,
@@ -118,14 +143,17 @@ class TrajectoryNode(Node):
         self.create_service(Trigger, contract.RESUME.name, self.on_resume)
         self.create_service(Trigger, contract.STOP.name, self.on_stop)
         self.create_service(Trigger, contract.HOME.name, self.on_home)
+        self.create_service(CancelGoal, contract.CANCEL.name, self.on_cancel)
         wall_timer(self, 0.05, self.check_planning)
         wall_timer(self, 1.0, self.publish_status)
         self.publish_status()
+        self.pub_goals.publish(GoalStatusArray())     # latched: no goal yet
         self.get_logger().info(f'ready: feed {self.feed * 1e3:g} mm/s; waiting for {contract.JOINT_STATES.name}')
 
     @staticmethod
     def start_planner() -> ProcessPoolExecutor:
-        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'))
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
+                                   initializer=planner_process_init)
         pool.submit(int).result()          # spawn and import now, not at the first goal
         return pool
 
@@ -149,16 +177,22 @@ class TrajectoryNode(Node):
         self.session.tick(step)
 
     # -- goals -----------------------------------------------------------------------------
+    @staticmethod
+    def request_stamp(msg) -> tuple[int, int]:
+        """The goal's stamp: the request's header.stamp as sent (it names the goal)."""
+        return msg.header.stamp.sec, msg.header.stamp.nanosec
+
     def on_path(self, msg: Path) -> None:
-        if not self.session.may_accept('path'):
+        stamp, label = self.request_stamp(msg), f'path of {len(msg.poses)} points'
+        if not self.session.may_accept('path', stamp, label):
             return
         try:
             cl = ros_io.path_to_cl(msg, self.machine.workpiece_frame)
         except ValueError as exc:
-            self.session.refuse('path', str(exc))
+            self.session.refuse('path', str(exc), stamp, label)
             return
         self.planning = self.planner.submit(plan_path, self.machine, cl, self.feed)
-        self.session.planning(f'path of {len(cl)} points')
+        self.session.planning(f'path of {len(cl)} points', stamp)
 
     def check_planning(self) -> None:
         """Hand a finished plan to the session (approach from the held position, then the path)."""
@@ -178,7 +212,8 @@ class TrajectoryNode(Node):
 
     def on_joint_goal(self, msg: JointTrajectory) -> None:
         times = [contract.seconds(p.time_from_start.sec, p.time_from_start.nanosec) for p in msg.points]
-        self.session.accept_joint_goal(msg.joint_names, [list(p.positions) for p in msg.points], times)
+        self.session.accept_joint_goal(msg.joint_names, [list(p.positions) for p in msg.points], times,
+                                       self.request_stamp(msg))
 
     def on_feed_override(self, msg: Float64) -> None:
         self.session.set_feed_override(msg.data)
@@ -198,7 +233,16 @@ class TrajectoryNode(Node):
         return self.answer(response, self.session.stop())
 
     def on_home(self, request, response):
-        return self.answer(response, self.session.home())
+        return self.answer(response, self.session.home(self.clock.split(self.session.step)))
+
+    def on_cancel(self, request, response):
+        """action_msgs/CancelGoal on the active goal (trajectory.session.Session.cancel)."""
+        info = request.goal_info
+        goal_id = bytes(info.goal_id.uuid)
+        code, goals = self.session.cancel(goal_id if any(goal_id) else None, (info.stamp.sec, info.stamp.nanosec))
+        response.return_code = code
+        response.goals_canceling = [self.goal_info(goal) for goal in goals]
+        return response
 
     # -- faults ----------------------------------------------------------------------------
     def on_diagnostics(self, msg: DiagnosticArray) -> None:
@@ -217,11 +261,27 @@ class TrajectoryNode(Node):
         level = DiagnosticStatus.ERROR if session.faulted else DiagnosticStatus.OK
         stamp = self.clock.stamp(session.step)
         status = ros_io.diagnostics(stamp, self.get_name(), level, str(session.state),
-                                    session.status_values()).status[0]
+                                    {**session.status_values(), 'feed': self.feed}).status[0]
         self.pub_status.publish(status)
         array = DiagnosticArray(status=[status])
         array.header.stamp = stamp
         self.pub_diag.publish(array)
+
+    @staticmethod
+    def goal_info(goal: Goal) -> GoalInfo:
+        info = GoalInfo(goal_id=UUID(uuid=list(goal.id)))
+        info.stamp.sec, info.stamp.nanosec = goal.stamp
+        return info
+
+    def publish_goal(self, goal: Goal) -> None:
+        """A goal changed: its /diagnostics entry (with the reason), then the latched array
+        of the recent goals."""
+        level = DiagnosticStatus.WARN if goal.state == GoalState.ABORTED else DiagnosticStatus.OK
+        message = f'goal {goal.state.text}: {goal.label}' + (f' ({goal.reason})' if goal.reason else '')
+        self.pub_diag.publish(ros_io.diagnostics(self.clock.stamp(self.session.step), f'{self.get_name()}/goal',
+                                                 level, message, goal.values()))
+        self.pub_goals.publish(GoalStatusArray(status_list=[
+            GoalStatus(goal_info=self.goal_info(g), status=int(g.state)) for g in self.session.goals.goals]))
 
     def destroy_node(self):
         self.planner.shutdown(wait=False, cancel_futures=True)

@@ -15,3 +15,20 @@ def fresh_directory(path: str) -> None:
     """ValueError unless `path` is absent or an empty directory (a bag goes there)."""
     if os.path.exists(path) and (not os.path.isdir(path) or os.listdir(path)):
         raise ValueError(f'{path}: exists and is not an empty directory')
+
+
+def namespace_option(parser) -> None:
+    """``--namespace NS``: the graph's ROS namespace (default the root), checked at parse
+    time and normalized ('mill1' -> '/mill1')."""
+    parser.add_argument('--namespace', type=_namespace, default='', metavar='NS',
+                        help="ROS namespace of the graph (e.g. mill1; default: the root '/')")
+
+
+def _namespace(text: str) -> str:
+    import argparse
+
+    from machine_ctrl import contract
+    try:
+        return contract.normal_namespace(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

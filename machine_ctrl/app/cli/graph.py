@@ -1,11 +1,19 @@
 """``machine-ctrl bringup|send|move|demo``: the running node graph (machine_ctrl.app.bringup
 starts it; send and move are clients of its trajectory node, machine_ctrl.app.goals follows
-their goals; demo is machine_ctrl.app.demo)."""
+their goals by id; demo is machine_ctrl.app.demo). bringup, send and move take the graph's
+``--namespace`` (default the root).
+
+send and move wait for the graph to be ready (hw_sim's latched ready, at most 30 s: else
+exit 2 "the graph is not ready after 30 s: is it up? machine-ctrl bringup"), then for the
+trajectory node to hear the goal topic, stamp and publish the goal, and follow it: exit 0
+when it succeeded, 1 when refused, aborted, canceled or timed out (the reason on stderr),
+2 for bad arguments."""
 from __future__ import annotations
 
 import math
+import time
 
-from machine_ctrl.app.cli.common import error, fresh_directory
+from machine_ctrl.app.cli.common import error, fresh_directory, namespace_option
 from machine_ctrl.app.demo import DEFAULT_TURNS as DEMO_TURNS
 from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
 from machine_ctrl.model.errors import ConfigError
@@ -18,16 +26,19 @@ def register(subparsers) -> None:
     bring.add_argument('--record', metavar='DIR', help='record the session into this bag directory')
     bring.add_argument('--no-dual-stage', action='store_true', help='start with the dual-stage coupling off')
     bring.add_argument('--compensation', metavar='MODEL', help='geometric error model: compensation on')
+    namespace_option(bring)
     bring.set_defaults(run=cmd_bringup)
     send = subparsers.add_parser('send', help='send a tool path to the running graph and follow it')
     send.add_argument('path', help='CSV file (px,py,pz,oi,oj,ok, SI) or built-in toolpath name')
     send.add_argument('--machine', default=DEFAULT_MACHINE)
     send.add_argument('--timeout', type=float, default=3600.0, metavar='S', help='give up after S s (wall)')
+    namespace_option(send)
     send.set_defaults(run=cmd_send)
     move = subparsers.add_parser('move', help='send a joint goal (AXIS=VALUE ..., m / rad) and follow it')
     move.add_argument('goal', nargs='+', metavar='AXIS=VALUE')
     move.add_argument('--machine', default=DEFAULT_MACHINE)
     move.add_argument('--timeout', type=float, default=600.0, metavar='S', help='give up after S s (wall)')
+    namespace_option(move)
     move.set_defaults(run=cmd_move)
     demo = subparsers.add_parser('demo', help='the main job: helix on the 9-axis machine, recorded and analysed')
     demo.add_argument('--out', metavar='DIR', help='output directory (default: a new temporary directory)')
@@ -72,20 +83,25 @@ def parse_joint_goal(items) -> tuple[list[str], list[float]]:
     return names, values
 
 
-def _run_goal(command: str, machine, timeout: float, send) -> int:
-    from machine_ctrl.app.client import Timeout
+def _run_goal(command: str, machine, timeout: float, send, namespace: str = '') -> int:
+    """Wait for the graph (ready, the trajectory node listening), then send(client, stamp)
+    and follow the goal."""
+    from machine_ctrl.app.client import READY_TIMEOUT, Timeout
     if not (math.isfinite(timeout) and timeout > 0):
         return error(command, ValueError(f'--timeout must be > 0 s, got {timeout}'))
     from machine_ctrl.app.bringup import client_session, listening
     from machine_ctrl.app.goals import follow_goal
-    with client_session(machine, 'machine_ctrl_cli') as client:
+    with client_session(machine, 'machine_ctrl_cli', namespace=namespace) as client:
+        started = time.monotonic()
         try:
+            client.wait_ready(min(timeout, READY_TIMEOUT))
+            left = max(min(timeout, READY_TIMEOUT) - (time.monotonic() - started), 1.0)
             client.wait(lambda: client.statuses and listening(client, client.pub_path)
                         and listening(client, client.pub_goal),
-                        'the trajectory node (is the graph up? machine-ctrl bringup)', min(timeout, 30.0))
+                        'the trajectory node (is the graph up? machine-ctrl bringup)', left)
         except Timeout as exc:
             return error(command, exc)
-        return follow_goal(client, lambda: send(client), timeout)
+        return follow_goal(client, lambda stamp: send(client, stamp), timeout)
 
 
 def cmd_send(args) -> int:
@@ -95,7 +111,8 @@ def cmd_send(args) -> int:
         cl = toolpath.builtin(args.path) if args.path in toolpath.BUILTIN else toolpath.read_csv(args.path)
     except (ValueError, OSError) as exc:
         return error('send', exc)
-    return _run_goal('send', machine, args.timeout, lambda client: client.send_path(cl))
+    return _run_goal('send', machine, args.timeout, lambda client, stamp: client.send_path(cl, stamp=stamp),
+                     args.namespace)
 
 
 def cmd_move(args) -> int:
@@ -104,7 +121,8 @@ def cmd_move(args) -> int:
         names, values = parse_joint_goal(args.goal)
     except ValueError as exc:
         return error('move', exc)
-    return _run_goal('move', machine, args.timeout, lambda client: client.send_goal(names, [values]))
+    return _run_goal('move', machine, args.timeout,
+                     lambda client, stamp: client.send_goal(names, [values], stamp=stamp), args.namespace)
 
 
 def cmd_demo(args) -> int:

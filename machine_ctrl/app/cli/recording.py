@@ -1,8 +1,9 @@
 """``machine-ctrl record|replay|analyze``: bags of the graph (machine_ctrl.recording, the
 recorder and replay nodes of machine_ctrl.ros).
 
-* ``record DIR [--topics T ...] [--machine M] [--duration S]``: records the graph's topics
-  (default: all but /rosout and /parameter_events) into the rosbag2/MCAP bag directory DIR
+* ``record DIR [--topics T ...] [--machine M] [--duration S] [--namespace NS]``: records the
+  topics of the graph in namespace NS (default: all of it but /rosout and
+  /parameter_events) into the rosbag2/MCAP bag directory DIR
   until Ctrl-C / SIGTERM / S seconds; prints the messages per topic.
 * ``replay BAG [--rate F] [--topics T ...] [--start-offset S] [--loop]``: republishes a bag
   with its recorded timing (times 1/F), /clock from the recording.
@@ -18,7 +19,7 @@ import json
 import math
 import sys
 
-from machine_ctrl.app.cli.common import error, fresh_directory
+from machine_ctrl.app.cli.common import error, fresh_directory, namespace_option
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 
@@ -30,6 +31,7 @@ def register(subparsers) -> None:
                         help='topics to record (NAME or NAME:pkg/msg/Type); default: all')
     record.add_argument('--machine', help='machine name or YAML stored with the bag (for analyze)')
     record.add_argument('--duration', type=float, help='stop after this many seconds (wall)')
+    namespace_option(record)
     record.set_defaults(run=cmd_record)
     replay = subparsers.add_parser('replay', help='republish a recorded bag')
     replay.add_argument('bag', help='bag directory or .mcap file')
@@ -65,7 +67,7 @@ def cmd_record(args) -> int:
     from machine_ctrl.recording import recorder
     from machine_ctrl.ros.recorder_node import RecorderNode, run
     try:
-        recorder.wanted_topics(args.topics)
+        recorder.wanted_topics(args.topics, args.namespace)
         if args.machine:
             load_machine(args.machine)
         if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
@@ -78,7 +80,7 @@ def cmd_record(args) -> int:
     rclpy.init(args=_ros_args(), signal_handler_options=SignalHandlerOptions.NO)
     try:
         try:
-            node = RecorderNode(parameter_overrides=overrides)
+            node = RecorderNode(namespace=args.namespace or None, parameter_overrides=overrides)
         except SystemExit as exc:
             return int(exc.code or 2)
         return run(node)

@@ -1,0 +1,99 @@
+"""``ros2 launch machine_ctrl bringup.launch.py``: the graph of ``machine-ctrl bringup``.
+
+Arguments (``name:=value``):
+
+* ``machine`` — machine name (config/machines/) or YAML path; default micromill_9axis.
+* ``namespace`` — ROS namespace of the whole graph (e.g. ``mill2``); default the root.
+  Every name is relative, the sim clock included, so machines in different namespaces share
+  a ROS domain without cross-talk (README "For ROS users", "Namespaces").
+* ``record`` — bag directory to record the session into (absent or empty); default: no
+  recording. hw_sim then holds at step 0 until the recorder is there and keeps within its
+  window, as with ``machine-ctrl bringup --record``.
+* ``dual_stage`` — ``true``/``false``: the dual-stage coupling at start; default true.
+* ``compensation`` — geometric error model (YAML of ``machine-ctrl fit-errors``): the
+  compensation node sits between the trajectory node and the servos; default none.
+* ``params_file`` — a ROS parameters file applied after the graph's own values (e.g.
+  ``config/params/<machine>.yaml`` edited, or a ``ros2 param dump``); default none.
+* ``robot_state_publisher`` — ``true`` starts robot_state_publisher (TF for RViz) when it is
+  installed (ROS from apt; not on PyPI); default false.
+
+The graph is the same data as ``machine-ctrl bringup`` builds
+(:func:`machine_ctrl.app.bringup.graph_specs`): each node a process of its own, with its
+parameters and remappings. Ctrl-C or SIGTERM: launch signals every node, each shuts down
+at once and exits 0; the recorder drains and closes the bag first.
+"""
+from __future__ import annotations
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, LogInfo, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+ARGUMENTS = (
+    ('machine', 'micromill_9axis', 'machine name (config/machines/) or YAML path'),
+    ('namespace', '', 'ROS namespace of the graph (default: the root)'),
+    ('record', '', 'bag directory to record into (default: no recording)'),
+    ('dual_stage', 'true', 'dual-stage coupling on at start (true/false)'),
+    ('compensation', '', 'geometric error model YAML: compensation on (default: off)'),
+    ('params_file', '', 'ROS parameters file applied after the graph\'s values'),
+    ('robot_state_publisher', 'false', 'start robot_state_publisher when installed (true/false)'),
+)
+
+
+def _flag(name: str, text: str) -> bool:
+    if text.lower() in ('true', '1', 'yes', 'on'):
+        return True
+    if text.lower() in ('false', '0', 'no', 'off'):
+        return False
+    raise ValueError(f'launch argument {name}:={text!r} must be true or false')
+
+
+def _executable(spec) -> str:
+    return spec.module.rsplit('.', 1)[-1]          # setup.py EXECUTABLES: the module's name
+
+
+def _nodes(context):
+    from machine_ctrl import contract
+    from machine_ctrl.app.bringup import graph_specs, recorder_spec
+    from machine_ctrl.model.config import load_machine
+    from machine_ctrl.ros.graph import write_params_file
+
+    value = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
+    machine = load_machine(value['machine'])
+    namespace = contract.normal_namespace(value['namespace'])
+    record = value['record'] or None
+    specs = graph_specs(machine, _flag('dual_stage', value['dual_stage']), value['compensation'] or None,
+                        record is not None, namespace=namespace)
+    if record is not None:
+        from machine_ctrl.app.cli.common import fresh_directory
+        fresh_directory(record)
+        specs.append(recorder_spec(machine, record, namespace=namespace))
+    extra = [value['params_file']] if value['params_file'] else []
+    # the graph's values as our own parameters file (strings quoted: rcl reads a bare y as true)
+    actions = [Node(package='machine_ctrl', executable=_executable(spec), name=spec.name,
+                    namespace=spec.namespace or None, parameters=[str(write_params_file([spec], None, spec.name)), *extra],
+                    remappings=[contract.CLOCK_REMAP], output='screen', emulate_tty=True)
+               for spec in specs]
+    if _flag('robot_state_publisher', value['robot_state_publisher']):
+        actions.append(_robot_state_publisher(machine, namespace))
+    return actions
+
+
+def _robot_state_publisher(machine, namespace: str):
+    """robot_state_publisher on our joint_states and sim clock, if installed."""
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
+    from machine_ctrl import contract
+    try:
+        get_package_prefix('robot_state_publisher')
+    except PackageNotFoundError:
+        return LogInfo(msg='robot_state_publisher is not installed (ROS from apt has it): not started')
+    return Node(package='robot_state_publisher', executable='robot_state_publisher', namespace=namespace or None,
+                parameters=[{'robot_description': machine.urdf_path.read_text(), 'use_sim_time': True}],
+                remappings=[contract.CLOCK_REMAP], output='screen')
+
+
+def generate_launch_description() -> LaunchDescription:
+    return LaunchDescription([*(DeclareLaunchArgument(name, default_value=default, description=what)
+                                for name, default, what in ARGUMENTS),
+                              OpaqueFunction(function=_nodes)])

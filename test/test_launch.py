@@ -1,0 +1,210 @@
+"""What a ROS user does, through the real `ros2` command line only: `ros2 launch machine_ctrl
+bringup.launch.py` with a namespace and a recording, readiness and a joint goal seen with
+`ros2 topic echo` / `ros2 topic pub`, Ctrl-C (SIGINT to the launch's process group, as a
+terminal sends it) ending every node cleanly with the bag closed; and two machines in two
+namespaces of one ROS domain, side by side.
+
+Skipped, with the reason, where the ros2 command line / launch (../shared/ros2-tools) or the
+package's ament layout (dev/_venv.sh, or `pip install .`) are not installed."""
+import concurrent.futures
+import importlib.util
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from machine_ctrl.recording.bag import Bag
+
+BIN = Path(sys.executable).parent
+ROS2 = BIN / 'ros2'
+# generous limits for a busy 2-core machine; none of them is a measurement
+READY_TIMEOUT = 180.0       # s
+GOAL_TIMEOUT = 300.0        # s
+EXIT_TIMEOUT = 60.0         # s
+
+
+def _skip_reason() -> str | None:
+    if not ROS2.exists():
+        return f'the ros2 command line is not installed in {BIN} (../shared/ros2-tools/install)'
+    if importlib.util.find_spec('launch_ros') is None:
+        return 'launch_ros is not installed (../shared/ros2-tools/install)'
+    from ament_index_python.packages import get_package_share_directory
+    try:
+        share = Path(get_package_share_directory('machine_ctrl'))
+    except Exception as exc:  # noqa: BLE001 - PackageNotFoundError, or no AMENT_PREFIX_PATH
+        return f'machine_ctrl is not in the ament index ({type(exc).__name__}: {exc}; dev/_venv.sh lays it out)'
+    if not (share / 'launch/bringup.launch.py').exists():
+        return f'{share}/launch/bringup.launch.py is not installed'
+    return None
+
+
+pytestmark = pytest.mark.skipif(_skip_reason() is not None, reason=str(_skip_reason()))
+
+
+class Launch:
+    """`ros2 launch machine_ctrl bringup.launch.py ARGS` in a session of its own (so a
+    SIGINT to its process group is a terminal's Ctrl-C), output to a log file."""
+
+    def __init__(self, env, log: Path, *args: str):
+        self.log = log
+        self.handle = open(log, 'wb')
+        self.process = subprocess.Popen([str(ROS2), 'launch', 'machine_ctrl', 'bringup.launch.py', *args],
+                                        env=env, stdout=self.handle, stderr=subprocess.STDOUT,
+                                        stdin=subprocess.DEVNULL, start_new_session=True)
+
+    def text(self) -> str:
+        return self.log.read_text(errors='replace')
+
+    def interrupt(self) -> tuple[int, float]:
+        """Ctrl-C; (exit status, seconds until the launch ended)."""
+        started = time.monotonic()
+        os.killpg(self.process.pid, signal.SIGINT)
+        try:
+            status = self.process.wait(EXIT_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            raise
+        return status, time.monotonic() - started
+
+    def kill(self) -> None:
+        if self.process.poll() is None:
+            os.killpg(self.process.pid, signal.SIGKILL)
+            self.process.wait()
+
+    def close(self) -> None:
+        self.kill()
+        self.handle.close()
+
+
+def ros2(env, *args: str, timeout: float = 60.0) -> str:
+    result = subprocess.run([str(ROS2), *args], env=env, capture_output=True, text=True, timeout=timeout)
+    assert result.returncode == 0, f'ros2 {" ".join(args)}: {result.stdout}{result.stderr}'
+    return result.stdout
+
+
+def echo_until(env, topic: str, type_name: str, accept, launch: Launch, timeout: float, latched: bool = True):
+    """Messages on `topic` (YAML documents of `ros2 topic echo`) until `accept(message)` is
+    true: returns that message; fails with the launch output when none is accepted within
+    `timeout` or the launch ended."""
+    qos = ['--qos-durability', 'transient_local', '--qos-reliability', 'reliable'] if latched else []
+    process = subprocess.Popen([str(ROS2), 'topic', 'echo', '--full-length', '--no-lost-messages', *qos, topic,
+                                type_name], env=env,
+                               stdout=subprocess.PIPE, text=True)
+    timer = threading.Timer(timeout, process.kill)     # ends the read below when nothing comes
+    timer.start()
+    try:
+        document = []
+        for line in process.stdout:
+            if line.strip() != '---':
+                document.append(line)
+                continue
+            message = yaml.safe_load(''.join(document)) or {}
+            document = []
+            if accept(message):
+                return message
+            if launch.process.poll() is not None:
+                break
+    finally:
+        timer.cancel()
+        process.kill()
+        process.wait()
+    pytest.fail(f'no accepted message on {topic} within {timeout:g} s; launch output:\n{launch.text()[-3000:]}')
+
+
+def wait_ready(env, namespace: str, launch: Launch) -> None:
+    echo_until(env, f'{namespace}/ready', 'std_msgs/msg/Bool', lambda m: m.get('data') is True, launch,
+               READY_TIMEOUT)
+
+
+def send_goal_and_follow(env, namespace: str, launch: Launch, goal: str, subscribers: int) -> list[int]:
+    """Publish a joint goal with `ros2 topic pub` once the goal status is being followed (the
+    latched current list received), and return the statuses (action_msgs/GoalStatus codes)
+    the newest goal goes through until it ends (succeeded 4, canceled 5, aborted 6).
+    `subscribers`: every subscriber of the goal topic, or the goal may reach only some."""
+    seen: list[int] = []
+    following = threading.Event()
+
+    def ended(message) -> bool:
+        following.set()
+        statuses = message.get('status_list') or []
+        if statuses and (not seen or seen[-1] != statuses[-1]['status']):
+            seen.append(statuses[-1]['status'])
+        return bool(seen) and seen[-1] in (4, 5, 6)
+
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        done = pool.submit(echo_until, env, f'{namespace}/trajectory/goal_status', 'action_msgs/msg/GoalStatusArray',
+                           ended, launch, GOAL_TIMEOUT)
+        while not following.wait(1.0):
+            if done.done():
+                done.result()                    # fails with the launch output
+        ros2(env, 'topic', 'pub', '--once', '-w', str(subscribers), f'{namespace}/trajectory/joint_goal',
+             'trajectory_msgs/msg/JointTrajectory', goal)
+        done.result()
+    return seen
+
+
+@pytest.fixture
+def cli_env(ros_env):
+    return {**ros_env, 'PATH': f'{BIN}{os.pathsep}{os.environ.get("PATH", "")}', 'PYTHONUNBUFFERED': '1'}
+
+
+def test_launch_in_a_namespace_moves_records_and_stops_cleanly_on_ctrl_c(cli_env, tmp_path):
+    bag = tmp_path / 'bag'
+    launch = Launch(cli_env, tmp_path / 'launch.log', 'machine:=trt_5axis', 'namespace:=mill2', f'record:={bag}')
+    try:
+        wait_ready(cli_env, '/mill2', launch)
+        echo_until(cli_env, '/mill2/robot_description', 'std_msgs/msg/String', lambda m: '<robot' in m['data'],
+                   launch, 60.0)
+        # 2 subscribers: the trajectory node and the recorder
+        statuses = send_goal_and_follow(cli_env, '/mill2', launch, '{joint_names: [x], points: [{positions: [0.01]}]}', 2)
+        assert statuses == [1, 2, 4], statuses         # accepted, executing, succeeded
+        status, seconds = launch.interrupt()
+    finally:
+        launch.close()
+    text = launch.text()
+    print(f'launch ended {seconds:.2f} s after Ctrl-C (status {status})')
+    assert status == 0, text[-3000:]
+    assert 'Traceback' not in text and 'KeyboardInterrupt' not in text, text[-3000:]
+    started = [line for line in text.splitlines() if 'process started with pid' in line]
+    finished = [line for line in text.splitlines() if 'process has finished cleanly' in line]
+    died = [line for line in text.splitlines() if 'process has died' in line]
+    assert len(started) >= 5, text[-3000:]      # hw_sim, servo, trajectory, contour_error, recorder
+    assert not died and len(finished) == len(started), text[-3000:]
+    with Bag(bag) as recorded:                        # the indexed reader: summary and metadata present
+        assert recorded.topics['/mill2/joint_states'].count > 0
+        assert recorded.custom_data['machine_ctrl.namespace'] == '/mill2'
+
+
+def test_two_machines_in_two_namespaces_run_side_by_side(cli_env, tmp_path):
+    mill1 = Launch(cli_env, tmp_path / 'mill1.log', 'machine:=micromill_9axis', 'namespace:=mill1')
+    mill2 = Launch(cli_env, tmp_path / 'mill2.log', 'machine:=trt_5axis', 'namespace:=mill2')
+    try:
+        for launch, ns in ((mill1, '/mill1'), (mill2, '/mill2')):
+            wait_ready(cli_env, ns, launch)
+        states1 = echo_until(cli_env, '/mill1/joint_states', 'sensor_msgs/msg/JointState', bool, mill1, 60.0, False)
+        states2 = echo_until(cli_env, '/mill2/joint_states', 'sensor_msgs/msg/JointState', bool, mill2, 60.0, False)
+        assert states1['name'] == ['x_c', 'y_c', 'z_c', 'x_f', 'y_f', 'z_f', 'a_f', 'b_f', 'c_f']
+        assert states2['name'] == ['x', 'y', 'z', 'a', 'c']
+        topics = ros2(cli_env, 'topic', 'list').split()
+        assert '/clock' not in topics and '/joint_states' not in topics, topics     # nothing in the root
+        for ns in ('/mill1', '/mill2'):          # each clock heard by its own graph only
+            info = ros2(cli_env, 'topic', 'info', '-v', f'{ns}/clock')
+            readers = [line for line in info.splitlines() if line.startswith('Node namespace:')]
+            assert readers and all(line.split(':', 1)[1].strip() == ns for line in readers), info
+        goal = '{joint_names: [x_c], points: [{positions: [0.002]}]}'
+        assert send_goal_and_follow(cli_env, '/mill1', mill1, goal, 1) == [1, 2, 4]
+        other = echo_until(cli_env, '/mill2/trajectory/goal_status', 'action_msgs/msg/GoalStatusArray',
+                           lambda m: True, mill2, 60.0)
+        assert not other.get('status_list'), other            # the goal went to mill1 only
+        for launch in (mill1, mill2):
+            status, _ = launch.interrupt()
+            assert status == 0, launch.text()[-3000:]
+    finally:
+        mill1.close()
+        mill2.close()
