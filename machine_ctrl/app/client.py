@@ -150,20 +150,6 @@ class MachineClient:
         seen = self.goal_states.get(goal_id)
         return seen[-1] if seen else ''
 
-    def wait_goal(self, stamp: Time, states, timeout: float = 120.0, check=None) -> str:
-        """Wait until the goal sent with `stamp` has gone through `states` (in order; states
-        between may have been missed by the latched status, never the last); its id."""
-        def seen() -> bool:
-            goal_id = self.goal_of(stamp)
-            history = self.goal_states.get(goal_id, []) if goal_id else []
-            wanted = list(states)
-            for state in history:
-                if wanted and state == wanted[0]:
-                    wanted.pop(0)
-            return not wanted
-        self.wait(seen, f'goal states {list(states)}', timeout, check)
-        return self.goal_of(stamp)
-
     # -- commands --------------------------------------------------------------------------
     def send_path(self, cl, frame: str | None = None, stamp: Time | None = None) -> Time:
         """A tool path; returns the request's stamp (`stamp`, default now)."""

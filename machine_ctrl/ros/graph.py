@@ -98,21 +98,33 @@ class NodeSpec:
                    data.get('namespace') or '')
 
 
-class _QuotedDumper(yaml.SafeDumper):
-    """Strings always quoted: rcl's parameter file parser takes an unquoted 1e3 or true as
-    a number or bool; a quoted scalar is always a string."""
+class _Dumper(yaml.SafeDumper):
+    """ROS parameter files: strings always quoted (rcl takes an unquoted true, y or 1e3 as a
+    bool or a number; a quoted scalar is always a string), lists in flow style, no aliases."""
 
     def ignore_aliases(self, data) -> bool:
         return True
 
 
-_QuotedDumper.add_representer(str, lambda dumper, value: dumper.represent_scalar('tag:yaml.org,2002:str', value,
-                                                                                  style="'"))
+def _mapping(dumper, data):
+    """Keys plain (node and parameter names), values as their representers make them."""
+    pairs = [(yaml.ScalarNode('tag:yaml.org,2002:str', str(key)), dumper.represent_data(value))
+             for key, value in data.items()]
+    return yaml.MappingNode('tag:yaml.org,2002:map', pairs, flow_style=False)
+
+
+_Dumper.add_representer(str, lambda dumper, value: dumper.represent_scalar('tag:yaml.org,2002:str', value, style="'"))
+_Dumper.add_representer(list, lambda dumper, value: dumper.represent_sequence('tag:yaml.org,2002:seq', value,
+                                                                              flow_style=True))
+_Dumper.add_representer(dict, _mapping)
+
+
 _temporary: list[Path] = []
 
 
-def _dump(document) -> str:
-    return yaml.dump(document, Dumper=_QuotedDumper, sort_keys=False, default_flow_style=None)
+def params_yaml(document) -> str:
+    """YAML text of a ROS parameters document (also of node specs: the same typing rules)."""
+    return yaml.dump(document, Dumper=_Dumper, sort_keys=False, width=120)
 
 
 def _output_dir(directory) -> Path:
@@ -139,10 +151,10 @@ def write_params_file(specs, directory=None, stem: str = 'graph') -> Path:
         handle = tempfile.NamedTemporaryFile('w', suffix='.params.yaml', prefix=f'{stem}-', delete=False,
                                              dir=_output_dir(None))
         with handle:
-            handle.write(_dump(document))
+            handle.write(params_yaml(document))
         return Path(handle.name)
     path = _output_dir(directory) / f'{stem}.params.yaml'
-    path.write_text(_dump(document))
+    path.write_text(params_yaml(document))
     return path
 
 
@@ -150,7 +162,7 @@ def write_specs(specs, path) -> Path:
     """The node specs of a graph as a YAML file (`python -m machine_ctrl.ros.graph --specs`)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(_dump({'nodes': [spec.to_data() for spec in specs]}))
+    path.write_text(params_yaml({'nodes': [spec.to_data() for spec in specs]}))
     return path
 
 

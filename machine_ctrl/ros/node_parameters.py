@@ -17,7 +17,6 @@ import dataclasses
 import sys
 from pathlib import Path
 
-import yaml
 from rclpy.node import Node
 
 from machine_ctrl import contract, parameters
@@ -301,27 +300,6 @@ def params_document(machine: MachineConfig) -> dict:
     return {f'/**/{name}': {'ros__parameters': _nested(_section(table, values))} for name, table, values in nodes}
 
 
-class _Dumper(yaml.SafeDumper):
-    """Strings always quoted (rcl takes an unquoted true or 1e3 as a bool or a number),
-    lists in flow style, no aliases."""
-
-    def ignore_aliases(self, data) -> bool:
-        return True
-
-
-def _mapping(dumper, data):
-    """Keys plain (node and parameter names), values as their representers make them."""
-    pairs = [(yaml.ScalarNode('tag:yaml.org,2002:str', str(key)), dumper.represent_data(value))
-             for key, value in data.items()]
-    return yaml.MappingNode('tag:yaml.org,2002:map', pairs, flow_style=False)
-
-
-_Dumper.add_representer(str, lambda dumper, value: dumper.represent_scalar('tag:yaml.org,2002:str', value, style="'"))
-_Dumper.add_representer(list, lambda dumper, value: dumper.represent_sequence('tag:yaml.org,2002:seq', value,
-                                                                              flow_style=True))
-_Dumper.add_representer(dict, _mapping)
-
-
 def params_file_text(machine: MachineConfig) -> str:
     between = contract.TRAJECTORY_REFERENCE.name
     header = (
@@ -333,7 +311,8 @@ def params_file_text(machine: MachineConfig) -> str:
         '# checks that this file is what the code generates): edit those, not this file.\n'
         '# Left to the command line: compensation `model` (-p model:=MODEL.yaml; the trajectory node then\n'
         f'# publishes on {between}: -p output_topic:={between}) and recorder `output`.\n')
-    return header + yaml.dump(params_document(machine), Dumper=_Dumper, sort_keys=False, width=120)
+    from machine_ctrl.ros.graph import params_yaml
+    return header + params_yaml(params_document(machine))
 
 
 def write_params_files(directory=PARAMS_DIR, machines=SHIPPED_MACHINES) -> list[Path]:
