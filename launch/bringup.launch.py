@@ -16,6 +16,12 @@ Arguments (``name:=value``):
   ``config/params/<machine>.yaml`` edited, or a ``ros2 param dump``); default none.
 * ``robot_state_publisher`` — ``true`` starts robot_state_publisher (TF for RViz) when it is
   installed (ROS from apt; not on PyPI); default false.
+* ``respawn`` — ``true`` (default): a controller node that dies (servo, dual_stage, trajectory,
+  compensation, contour_error) is started again after ``RESPAWN_DELAY`` s, at most
+  ``RESPAWN_MAX`` times. hw_sim (the machine: its state would be lost) and the recorder (its
+  bag directory is not empty any more) are not respawned. A dead servo or dual_stage node
+  faults hw_sim (its commands stop); once the respawned node answers the held step,
+  ``hw_sim/reset`` continues, and nothing moves again without a new goal.
 
 The graph is the same data as ``machine-ctrl bringup`` builds
 (:func:`machine_ctrl.app.bringup.graph_specs`): each node a process of its own, with its
@@ -37,7 +43,13 @@ ARGUMENTS = (
     ('compensation', '', 'geometric error model YAML: compensation on (default: off)'),
     ('params_file', '', 'ROS parameters file applied after the graph\'s values'),
     ('robot_state_publisher', 'false', 'start robot_state_publisher when installed (true/false)'),
+    ('respawn', 'true', 'start a dead controller node again (not hw_sim, not the recorder)'),
 )
+# assumed: 1 s lets a dying process release its DDS entities before its successor joins;
+# 3 retries tell a transient crash from one that repeats (then the fault stays, named).
+RESPAWN_DELAY = 1.0        # s
+RESPAWN_MAX = 3
+NOT_RESPAWNED = ('hw_sim', 'recorder')
 
 
 def _flag(name: str, text: str) -> bool:
@@ -70,9 +82,12 @@ def _nodes(context):
         specs.append(recorder_spec(machine, record, namespace=namespace))
     extra = [value['params_file']] if value['params_file'] else []
     # the graph's values as our own parameters file (strings quoted: rcl reads a bare y as true)
+    respawn = _flag('respawn', value['respawn'])
     actions = [Node(package='machine_ctrl', executable=_executable(spec), name=spec.name,
                     namespace=spec.namespace or None, parameters=[str(write_params_file([spec], None, spec.name)), *extra],
-                    remappings=[contract.CLOCK_REMAP], output='screen', emulate_tty=True)
+                    remappings=[contract.CLOCK_REMAP], output='screen', emulate_tty=True,
+                    respawn=respawn and spec.name not in NOT_RESPAWNED, respawn_delay=RESPAWN_DELAY,
+                    respawn_max_retries=RESPAWN_MAX)
                for spec in specs]
     if _flag('robot_state_publisher', value['robot_state_publisher']):
         actions.append(_robot_state_publisher(machine, namespace))

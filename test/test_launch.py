@@ -9,6 +9,7 @@ package's ament layout (dev/_venv.sh, or `pip install .`) are not installed."""
 import concurrent.futures
 import importlib.util
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -208,3 +209,41 @@ def test_two_machines_in_two_namespaces_run_side_by_side(cli_env, tmp_path):
     finally:
         mill1.close()
         mill2.close()
+
+
+def _diagnostic_values(message) -> dict:
+    """name -> {key: value} of a DiagnosticArray as `ros2 topic echo` prints it."""
+    return {status['name']: {kv['key']: kv['value'] for kv in status.get('values') or []}
+            for status in message.get('status') or []}
+
+
+def test_a_killed_servo_is_respawned_and_a_reset_continues(cli_env, tmp_path):
+    launch = Launch(cli_env, tmp_path / 'launch.log', 'machine:=trt_5axis', 'namespace:=mill3')
+    started = re.compile(r'\[servo_node-\d+\]: process started with pid \[(\d+)\]')
+    try:
+        wait_ready(cli_env, '/mill3', launch)
+        first = started.findall(launch.text())
+        assert len(first) == 1, launch.text()[-3000:]
+        os.kill(int(first[0]), signal.SIGKILL)
+        echo_until(cli_env, '/mill3/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
+                   lambda m: 'missing command' in _diagnostic_values(m).get('hw_sim', {}).get('fault', ''),
+                   launch, READY_TIMEOUT, latched=False)
+        # respawned by launch; hw_sim re-sends the held step until the new servo answers it
+        seen: dict = {}
+
+        def answers_the_held_step(message) -> bool:
+            for name, values in _diagnostic_values(message).items():
+                seen.setdefault(name, {}).update(values)
+            servo, hw = seen.get('servo_coarse', {}), seen.get('hw_sim', {})
+            return len(started.findall(launch.text())) == 2 and 'answered_step' in servo \
+                and servo['answered_step'] == hw.get('step')
+        echo_until(cli_env, '/mill3/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray', answers_the_held_step,
+                   launch, READY_TIMEOUT, latched=False)
+        answer = ros2(cli_env, 'service', 'call', '/mill3/hw_sim/reset', 'std_srvs/srv/Trigger')
+        assert 'success=True' in answer, answer
+        goal = '{joint_names: [y], points: [{positions: [0.005]}]}'
+        assert send_goal_and_follow(cli_env, '/mill3', launch, goal, 1) == [1, 2, 4]
+        status, _ = launch.interrupt()
+    finally:
+        launch.close()
+    assert status == 0, launch.text()[-3000:]
