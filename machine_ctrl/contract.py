@@ -54,6 +54,11 @@ REFERENCE_QOS = Qos(depth=50, transient_local=True)
 COMMAND_QOS = Qos(depth=10)
 # A status whose last value a late joiner must see (the trajectory status).
 LATCHED_QOS = Qos(depth=1, transient_local=True)
+# The goal status list: latched, and deep on the writer's side too. With depth 1 a reliable
+# writer overwrites a state its readers have not acknowledged yet, so a client under load
+# saw accepted then succeeded, never executing; 100 lists outlast any such lag (each list is
+# complete, so a late joiner's newest one is the truth and older ones only history).
+GOAL_STATUS_QOS = Qos(depth=100, transient_local=True)
 # What a client keeps of a latched status stream while it follows a motion.
 LATCHED_READER_QOS = Qos(depth=1000, transient_local=True)
 # The recorder's progress: one value, latched, so hw_sim learns at once that a recorder is
@@ -150,7 +155,7 @@ CONTOUR_ORIENTATION = Topic('contour_error/orientation', 'geometry_msgs/msg/Vect
                             'tool-orientation contour error vector, rad')
 CONTOUR_ORIENTATION_MAGNITUDE = Topic('contour_error/orientation_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
                                       'tool-orientation contour error magnitude, rad')
-GOAL_STATUS = Topic('trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', LATCHED_QOS,
+GOAL_STATUS = Topic('trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', GOAL_STATUS_QOS,
                     'latched: every goal of the session with its id (UUID) and state: accepted, executing, '
                     'succeeded, canceled, aborted (the reason on /diagnostics)')
 READY = Topic('ready', 'std_msgs/msg/Bool', LATCHED_QOS,

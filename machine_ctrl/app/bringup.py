@@ -10,7 +10,17 @@ state), follows /trajectory/status, and stops everything (graph first, then the 
 which drains, closes the bag and prints its per-topic counts). With a `namespace` every node
 (the recorder too) runs in it, and so must the clients (:func:`client_session`).
 
-The shell is :func:`main`: prints the command API (:data:`API`), the state changes, and
+Losing the recording does not stop the machine: once the graph is ready, a recorder process
+that ends on its own (killed, crashed) is reported with one line ("recording stopped:
+recorder exited with ...; the bag may need machine-ctrl record --recover DIR") and the graph
+keeps running (hw_sim stops holding for a recorder that left the graph); so does a recorder
+that reports on /diagnostics that its recording stopped (disk full: it stays up). With
+``stop_on_recording_loss`` (``--stop-on-recording-loss``) either stops everything instead
+(:class:`RecordingLost`). Before the graph is ready a recorder's end stops the bringup as
+any node's does: hw_sim waits at step 0 for it (min_subscribers). The session's exit status
+is 1 when the recording was lost.
+
+The shell is :func:`run`: prints the command API (:data:`API`), the state changes, and
 stops on Ctrl-C / SIGTERM. The demo (:mod:`machine_ctrl.app.demo`) drives a :class:`Bringup`
 from the same process.
 """
@@ -26,7 +36,7 @@ from pathlib import Path
 from machine_ctrl import contract
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.ros.graph import NodeSpec, default_graph, write_specs
-from machine_ctrl.app.processes import Supervisor
+from machine_ctrl.app.processes import ChildExited, Supervisor
 
 READY_TIMEOUT = 120.0          # s (wall) for every node to come up
 RECORDER_STOP_TIMEOUT = 60.0   # s the recorder may take to drain and close before SIGTERM
@@ -68,13 +78,26 @@ def recorder_spec(machine: MachineConfig, output: str, namespace: str = '') -> N
                     {'output': str(output), 'machine': str(machine.yaml_path)}, namespace=namespace)
 
 
+class RecordingLost(RuntimeError):
+    """The recording stopped and the session asked to stop with it."""
+
+
+def recording_lost_text(reason: str, bag: str | None) -> str:
+    return f'recording stopped: {reason}; the bag may need machine-ctrl record --recover {bag}'
+
+
 class Bringup:
-    """The running graph. Context manager: leaving the block stops everything."""
+    """The running graph. Context manager: leaving the block stops everything.
+    ``recording_lost``: why the recording stopped while the graph ran on (None: it did not)."""
 
     def __init__(self, machine: MachineConfig, *, single_process: bool = False, record: str | None = None,
                  dual_stage: bool = True, compensation: str | None = None, env=None,
-                 log_dir: str | None = None, namespace: str = ''):
+                 log_dir: str | None = None, namespace: str = '', stop_on_recording_loss: bool = False):
         self.machine, self.single_process, self.record = machine, single_process, record
+        self.stop_on_recording_loss = stop_on_recording_loss
+        self.ready = False
+        self.recording_lost: str | None = None
+        self.notices: list[str] = []        # lines for the shell (recording lost), taken by run()
         self.namespace = namespace
         self.specs = graph_specs(machine, dual_stage, compensation, record is not None, namespace)
         self.dual_stage, self.compensation = dual_stage, compensation
@@ -97,9 +120,30 @@ class Bringup:
         self.graph.start_nodes(self.specs, self.log_dir)
 
     def check(self) -> None:
-        """Raise processes.ChildExited when a node process has ended on its own."""
-        self.recorder.check()
+        """Raise processes.ChildExited when a node process has ended on its own. The
+        recorder's end raises it only before the graph is ready; later it is a lost
+        recording (:meth:`lose_recording`)."""
+        child = self.recorder.children.get('recorder')
+        if child is not None and not child.stopping and not child.running():
+            if not self.ready:
+                self.recorder.check()
+            child.stopping = True                   # its end is known now
+            code = child.returncode
+            how = f'code {code}' + (f' (killed by {signal.Signals(-code).name})' if code < 0 else '')
+            log = f' (its log: {child.log_path})' if child.log_path else ''
+            self.lose_recording(f'recorder exited with {how}{log}')
         self.graph.check()
+
+    def lose_recording(self, reason: str) -> None:
+        """The recording stopped while the graph runs: note it (once) for the shell, or raise
+        RecordingLost if the session asked to stop then."""
+        if self.recording_lost is not None:
+            return
+        self.recording_lost = reason
+        text = recording_lost_text(reason, self.record)
+        if self.stop_on_recording_loss:
+            raise RecordingLost(f'{text} (--stop-on-recording-loss: stopping the graph)')
+        self.notices.append(f'{text}; the graph keeps running')
 
     def wait_ready(self, client, timeout: float = READY_TIMEOUT) -> float:
         """Wait until every node is on the ROS graph (in the namespace) and the graph is
@@ -111,6 +155,7 @@ class Bringup:
                     'every node on the ROS graph', timeout, self.check)
         left = max(timeout - (time.monotonic() - started), 0.0)
         client.wait_ready(left, self.check)
+        self.ready = True
         return time.monotonic() - started
 
     def stop(self) -> list[str]:
@@ -123,10 +168,16 @@ class Bringup:
         if 'recorder' not in self.recorder.children:
             return []
         child = self.recorder['recorder']
+        ended = not child.running()
         self.recorder.stop_all()
         lines = child.tail(200)
         start = max((i for i, line in enumerate(lines) if line.startswith('recorded ')), default=None)
-        self.report = lines[start:] if start is not None else [f'recorder: no report; last output: {lines[-5:]}']
+        if start is not None:
+            self.report = lines[start:]
+        elif ended and self.recording_lost is not None:
+            self.report = [recording_lost_text(self.recording_lost, self.record)]
+        else:
+            self.report = [f'recorder: no report; last output: {lines[-5:]}']
         return self.report
 
     def __enter__(self) -> Bringup:
@@ -255,20 +306,40 @@ def signals_ignored():
             signal.signal(sig, handler)
 
 
+class RecorderStatus:
+    """The recorder's entries on /diagnostics (it publishes only once its recording has
+    stopped: level ERROR, ``recording stopped: <reason>``), heard by the shell's client."""
+
+    def __init__(self, client):
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        from machine_ctrl.ros import messages as ros_io
+        self.stopped: str | None = None
+        client.node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self._on_diagnostics,
+                                        ros_io.qos(contract.DIAGNOSTICS_READER_QOS))
+
+    def _on_diagnostics(self, msg) -> None:
+        for status in msg.status:
+            prefix = 'recording stopped: '
+            if status.name == 'recorder' and status.message.startswith(prefix) and self.stopped is None:
+                self.stopped = status.message.removeprefix(prefix) + ' (the recorder is still up)'
+
+
 def run(args, machine: MachineConfig) -> int:
     """The bringup command: start, wait until ready, report states until asked to stop."""
     from machine_ctrl.app.client import Timeout
-    from machine_ctrl.app.processes import ChildExited
     status = 0
     namespace = getattr(args, 'namespace', '')
     try:
         with monitor(machine, 'bringup_monitor', namespace=namespace) as client, \
                 Bringup(machine, single_process=args.single_process, record=args.record,
                         dual_stage=not args.no_dual_stage, compensation=args.compensation,
-                        namespace=namespace) as bringup:
+                        namespace=namespace,
+                        stop_on_recording_loss=bool(getattr(args, 'stop_on_recording_loss', False))) as bringup:
             try:
                 print(f'starting {len(bringup.specs)} nodes ({"one process" if args.single_process else "one process each"})'
                       f'{", recording to " + args.record if args.record else ""}; logs in {bringup.log_dir}', flush=True)
+                recorder_status = RecorderStatus(client) if args.record else None
                 bringup.start()
                 waited = bringup.wait_ready(client)
                 print(f'all nodes ready after {waited:.1f} s: {" ".join(sorted(bringup.node_names))}')
@@ -278,17 +349,23 @@ def run(args, machine: MachineConfig) -> int:
                 reporter = StateReporter(client)
                 while True:
                     bringup.check()
+                    if recorder_status is not None and recorder_status.stopped is not None:
+                        bringup.lose_recording(recorder_status.stopped)
+                    while bringup.notices:
+                        print(bringup.notices.pop(0), flush=True)
                     reporter.poll()
                     time.sleep(0.1)
             except Stopped:
                 print('stopping ...', flush=True)
-            except (ChildExited, Timeout) as exc:
+            except (ChildExited, Timeout, RecordingLost) as exc:
                 print(f'machine-ctrl: bringup: {exc}', file=sys.stderr)
                 status = 1
             finally:
                 with signals_ignored():
                     for line in bringup.stop():
                         print(line, flush=True)
+            if bringup.recording_lost is not None:
+                status = status or 1
     except Stopped:
         status = 130
     return status

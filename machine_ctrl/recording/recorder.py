@@ -19,6 +19,13 @@ bag they go to. :mod:`machine_ctrl.ros.recorder_node` wires it to the ROS graph.
 * Loss check: with the machine known, /joint_states (one per control step) and /clock (on a
   grid of its own) are checked for skipped stamps (:class:`StampGaps`); the counts go into
   the report and the bag's custom_data.
+* Crash safety: the bag (:class:`machine_ctrl.recording.bag.BagWriter`) holds every chunk
+  completed before a kill (a chunk: at most ``bag.CHUNK_PERIOD`` s or ``bag.CHUNK_SIZE``
+  bytes of messages); the custom_data known at start (machine, namespace) is in the file
+  from the start. :func:`recover` rebuilds such a bag and recomputes the loss check from
+  the messages it kept. A write that fails (disk full, file size limit, I/O error) stops
+  the recording (:attr:`Recording.stopped`): the bag keeps its complete chunks and needs
+  :func:`recover`; the report says so.
 """
 from __future__ import annotations
 
@@ -29,8 +36,10 @@ import struct
 from machine_ctrl import contract
 from machine_ctrl.recording import cdr
 from machine_ctrl.recording import msgdefs
-from machine_ctrl.recording.bag import BagWriter
-from machine_ctrl.model.errors import InvalidMessage
+from machine_ctrl.recording import bag
+from machine_ctrl.recording.bag import BagError, BagWriter
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.model.errors import ConfigError, InvalidMessage
 
 
 
@@ -250,48 +259,114 @@ class Progress:
         return value
 
 
+class LossCheck:
+    """The loss check of a recording of the graph in `namespace`: /joint_states on the
+    control period's grid (``period_ns``) and /clock on a grid inferred (:class:`StampGaps`);
+    nothing without the period."""
+
+    def __init__(self, period_ns: int | None, namespace: str = ''):
+        self.gaps = ({contract.JOINT_STATES.full(namespace): StampGaps(period_ns),
+                      contract.CLOCK.full(namespace): StampGaps()} if period_ns else {})
+
+    @classmethod
+    def of_custom_data(cls, custom_data: dict) -> LossCheck | None:
+        """The check of a bag from the custom_data it started with (machine, namespace);
+        None if the machine is not named or cannot be loaded here."""
+        for name in (custom_data.get(MACHINE_FILE_KEY), custom_data.get(MACHINE_KEY)):
+            if name:
+                try:
+                    config = load_machine(name)
+                except (ConfigError, OSError, ValueError):
+                    continue
+                return cls(contract.StepClock.of(config).period_ns, namespace_of(custom_data))
+        return None
+
+    def add(self, topic: str, data: bytes) -> None:
+        gaps = self.gaps.get(topic)
+        if gaps is not None:
+            gaps.add(cdr_stamp_ns(data))
+
+    def entries(self, recorded) -> dict[str, str]:
+        """custom_data entries, per checked topic that was recorded."""
+        entries = {}
+        for topic, gaps in self.gaps.items():
+            if topic in recorded:
+                entries[LOST_KEY + topic] = str(gaps.lost)
+                entries[STAMPS_BACK_KEY + topic] = str(gaps.back)
+        return entries
+
+
+def recover(path) -> bag.Recovery:
+    """:func:`machine_ctrl.recording.bag.recover` of a recorder's bag: the loss check is
+    recomputed from the recovered messages when the custom_data written at close is lost
+    (the machine is known from the custom_data written at start)."""
+    return bag.recover(path, LossCheck.of_custom_data)
+
+
 class Recording:
     """The bag being written plus what the report needs: the graph of `namespace` (kept in
-    the bag's custom_data). With the machine's control period (``period_ns``) the loss check
-    runs on joint_states (grid = the period) and clock (grid inferred)."""
+    the bag's custom_data, from the start). With the machine's control period
+    (``period_ns``) the loss check runs on joint_states (grid = the period) and clock (grid
+    inferred). ``stopped``: why the recording stopped before its end (a write failed), or
+    None."""
 
     def __init__(self, directory, custom_data: dict | None = None, period_ns: int | None = None,
                  namespace: str = ''):
-        self.writer = BagWriter(directory)
         self.custom_data = {**(custom_data or {}), NAMESPACE_KEY: contract.normal_namespace(namespace)}
-        self.gaps = ({contract.JOINT_STATES.full(namespace): StampGaps(period_ns),
-                      contract.CLOCK.full(namespace): StampGaps()} if period_ns else {})
+        self.writer = BagWriter(directory, custom_data=self.custom_data)
+        self.loss_check = LossCheck(period_ns, namespace)
+        self.gaps = self.loss_check.gaps
         self.progress = Progress(namespace=namespace)
+        self.stopped: str | None = None
 
     def add_topic(self, name: str, type_name: str, offers) -> None:
         self.writer.add_topic(name, type_name, offers)
 
     def write(self, topic: str, data: bytes, receive_time_ns: int, now: float) -> bool:
-        """Write one message (``now``: s, monotonic); True when a progress report is due."""
-        self.writer.write(topic, data, receive_time_ns)
-        gaps = self.gaps.get(topic)
-        if gaps is not None:
-            gaps.add(cdr_stamp_ns(data))
+        """Write one message (``now``: s, monotonic); True when a progress report is due.
+        BagError if the bag cannot be written (the recording has then stopped)."""
+        try:
+            self.writer.write(topic, data, receive_time_ns)
+        except BagError as exc:
+            self.stop(str(exc))
+            raise
+        self.loss_check.add(topic, data)
         return self.progress.written(topic, self.writer.topics[topic].type == contract.JOINT_STATES.type, data, now)
+
+    def flush_if_due(self) -> None:
+        """Complete the open chunk if it is old (a timer calls this); BagError as write."""
+        try:
+            self.writer.flush_if_due()
+        except BagError as exc:
+            self.stop(str(exc))
+            raise
+
+    def stop(self, reason: str) -> None:
+        """The recording ends here, before its end (the first reason is kept)."""
+        if self.stopped is None:
+            self.stopped = reason
 
     def loss(self) -> dict[str, str]:
         """custom_data entries of the loss check, per checked topic that was recorded."""
-        entries = {}
-        for topic, gaps in self.gaps.items():
-            if topic in self.writer.topics:
-                entries[LOST_KEY + topic] = str(gaps.lost)
-                entries[STAMPS_BACK_KEY + topic] = str(gaps.back)
-        return entries
+        return self.loss_check.entries(self.writer.topics)
 
     def close(self) -> dict[str, int]:
-        return self.writer.close({**self.custom_data, **self.loss()})
+        """Close the bag (BagError if that fails: the recording is stopped then)."""
+        try:
+            return self.writer.close({**self.custom_data, **self.loss()})
+        except BagError as exc:
+            self.stop(str(exc))
+            raise
 
     def report(self) -> str:
-        """Per-topic message counts, one line each after a summary line, then the loss check."""
-        counts = self.writer.counts()
-        lines = [f'recorded {sum(counts.values())} messages on {len(counts)} topics to {self.writer.directory}']
+        """Per-topic message counts, one line each after a summary line, then the loss check;
+        after a failure the counts of what the bag holds, and what to do."""
+        failed = self.writer.failure is not None
+        counts = self.writer.durable_counts() if failed else self.writer.counts()
+        where = 'in the complete chunks of' if failed else 'to'
+        lines = [f'recorded {sum(counts.values())} messages on {len(counts)} topics {where} {self.writer.directory}']
         for name, info in sorted(self.writer.topics.items()):
-            lines.append(f'  {name} ({info.type}): {info.count}')
+            lines.append(f'  {name} ({info.type}): {counts[name]}')
         checked = [(t, g) for t, g in self.gaps.items() if t in self.writer.topics]
         if not self.gaps:
             lines.append('lost: not checked (no machine given: its control period is unknown)')
@@ -299,4 +374,9 @@ class Recording:
             lines.append('lost (skipped stamps): ' + ', '.join(
                 f'{t} {g.lost}' + (f' ({g.back} stamps went back)' if g.back else '')
                 + (f' ({g.unreadable} without a stamp on the grid)' if g.unreadable else '') for t, g in checked))
+        if self.stopped is not None:
+            lines.append(f'recording stopped early: {self.stopped}')
+            if failed:
+                lines.append(f'the bag has no summary: machine-ctrl record --recover {self.writer.directory} '
+                             f'makes it readable (every complete chunk)')
         return '\n'.join(lines)

@@ -21,6 +21,24 @@ which would read as a clock source.
 Stopping (SIGINT, SIGTERM, ``duration``): discovery stops, messages already received by
 DDS are drained (until none arrives for ``DRAIN_QUIET`` s), the bag is closed (summary,
 footer, metadata.yaml) and the per-topic counts are printed on stdout.
+
+Crash safety: every chunk of the bag reaches the file when it is complete, and a chunk is
+completed after at most ``bag.CHUNK_PERIOD`` s (a wall timer every ``FLUSH_CHECK`` s checks,
+so a quiet recording is not held back) or ``bag.CHUNK_SIZE`` bytes; completed chunks are
+fsynced within ``bag.SYNC_PERIOD`` s. So a recorder killed outright (SIGKILL, OOM killer)
+loses at most the last ``CHUNK_PERIOD + FLUSH_CHECK`` s (1.1 s) or 1 MiB of messages, and
+``machine-ctrl record --recover DIR`` makes the rest readable.
+
+A write that fails (disk full, a file size limit, an I/O error, a file system remounted
+read-only) stops the recording at once, and the node stays up: it logs the error, the bag
+keeps its complete chunks (it needs ``--recover``), its subscriptions end, and its
+/recorder/progress publisher goes away — hw_sim sees no recorder any more and stops
+holding the graph for it (hw_sim's ``recorder_connected``: the progress topic has no
+publisher). From then on the node publishes on /diagnostics every second (level ERROR,
+name = the node's, message ``recording stopped: <reason>``; nothing while it records, so a
+recorder never records its own status), and at its stop it prints the counts of what the
+bag holds with the reason, and exits 1. A bag that cannot be created at start (unwritable
+or not empty) ends the node at once (exit 2, one line).
 """
 from __future__ import annotations
 
@@ -31,6 +49,7 @@ import time
 
 import rclpy
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -39,7 +58,7 @@ from rclpy.task import Future
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording import recorder
-from machine_ctrl.recording.bag import qos_profile
+from machine_ctrl.recording.bag import BagError, qos_profile
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.recording.msgdefs import DefinitionNotFound, split_type
@@ -48,6 +67,8 @@ from machine_ctrl.ros.node_parameters import declare_parameters
 
 DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
 DRAIN_LIMIT = 30.0     # s: the drain never takes longer
+FLUSH_CHECK = 0.1      # s (wall) between checks whether the open chunk is due (bag.CHUNK_PERIOD)
+STATUS_PERIOD = 1.0    # s (wall) between /diagnostics once the recording has stopped
 # the latest progress only matters; transient local so that an hw_sim that starts later
 # learns at once that a recorder is there and how far it is
 PROGRESS_QOS = ros_io.qos(contract.PROGRESS_QOS)
@@ -91,19 +112,24 @@ class RecorderNode(Node):
         except (ValueError, ConfigError) as exc:      # BagError is a ValueError
             self.get_logger().fatal(str(exc))
             raise SystemExit(2) from None
+        self.output = output
         self.subscribed: dict[str, object] = {}
         self.last_message = time.monotonic()
         self.started = time.monotonic()
         self.pub_progress = None
+        self.progress_timer = None
+        self.pub_diag = None
+        self.torn_down = False
         self.excluded = recorder.default_excluded(namespace)
         if self.wanted is None or contract.JOINT_STATES.full(namespace) in self.wanted:
             self.pub_progress = self.create_publisher(Time, contract.RECORDER_PROGRESS.name, PROGRESS_QOS)
             self.publish_progress()                  # 0: a recorder is here, nothing written yet
-            wall_timer(self, recorder.PROGRESS_PERIOD, self.publish_progress)
+            self.progress_timer = wall_timer(self, recorder.PROGRESS_PERIOD, self.publish_progress)
         for topic, type_name in (self.wanted or {}).items():
             if type_name is not None:
                 self.subscribe(topic, type_name, [])
         self.discovery = wall_timer(self, self.discovery_period, self.discover)
+        wall_timer(self, FLUSH_CHECK, self.check_bag)
         self.discover()
         self.get_logger().info(f'recording to {output}')
 
@@ -114,12 +140,64 @@ class RecorderNode(Node):
         return {recorder.MACHINE_KEY: config.name, recorder.MACHINE_FILE_KEY: str(config.yaml_path)}
 
     def publish_progress(self) -> None:
+        if self.recording.stopped is not None:
+            return
         stamp = self.recording.progress.take(time.monotonic())
         if stamp is not None:
             sec, nanosec = contract.split_ns(stamp)
             self.pub_progress.publish(Time(sec=sec, nanosec=nanosec))
 
+    @property
+    def stopped(self) -> str | None:
+        """Why the recording stopped before the node did (None while it records)."""
+        return self.recording.stopped
+
+    def check_bag(self) -> None:
+        """Timer: complete an old open chunk; once the recording has stopped, leave the graph
+        (subscriptions, progress) and report on /diagnostics."""
+        if self.recording.stopped is None:
+            try:
+                self.recording.flush_if_due()
+            except BagError as exc:
+                self.stop_recording(str(exc))
+        if self.recording.stopped is not None:
+            self.tear_down()
+
+    def stop_recording(self, reason: str) -> None:
+        """A write failed: say so at once; :meth:`tear_down` follows on the next timer (an
+        entity is not destroyed from within its own callback)."""
+        self.recording.stop(reason)
+        self.get_logger().error(f'recording stopped: {reason}; the node stays up, hw_sim no longer waits for it; '
+                                f'recover the bag with: machine-ctrl record --recover {self.output}')
+
+    def tear_down(self) -> None:
+        if not self.torn_down:
+            self.torn_down = True
+            self.discovery.cancel()
+            for subscription in self.subscribed.values():
+                if subscription is not None:
+                    self.destroy_subscription(subscription)
+            self.subscribed = dict.fromkeys(self.subscribed)
+            if self.pub_progress is not None:       # hw_sim stops holding for this recorder
+                self.progress_timer.cancel()
+                self.destroy_publisher(self.pub_progress)
+                self.pub_progress = None
+            self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                                  ros_io.qos(contract.DIAGNOSTICS.qos))
+            self.status_timer = wall_timer(self, STATUS_PERIOD, self.publish_status)
+            self.publish_status()
+
+    def publish_status(self) -> None:
+        held = self.recording.writer.durable_counts()
+        values = {'output': self.output, 'messages_in_bag': sum(held.values()),
+                  'recover': f'machine-ctrl record --recover {self.output}'}
+        self.pub_diag.publish(ros_io.diagnostics(self.get_clock().now().to_msg(), self.get_name(),
+                                                 DiagnosticStatus.ERROR, f'recording stopped: {self.stopped}',
+                                                 values))
+
     def discover(self) -> None:
+        if self.recording.stopped is not None:
+            return
         available = {name: list(types) for name, types in self.get_topic_names_and_types()}
         chosen = recorder.to_subscribe(available, self.wanted, self.excluded, self.subscribed, self.get_namespace())
         for topic, type_name in chosen.items():
@@ -142,8 +220,15 @@ class RecorderNode(Node):
                          durability=DurabilityPolicy[want['durability'].upper()])
 
         def on_message(data: bytes, topic=topic) -> None:
+            if self.recording.stopped is not None:
+                return
             now = self.last_message = time.monotonic()
-            if self.recording.write(topic, data, time.time_ns(), now) and self.pub_progress is not None:
+            try:
+                due = self.recording.write(topic, data, time.time_ns(), now)
+            except BagError as exc:
+                self.stop_recording(str(exc))
+                return
+            if due and self.pub_progress is not None:
                 self.publish_progress()
 
         self.subscribed[topic] = self.create_subscription(cls, topic, on_message, qos, raw=True)
@@ -151,12 +236,16 @@ class RecorderNode(Node):
 
     def finish(self) -> str:
         """Close the bag; the report text."""
-        self.recording.close()
+        try:
+            self.recording.close()
+        except BagError as exc:
+            self.get_logger().error(f'recording stopped: {exc}')
         return self.recording.report()
 
 
 def run(node: RecorderNode) -> int:
-    """Spin until SIGINT/SIGTERM or the node's duration, drain, close, report."""
+    """Spin until SIGINT/SIGTERM or the node's duration, drain, close, report; exit status
+    0, or 1 if the recording stopped early (a write failed)."""
     executor = DefaultExecutor()
     executor.add_node(node)
     stop = Future()
@@ -169,14 +258,14 @@ def run(node: RecorderNode) -> int:
                 break
         node.discovery.cancel()
         drain_start = time.monotonic()
-        while rclpy.ok() and time.monotonic() - node.last_message < DRAIN_QUIET \
+        while rclpy.ok() and node.stopped is None and time.monotonic() - node.last_message < DRAIN_QUIET \
                 and time.monotonic() - drain_start < DRAIN_LIMIT:
             executor.spin_until_future_complete(Future(), timeout_sec=0.05)
     finally:
         print(node.finish(), flush=True)
         executor.shutdown()
         node.destroy_node()
-    return 0
+    return 0 if node.stopped is None else 1
 
 
 def main(args=None) -> int:

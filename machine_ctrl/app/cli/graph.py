@@ -24,6 +24,9 @@ def register(subparsers) -> None:
     bring.add_argument('machine', nargs='?', default=DEFAULT_MACHINE)
     bring.add_argument('--single-process', action='store_true', help='every node in one process')
     bring.add_argument('--record', metavar='DIR', help='record the session into this bag directory')
+    bring.add_argument('--stop-on-recording-loss', action='store_true',
+                       help='with --record: stop the whole graph if the recording stops (recorder killed, disk '
+                            'full); default: say so and keep the machine running')
     bring.add_argument('--no-dual-stage', action='store_true', help='start with the dual-stage coupling off')
     bring.add_argument('--compensation', metavar='MODEL', help='geometric error model: compensation on')
     namespace_option(bring)

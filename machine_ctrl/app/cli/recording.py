@@ -4,7 +4,14 @@ recorder and replay nodes of machine_ctrl.ros).
 * ``record DIR [--topics T ...] [--machine M] [--duration S] [--namespace NS]``: records the
   topics of the graph in namespace NS (default: all of it but /rosout and
   /parameter_events) into the rosbag2/MCAP bag directory DIR
-  until Ctrl-C / SIGTERM / S seconds; prints the messages per topic.
+  until Ctrl-C / SIGTERM / S seconds; prints the messages per topic. Exit 1 if the
+  recording stopped early (a write failed: disk full, ...; the bag then needs --recover).
+* ``record --recover BAG``: a bag whose recorder was killed (or whose disk filled up) has no
+  summary and no metadata.yaml; this rebuilds them from every complete chunk (like ``ros2
+  bag reindex``), keeps the damaged file as ``<name>.mcap.damaged``, and prints what was
+  recovered (messages per topic), what was lost (bytes after the last complete record)
+  and where the custom_data came from. A complete bag is left alone (a missing
+  metadata.yaml is rewritten). machine_ctrl.recording.bag.recover.
 * ``replay BAG [--rate F] [--topics T ...] [--start-offset S] [--loop]``: republishes a bag
   with its recorded timing (times 1/F), /clock from the recording.
 * ``analyze BAG [BAG2] [--machine M] [--json] [--plots DIR]``: tracking, tool-tip contour,
@@ -26,13 +33,16 @@ from machine_ctrl.model.errors import ConfigError
 
 def register(subparsers) -> None:
     record = subparsers.add_parser('record', help='record the graph\'s topics into a rosbag2/MCAP bag directory')
-    record.add_argument('output', help='bag directory to create')
+    record.add_argument('output', nargs='?', help='bag directory to create')
+    record.add_argument('--recover', metavar='BAG',
+                        help='rebuild the index, summary and metadata.yaml of a bag whose recorder did not close it '
+                             '(killed, disk full): every complete chunk is kept')
     record.add_argument('--topics', nargs='+', default=[], metavar='T',
                         help='topics to record (NAME or NAME:pkg/msg/Type); default: all')
     record.add_argument('--machine', help='machine name or YAML stored with the bag (for analyze)')
     record.add_argument('--duration', type=float, help='stop after this many seconds (wall)')
     namespace_option(record)
-    record.set_defaults(run=cmd_record)
+    record.set_defaults(run=cmd_record, validate=_output_or_recover)
     replay = subparsers.add_parser('replay', help='republish a recorded bag')
     replay.add_argument('bag', help='bag directory or .mcap file')
     replay.add_argument('--rate', type=float, default=1.0, help='factor on the recorded timing (default 1)')
@@ -50,6 +60,14 @@ def register(subparsers) -> None:
     analyze.set_defaults(run=cmd_analyze, validate=_one_or_two_bags)
 
 
+def _output_or_recover(args) -> str | None:
+    if args.recover is None:
+        return None if args.output else 'record needs the bag directory to create (or --recover BAG)'
+    if args.output or args.topics or args.machine or args.duration is not None:
+        return 'record --recover BAG takes no other argument'
+    return None
+
+
 def _one_or_two_bags(args) -> str | None:
     return 'analyze takes one bag or two' if len(args.bags) > 2 else None
 
@@ -60,11 +78,18 @@ def _ros_args() -> list[str]:
 
 
 def cmd_record(args) -> int:
+    from machine_ctrl.recording import recorder
+    if args.recover is not None:
+        try:
+            result = recorder.recover(args.recover)
+        except ValueError as exc:          # BagError
+            return error('record', exc)
+        print(result.report(), flush=True)
+        return 0
     import rclpy
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
 
-    from machine_ctrl.recording import recorder
     from machine_ctrl.ros.recorder_node import RecorderNode, run
     try:
         recorder.wanted_topics(args.topics, args.namespace)
