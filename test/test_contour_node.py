@@ -1,10 +1,16 @@
 """contour_error_node over real DDS in a lock-step graph (hw_sim + servo_node on trt_5axis,
-this test as the reference source playing the Eq. (35) path): what it publishes for every
-step equals the same core (machine_ctrl.contour.estimation) run offline on the recorded joint states
-and the same reference.
+this test as the reference source): at rest at home, a Ruckig approach to the Eq. (35) path,
+its own 0.2 s rest at the start (a corner: the approach arrives in another direction than the
+path leaves), the path, the final rest. What the node publishes for every step equals the same
+core (machine_ctrl.contour.estimation) run offline on the recorded joint states and the same
+reference, with the invalid steps as NaN (README "Contour error", "Validity"); against the
+closest-point truth (machine_ctrl.contour.truth) every published number is within its bound,
+and the NaN steps are few and sit at the joins; /diagnostics counts them.
 
 Nothing is lost to a slow test reader: the test reports its progress like the recorder
-(ros_fixtures.ProgressReporter), so hw_sim never runs far ahead of it."""
+(ros_fixtures.ProgressReporter), so hw_sim never runs far ahead of it. The test waits on
+conditions (a threading.Condition its reader threads notify), never on time; a hang guard
+of HANG s only turns a stuck graph into a failure."""
 import math
 import threading
 import time
@@ -14,20 +20,25 @@ import pytest
 
 from machine_ctrl import contract
 from machine_ctrl.contour.estimation import ContourEstimator, ToolTrajectory
+from machine_ctrl.contour.truth import true_orientation_errors, true_tool_tip_errors
+from machine_ctrl.contour.validity import machine_tolerances
 from machine_ctrl.ros.graph import NodeSpec
 from machine_ctrl.model.kinematics import Kinematics
 from ros_fixtures import ProgressReporter
 from trajectory.sencer_path import sencer_reference
 
-STEPS = 1200          # 0.2 s at rest, then 1 s of the path
 CHUNK = 500
+TAIL = 600            # rest rows after the path; the steps compared end TAIL // 2 before the last row
+HANG = 600.0          # s of wall time without the graph finishing: a stuck graph, not a slow one
 
 
 class Collector:
-    """/joint_states and the four contour-error topics by step, in a background thread; the
-    newest step held of every stream goes out on /recorder/progress."""
+    """/joint_states, the four contour-error topics by step and the contour node's
+    /diagnostics, in a background thread; the newest step held of every stream goes out on
+    /recorder/progress; every message notifies `changed`."""
 
     def __init__(self, node, clock):
+        from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import Vector3Stamped
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -35,9 +46,11 @@ class Collector:
         from std_msgs.msg import Float64
 
         self.clock, self.progress = clock, ProgressReporter(node, clock)
+        self.changed = threading.Condition()
         qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
         self.states, self.tip, self.orientation = {}, {}, {}
         self.tip_magnitude, self.orientation_magnitude, self.frames = [], [], set()
+        self.diagnostics = None
         self.held = -1
         self.subscriptions = [
             node.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state, qos),
@@ -48,7 +61,8 @@ class Collector:
             node.create_subscription(Float64, contract.CONTOUR_TOOL_TIP_MAGNITUDE.name,
                                      lambda m: self.on_magnitude(m, self.tip_magnitude), qos),
             node.create_subscription(Float64, contract.CONTOUR_ORIENTATION_MAGNITUDE.name,
-                                     lambda m: self.on_magnitude(m, self.orientation_magnitude), qos)]
+                                     lambda m: self.on_magnitude(m, self.orientation_magnitude), qos),
+            node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics, 100)]
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)
         self.running = True
@@ -60,7 +74,7 @@ class Collector:
             self.executor.spin_once(timeout_sec=0.05)
 
     def contour_publishers_matched(self) -> bool:
-        return all(s.get_publisher_count() for s in self.subscriptions[1:])
+        return all(s.get_publisher_count() for s in self.subscriptions[1:5])
 
     def on_state(self, msg):
         self.states[self.clock.step(msg.header.stamp)] = msg.position.tolist()
@@ -75,6 +89,12 @@ class Collector:
         store.append(msg.data)
         self.report()
 
+    def on_diagnostics(self, msg):
+        for status in msg.status:
+            if status.name == 'contour_error':
+                self.diagnostics = {kv.key: kv.value for kv in status.values}
+        self.report()
+
     def report(self):
         """Progress = the newest step whose state and four contour errors are all here."""
         held = min(len(self.tip_magnitude), len(self.orientation_magnitude)) - 1
@@ -82,6 +102,18 @@ class Collector:
             held -= 1
         self.held = max(self.held, held)
         self.progress.report(self.held)
+        with self.changed:
+            self.changed.notify_all()
+
+    def wait(self, condition, what, supervisor):
+        """Until condition() holds: woken by every message, and every 0.2 s for what no message
+        tells (graph matching, a child that died: supervisor.check())."""
+        guard = time.monotonic() + HANG
+        with self.changed:
+            while not condition():
+                supervisor.check()
+                assert time.monotonic() < guard, f'the graph hung waiting for {what}'
+                self.changed.wait(0.2)
 
     def stop(self):
         self.running = False
@@ -91,7 +123,18 @@ class Collector:
 
 @pytest.fixture(scope='module')
 def reference(trt):
-    return sencer_reference(trt)
+    """Rest at home, the approach to the Eq. (35) path (as the trajectory session plays it),
+    the path (from its own 0.2 s rest), TAIL rows at rest."""
+    from machine_ctrl.model.reference import Reference
+    from trajectory import moves
+    path = sencer_reference(trt)
+    home = np.array(trt.home, float)
+    approach = moves.move_to(trt, path.position[0], moves.AxisState.at_rest(home))
+
+    def held(point, steps):
+        zeros = np.zeros((steps, len(point)))
+        return Reference(path.axis_names, path.period, np.tile(point, (steps, 1)), zeros, zeros)
+    return moves.concatenate([held(home, 100), approach, path, held(path.position[-1], TAIL)])
 
 
 def publish_reference(node, machine, reference):
@@ -107,8 +150,9 @@ def publish_reference(node, machine, reference):
     return pub
 
 
-def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node, ros_supervisor):
+def test_node_publishes_the_offline_core_and_marks_the_joins(trt, reference, ros_node, ros_supervisor):
     from machine_ctrl.ros import messages as ros_io
+    steps = len(reference) - TAIL // 2
     common = {'machine': str(trt.yaml_path)}
     node = ros_node('contour_test')
     collector = Collector(node, ros_io.StepClock.of(trt))
@@ -121,38 +165,80 @@ def test_node_publishes_what_the_offline_core_computes(trt, reference, ros_node,
              NodeSpec('contour_error', 'machine_ctrl.ros.contour_error_node', 'ContourErrorNode',
                       {**common, 'estimator': 'compensated'})]
     try:
-        # the contour node first, and its four publishers matched with this test's readers,
+        # the contour node first, its four publishers matched with this test's readers and the
+        # whole reference in it (its bound looks 200 rows ahead, as the offline core does),
         # before the machine starts: nothing it publishes can go out before this test listens
         contour_spec = specs.pop()
         ros_supervisor.start(contour_spec.name, contour_spec.argv())
-        deadline = time.monotonic() + 120
-        while not collector.contour_publishers_matched():
-            assert time.monotonic() < deadline, 'contour_error publishers not matched'
-            ros_supervisor.check()
-            time.sleep(0.1)
+        collector.wait(lambda: collector.contour_publishers_matched() and collector.diagnostics is not None
+                       and collector.diagnostics['buffered_steps'] == str(len(reference)),
+                       'the contour node with the reference', ros_supervisor)
         ros_supervisor.start_nodes(specs)
-        deadline = time.monotonic() + 120
-        while not all(k in collector.tip for k in range(STEPS)) or len(collector.orientation_magnitude) < STEPS:
-            assert time.monotonic() < deadline, f'got {len(collector.tip)} contour errors'
-            ros_supervisor.check()
-            time.sleep(0.1)
+        collector.wait(lambda: all(k in collector.tip for k in range(steps))
+                       and len(collector.orientation_magnitude) >= steps, f'{steps} contour errors', ros_supervisor)
+        # /diagnostics: its counts cover the steps up to estimated_step; wait for one at or past
+        # `steps` whose steps are all here
+        found = []
+
+        def counted():
+            values = collector.diagnostics
+            last = int(values['estimated_step'])
+            if last >= steps - 1 and all(k in collector.tip and k in collector.orientation for k in range(last + 1)):
+                found.append(values)
+            return bool(found)
+        collector.wait(counted, 'the diagnostics of the last step', ros_supervisor)
+        diagnostics = found[0]
     finally:
         ros_supervisor.stop_all()
         collector.stop()
 
+    # the same core offline, on the recorded joint states
     kinematics = Kinematics.from_config(trt)
     trajectory = ToolTrajectory.from_reference(kinematics, reference)
-    estimator = ContourEstimator(kinematics, 'compensated')
-    offline = [estimator.update(trajectory, k, collector.states[k]) for k in range(STEPS)]
-    tip = np.array([collector.tip[k] for k in range(STEPS)])
-    orientation = np.array([collector.orientation[k] for k in range(STEPS)])
-    assert np.array_equal(tip, np.array([e.tool_tip.vector for e in offline]))
-    assert np.array_equal(orientation, np.array([e.orientation for e in offline]))
-    assert collector.tip_magnitude[:STEPS] == [math.sqrt(sum(v * v for v in e.tool_tip.vector)) for e in offline]
-    assert collector.orientation_magnitude[:STEPS] == [math.sqrt(sum(v * v for v in e.orientation))
-                                                      for e in offline]
+    estimator = ContourEstimator(kinematics, 'compensated', machine_tolerances(trt))
+    offline = [estimator.update(trajectory, k, collector.states[k]) for k in range(steps)]
+    tip = np.array([collector.tip[k] for k in range(steps)])
+    orientation = np.array([collector.orientation[k] for k in range(steps)])
+    for live, part, magnitudes in ((tip, 'tool_tip', collector.tip_magnitude),
+                                   (orientation, 'orientation', collector.orientation_magnitude)):
+        estimates = [getattr(e, part) for e in offline]
+        valid = np.array([e.valid for e in estimates])
+        expected = np.array([e.vector if e.valid else [math.nan] * 3 for e in estimates])
+        assert np.array_equal(live, expected, equal_nan=True)
+        assert np.array_equal(magnitudes[:steps], [math.sqrt(sum(v * v for v in e.vector)) if e.valid else math.nan
+                                                   for e in estimates], equal_nan=True)
+        assert np.isnan(live[~valid]).all() and np.isfinite(live[valid]).all()
     assert collector.frames == {'workpiece'}
-    assert np.linalg.norm(tip, axis=1).max() > 1e-5       # the machine moved and made contour errors
+    assert np.nanmax(np.linalg.norm(tip, axis=1)) > 1e-5       # the machine moved and made contour errors
+
+    # against the closest-point truth: every number within its bound; NaN few and at the joins
+    poses = [kinematics.forward(collector.states[k]) for k in range(steps)]
+    truth = {'tool_tip': true_tool_tip_errors(trajectory, np.array([x[0] for x in poses])),
+             'orientation': true_orientation_errors(trajectory, np.array([x[1] for x in poses]))}
+    moving = trajectory.geometry[0].moving[:steps]
+    joins = np.flatnonzero(np.diff(moving.astype(int))) + 1    # approach start, its end, the path's start, end
+    assert len(joins) == 4
+    streams = {'tool_tip': collector.tip, 'orientation': collector.orientation}
+    for live, part in ((tip, 'tool_tip'), (orientation, 'orientation')):
+        bound = np.array([getattr(e, part).check.bound for e in offline])
+        published = ~np.isnan(live[:, 0])
+        deviation = np.linalg.norm(live - truth[part], axis=1)
+        assert (deviation[published] <= bound[published]).all()
+        nan_steps = np.flatnonzero(~published)
+        # the last steps of the approach (0.46 mm off there), the 200-step rest at the corner after
+        # it (while the tool is on the side of the path leaving it) and 20 steps into the path,
+        # the last 20 of the path; a few orientation steps early in the approach, where its error
+        # is small against the turn of the tool axis (offline: 191 tool-tip, 224 orientation steps)
+        at_joins = np.array([any(j - 30 <= k <= j + 40 for j in joins) or joins[1] <= k <= joins[2]
+                             for k in nan_steps], bool)
+        assert at_joins.all(), nan_steps[~at_joins]
+        assert len(nan_steps) < 0.04 * steps, len(nan_steps)
+        last = int(diagnostics['estimated_step'])
+        assert int(diagnostics[f'invalid_{part}_steps']) == sum(math.isnan(streams[part][k][0]) for k in range(last + 1))
+    # the approach's end: the estimate 0.46 mm off the truth, published as NaN
+    offline_tip = np.array([e.tool_tip.vector for e in offline])
+    jump = np.linalg.norm(offline_tip - truth['tool_tip'], axis=1) > 1e-4
+    assert jump.any() and np.isnan(tip[jump]).all()
 
 
 # --- states without a reference row: a state of the node, not a flood ------------------------------

@@ -46,6 +46,15 @@ is P''s direction if the reference is accelerating, else the last direction of t
 an orientation at rest
 (W = 0) -> the same rule with the tool axis's direction of motion. At a path's ends the
 true error is the distance to the end segment (:class:`RestDirection`).
+
+Validity (:mod:`machine_ctrl.contour.validity`, README "Contour error", "Validity"): every
+estimate carries a Check, a bound on |estimate - true contour error| from the path's geometry
+around it, and valid = the bound within the tolerance. The estimates themselves are the
+formulas above, unchanged; where their assumptions fail — a smooth path with the closest
+point near the frame point: not at a join, a corner, a reversal, across the last rows of a
+stop (where Eq. 21's t_d = e_t/|V| runs to its clamp and the frame lands on another segment:
+the 483 um of the micromill's approach -> helix join), not beyond a path end — the bound
+says so and the step is invalid. The node publishes invalid steps as NaN.
 """
 from __future__ import annotations
 
@@ -54,12 +63,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from machine_ctrl.contour.validity import (SPEED_TOL, Check, PathGeometry, PathMemory, Tolerance, angle,
+                                           dot, line_check, nearer_row_angle, rest_check)
 from machine_ctrl.model.kinematics import Kinematics, orientation_basis
 
 ESTIMATORS = ('basic', 'shifted', 'compensated')
 # assumed: below these the reference counts as at rest / as not curving; far below any
-# motion a machine makes (1 nm/s; 1e-12 of the speed for the normal).
-SPEED_TOL = 1e-9            # m/s (and 1/s for the tool-axis rate)
+# motion a machine makes (SPEED_TOL = 1 nm/s, in validity.py; 1e-12 of the speed for the normal).
 CURVATURE_TOL = 1e-12       # relative
 # assumed: |t_d| is clamped to 50 ms, 6x the largest lag of the trt_5axis run (8 ms). Eq. (21)
 # assumes the reference keeps its speed over t_d; in the last milliseconds of a stop the
@@ -67,6 +77,11 @@ CURVATURE_TOL = 1e-12       # relative
 # 2 mm on the micromill helix). The node keeps this much reference history, so it computes
 # what the offline run computes.
 MAX_SHIFT = 0.05            # s
+# assumed: an estimate's bound looks at the reference rows within 0.2 s of its step, both ways
+# (4 MAX_SHIFT: a window of a few um of arc around the closest point spans more steps than the
+# shift where the path starts slowly; validity.py). The node keeps as many rows behind the
+# newest step, and the trajectory source streams further ahead (3000 rows by default).
+HORIZON = 0.2               # s
 # assumed: 20 us balances truncation (h^2/6 |d3P/dt3| ~ 1e-11 m/s in V) against rounding
 # (eps |P| / h^2 ~ 3e-8 m/s^2 in A, which only enters through the tangent at a start).
 DIFFERENCE_STEP = 2e-5      # s
@@ -95,12 +110,17 @@ def tool_reference(kinematics: Kinematics, q, qd, qdd):
 class ToolTrajectory:
     """Reference tool rows by control step, filled chunk by chunk (like ReferenceBuffer: a
     chunk replaces everything from its first step on), with cubic Hermite interpolation
-    between steps for the shifted estimators and the true-error search."""
+    between steps for the shifted estimators and the true-error search, and the geometry of
+    the tool-tip and tool-axis paths (arc length, turning: :class:`validity.PathGeometry`)
+    that bounds the estimates. `horizon`: the steps each way an estimate's bound may look at
+    (HORIZON; the node keeps that many behind the newest step)."""
 
     def __init__(self, period: float):
         self.period = period
+        self.horizon = int(math.ceil(HORIZON / period))
         self.first = 0
         self.rows = np.empty((5, 0, 3))          # P, V, A, O, W
+        self.geometry = (PathGeometry(), PathGeometry())     # tool tip (P, V), tool axis (O, W)
         self.version = 0                         # counts changes of rows already held
 
     @classmethod
@@ -129,11 +149,17 @@ class ToolTrajectory:
             self.first, self.rows = first_step, chunk
         else:
             self.rows = np.concatenate((self.rows[:, :first_step - self.first], chunk), axis=1)
+        index = first_step - self.first
+        for geometry, (position, rate) in zip(self.geometry, ((0, 1), (3, 4))):
+            geometry.replace_from(index, chunk[position], chunk[rate],
+                                  self.rows[position, index - 1] if index else None)
 
     def drop_before(self, step: int) -> None:
         if step > self.first:
             cut = min(step, self.end) - self.first
             self.rows, self.first = self.rows[:, cut:], self.first + cut
+            for geometry in self.geometry:
+                geometry.drop(cut)
 
     def row(self, step: int) -> list[list[float]]:
         """[P, V, A, O, W] of a step held here, as lists of floats (per-step code runs on
@@ -169,10 +195,6 @@ def hermite(x0, d0, x1, d1, u, h):
     u3 = u2 * u
     return ((2 * u3 - 3 * u2 + 1) * x0 + (u3 - 2 * u2 + u) * h * d0
             + (-2 * u3 + 3 * u2) * x1 + (u3 - u2) * h * d1)
-
-
-def dot(a, b) -> float:
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 def unit(x, tol: float):
@@ -231,14 +253,19 @@ class RestDirection:
         self.last = direction
 
     def contour_error(self, trajectory: ToolTrajectory, step: int, e) -> list[float]:
+        return self.resolve(trajectory, step, e)[0]
+
+    def resolve(self, trajectory: ToolTrajectory, step: int, e):
+        """(contour error, direction used or None, beyond the end / behind the start, step of
+        the first motion ahead when that gave the direction, else None)."""
         if self.last is not None:
-            direction, beyond = self.last, dot(e, self.last) < 0.0      # ahead of the stop
+            direction, beyond, ahead = self.last, dot(e, self.last) < 0.0, None      # ahead of the stop
         else:
             direction = self._first_ahead(trajectory, step)
             if direction is None:
-                return list(e)
-            beyond = dot(e, direction) > 0.0                           # behind the start
-        return list(e) if beyond else reject(e, direction)
+                return list(e), None, False, None
+            beyond, ahead = dot(e, direction) > 0.0, self._ahead[0]                # behind the start
+        return (list(e) if beyond else reject(e, direction)), direction, beyond, ahead
 
     def _first_ahead(self, trajectory: ToolTrajectory, step: int):
         if self._ahead is None or self._ahead[0] < step:
@@ -259,38 +286,67 @@ class TipEstimate:
     vector: list[float]     # contour error eps (m, workpiece frame), from P towards the path
     frenet: list[float]     # [e_t, e_n, e_b] in the frame used (Eq. 19; Eq. 26 for compensated)
     delay: float            # t_d (s), Eq. (21); 0 for basic and at rest
+    check: Check            # |vector - true eps| <= check.bound; valid or not (module validity)
+
+    @property
+    def valid(self) -> bool:
+        return self.check.valid
 
 
 class ToolTipEstimator:
     """One of the Frenet-frame estimators of Sencer section 3.2, stepped once per control step
-    in step order (it remembers the direction of travel for stops)."""
+    in step order (it remembers the direction of travel for stops, and the path that led to
+    a rest, for the bound)."""
 
-    def __init__(self, method: str = 'compensated'):
+    def __init__(self, method: str = 'compensated', tolerance: Tolerance = Tolerance()):
         if method not in ESTIMATORS:
             raise ValueError(f'estimator must be one of {", ".join(ESTIMATORS)}, got {method!r}')
         self.method = method
+        self.tolerance = tolerance
         self.rest = RestDirection(1)
+        self.memory = PathMemory(0)
 
     def estimate(self, trajectory: ToolTrajectory, step: int, p, row=None) -> TipEstimate:
         p_ref, v_ref, a_ref = (row or trajectory.row(step))[:3]
         e = [p_ref[0] - p[0], p_ref[1] - p[1], p_ref[2] - p[2]]            # Eq. (15)
+        self.memory.note(trajectory, step)
         frame = frenet_frame(v_ref, a_ref)
         if frame is None:
-            return TipEstimate(self.rest.contour_error(trajectory, step, e), [0.0, 0.0, 0.0], 0.0)
+            vector, direction, beyond, ahead = self.rest.resolve(trajectory, step, e)
+            return TipEstimate(vector, [0.0, 0.0, 0.0], 0.0, rest_check(
+                self.memory, self.tolerance, trajectory, step, vector, e, direction, beyond, ahead, p))
         self.rest.moved(frame[0])
         e_frenet = components(frame, e)                                     # Eq. (19)
+        geometry = trajectory.geometry[0]
+        i = step - trajectory.first
+        s_k = float(geometry.s[i])
+        turn_k = 0.0 if geometry.moving[i] else angle(frame[0], geometry.last[i].tolist())   # T from A at a stop
         if self.method == 'basic':
-            return TipEstimate(normal_part(frame, e_frenet), e_frenet, 0.0)  # Eq. (20)
+            vector = normal_part(frame, e_frenet)                           # Eq. (20)
+            return TipEstimate(vector, e_frenet, 0.0, line_check(
+                self.memory, self.tolerance, trajectory, step, vector, e, e_frenet[0], s_k, s_k, turn_k, p))
         speed = math.sqrt(dot(v_ref, v_ref))
         delay = e_frenet[0] / speed if speed > SPEED_TOL else 0.0           # Eq. (21)
         delay = min(max(delay, -MAX_SHIFT), MAX_SHIFT)
-        p_d, v_d, a_d = trajectory.sample(step - delay / trajectory.period)
-        shifted = frenet_frame(v_d, a_d) or frame                           # Eq. (22)
+        at = step - delay / trajectory.period
+        p_d, v_d, a_d = trajectory.sample(at)
+        shifted = frenet_frame(v_d, a_d)                                    # Eq. (22)
+        at = min(max(at - trajectory.first, 0.0), len(trajectory) - 1.0)   # where sample() took it
+        s_d = geometry.arc(at)
+        if shifted is None:
+            shifted, s_t, turn_t = frame, s_k, turn_k
+        else:                             # T interpolated: its angle to a row's direction in the window
+            s_t, turn_t = s_d, nearer_row_angle(geometry, shifted[0], at)
         e_shifted = components(shifted, e)
         if self.method == 'compensated':                                    # Eqs. (23)-(26)
             h_frenet = components(shifted, [p_ref[i] - p_d[i] for i in range(3)])
             e_shifted = [e_shifted[0], e_shifted[1] - h_frenet[1], e_shifted[2] - h_frenet[2]]
-        return TipEstimate(normal_part(shifted, e_shifted), e_shifted, delay)
+            residual, s_c = e_shifted[0] - h_frenet[0], s_d
+        else:
+            residual, s_c = e_shifted[0], s_k
+        vector = normal_part(shifted, e_shifted)
+        return TipEstimate(vector, e_shifted, delay, line_check(
+            self.memory, self.tolerance, trajectory, step, vector, e, residual, s_c, s_t, turn_t, p))
 
 
 def orientation_contour_error(o_ref, w_ref, o) -> list[float] | None:
@@ -325,37 +381,61 @@ def drive_coordinates(j_o, eps_o) -> np.ndarray:
 
 class OrientationEstimator:
     """Eq. (28) per control step, in step order (it remembers the tool axis's direction of
-    motion for rests, :class:`RestDirection`)."""
+    motion for rests, :class:`RestDirection`, and the path that led to a rest)."""
 
-    def __init__(self):
+    def __init__(self, tolerance: Tolerance = Tolerance()):
+        self.tolerance = tolerance
         self.rest = RestDirection(4)
+        self.memory = PathMemory(1)
 
     def estimate(self, trajectory: ToolTrajectory, step: int, o, row=None) -> list[float]:
+        return self.update(trajectory, step, o, row).vector
+
+    def update(self, trajectory: ToolTrajectory, step: int, o, row=None) -> OrientationEstimate:
+        """The estimate with its bound (module validity)."""
         o_ref, w_ref = (row or trajectory.row(step))[3:]
-        eps = orientation_contour_error(o_ref, w_ref, o)
-        if eps is None:
-            return self.rest.contour_error(trajectory, step, [o_ref[i] - o[i] for i in range(3)])
-        self.rest.moved(unit(w_ref, SPEED_TOL)[0])
-        return eps
+        e = [o_ref[i] - o[i] for i in range(3)]
+        self.memory.note(trajectory, step)
+        w = unit(w_ref, SPEED_TOL)[0]
+        if w is None:
+            vector, direction, beyond, ahead = self.rest.resolve(trajectory, step, e)
+            return OrientationEstimate(vector, rest_check(
+                self.memory, self.tolerance, trajectory, step, vector, e, direction, beyond, ahead, o))
+        self.rest.moved(w)
+        vector = reject(e, w)                                              # Eq. (28)
+        s_k = float(trajectory.geometry[1].s[step - trajectory.first])
+        return OrientationEstimate(vector, line_check(
+            self.memory, self.tolerance, trajectory, step, vector, e, dot(w, e), s_k, s_k, 0.0, o))
+
+
+@dataclass(frozen=True)
+class OrientationEstimate:
+    vector: list[float]     # eps_o, workpiece frame (Eq. 28)
+    check: Check            # |vector - true eps_o| <= check.bound (rad); valid or not
+
+    @property
+    def valid(self) -> bool:
+        return self.check.valid
 
 
 @dataclass(frozen=True)
 class ContourEstimate:
     tool_tip: TipEstimate
-    orientation: list[float]    # eps_o, workpiece frame (Eq. 28)
+    orientation: OrientationEstimate
 
 
 class ContourEstimator:
     """Per control step, in step order: measured axes -> FK -> tool-tip and orientation
-    contour errors."""
+    contour errors, each with its bound and validity."""
 
-    def __init__(self, kinematics: Kinematics, method: str = 'compensated'):
+    def __init__(self, kinematics: Kinematics, method: str = 'compensated',
+                 tolerances: tuple[Tolerance, Tolerance] = (Tolerance(), Tolerance())):
         self.kinematics = kinematics
-        self.tip = ToolTipEstimator(method)
-        self.orientation = OrientationEstimator()
+        self.tip = ToolTipEstimator(method, tolerances[0])
+        self.orientation = OrientationEstimator(tolerances[1])
 
     def update(self, trajectory: ToolTrajectory, step: int, q) -> ContourEstimate:
         p, o = self.kinematics.forward(q)
         row = trajectory.row(step)
         return ContourEstimate(self.tip.estimate(trajectory, step, p.tolist(), row),
-                               self.orientation.estimate(trajectory, step, o.tolist(), row))
+                               self.orientation.update(trajectory, step, o.tolist(), row))

@@ -12,7 +12,17 @@ there (states of steps already done — hw_sim's re-sends — are ignored):
     /contour_error/orientation            geometry_msgs/Vector3Stamped  rad (small-angle vector), frame `workpiece`
     /contour_error/orientation_magnitude  std_msgs/Float64              rad
 
-published in that order, stamp = the state's stamp. Parameters: `machine`, `estimator`
+published in that order, stamp = the state's stamp. A step whose estimate is not valid (its
+bound on |estimate - true contour error| is above the tolerance: a join, a corner, a reversal,
+the last rows of a stop, a path end; machine_ctrl/contour/validity.py, README "Contour error")
+is published as NaN in all three components and in the magnitude, the convention of REP 117
+for a reading that is not there: the step is still published (a consumer pairing topics by
+stamp sees every step) and a consumer that does not check cannot take a wrong number for a
+good one. A consumer that needs estimates (a contouring controller) uses only finite ones;
+`invalid_tool_tip_steps`, `invalid_orientation_steps` and the last one with its reason are on
+/diagnostics. The bound looks at the reference rows up to HORIZON (0.2 s) ahead of the step:
+the node computes what the offline core computes as long as the reference is streamed that far
+ahead of the states (the trajectory node: 3000 rows). Parameters: `machine`, `estimator`
 (basic | shifted | compensated; live, from the next step). A state whose reference row has
 not arrived waits for it (so start-up timing cannot change what is published); after
 MAX_SHIFT worth of steps without it the oldest waiting state is given up. A refused message
@@ -41,6 +51,7 @@ from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData
 from machine_ctrl.contour.estimation import MAX_SHIFT, ContourEstimator, ToolTrajectory, tool_reference
+from machine_ctrl.contour.validity import machine_tolerances
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.ros.node_common import (main_for, rejections, subscribe_joint_states, subscribe_reference,
                                           use_sim_time, wall_timer)
@@ -56,15 +67,17 @@ class ContourErrorNode(Node):
                                     on_change={'estimator': self.on_estimator}).estimator
         self.kinematics = Kinematics.from_config(self.machine)
         try:
-            self.estimator = ContourEstimator(self.kinematics, method)
+            self.estimator = ContourEstimator(self.kinematics, method, machine_tolerances(self.machine))
         except ValueError as exc:
             self.get_logger().fatal(f'parameter estimator: {exc}')
             raise SystemExit(2) from None
         self.clock = ros_io.StepClock.of(self.machine)
         self.trajectory = ToolTrajectory(self.machine.control_period)
-        self.history = int(math.ceil(MAX_SHIFT / self.machine.control_period)) + 2
+        self.history = self.trajectory.horizon + 2     # the rows an estimate may look back at, and 2
+        self.invalid = InvalidSteps()
         logger = self.get_logger()
-        self.pending = PendingStates(self.history, logger.warning, logger.info)
+        waiting = int(math.ceil(MAX_SHIFT / self.machine.control_period)) + 2
+        self.pending = PendingStates(waiting, logger.warning, logger.info)
         self.rejections = rejections(self)
         self.frame = self.machine.workpiece_frame
         self.pubs = [self.create_publisher(kind, topic, ros_io.STEP_QOS) for kind, topic in (
@@ -104,16 +117,17 @@ class ContourErrorNode(Node):
         for step, q in self.pending.ready(self.trajectory):
             self.trajectory.drop_before(step - self.history)
             estimate = self.estimator.update(self.trajectory, step, q)
+            self.invalid.add(step, estimate)
             for pub, message in zip(self.pubs, self.messages(self.clock.stamp(step), estimate)):
                 pub.publish(message)
 
     def messages(self, stamp, estimate):
         out = []
-        for vector in (estimate.tool_tip.vector, estimate.orientation):
+        for vector, valid in published(estimate):
             msg = Vector3Stamped()
             msg.header.stamp, msg.header.frame_id = stamp, self.frame
-            msg.vector.x, msg.vector.y, msg.vector.z = (float(v) for v in vector)
-            out += [msg, Float64(data=math.sqrt(sum(v * v for v in vector)))]
+            msg.vector.x, msg.vector.y, msg.vector.z = vector
+            out += [msg, Float64(data=math.sqrt(sum(v * v for v in vector)) if valid else math.nan)]
         return out
 
     def publish_diagnostics(self) -> None:
@@ -122,11 +136,38 @@ class ContourErrorNode(Node):
                   'estimated_step': pending.estimated_step, 'waiting_states': len(pending),
                   'steps_before_reference': pending.before_reference, 'skipped_steps': pending.skipped,
                   'gaps': pending.gaps, 'buffered_steps': len(self.trajectory),
-                  'rejected_messages': self.rejections.count, 'last_rejection': self.rejections.last}
+                  'rejected_messages': self.rejections.count, 'last_rejection': self.rejections.last,
+                  **self.invalid.values()}
         problems = pending.gap_since is not None or self.rejections.count
         self.pub_diag.publish(ros_io.diagnostics(
             self.clock.stamp(max(pending.last_step, 0)), self.get_name(),
             DiagnosticStatus.WARN if problems else DiagnosticStatus.OK, pending.state(), values))
+
+
+def published(estimate):
+    """[(tool-tip vector, valid), (orientation vector, valid)] as the node publishes them: an
+    invalid estimate as NaN (module docstring)."""
+    return [(tuple(float(v) for v in part.vector) if part.valid else (math.nan,) * 3, part.valid)
+            for part in (estimate.tool_tip, estimate.orientation)]
+
+
+class InvalidSteps:
+    """Counts of the steps published as NaN, and the last of each, for /diagnostics."""
+
+    def __init__(self):
+        self.count = {'tool_tip': 0, 'orientation': 0}
+        self.last = {'tool_tip': '', 'orientation': ''}
+
+    def add(self, step: int, estimate) -> None:
+        for name, part, unit in (('tool_tip', estimate.tool_tip, 'm'), ('orientation', estimate.orientation, 'rad')):
+            if not part.valid:
+                self.count[name] += 1
+                self.last[name] = f'step {step}: {part.check.reason} (bound {part.check.bound:.3g} {unit})'
+
+    def values(self) -> dict:
+        return {'invalid_tool_tip_steps': self.count['tool_tip'], 'last_invalid_tool_tip': self.last['tool_tip'],
+                'invalid_orientation_steps': self.count['orientation'],
+                'last_invalid_orientation': self.last['orientation']}
 
 
 class PendingStates:
