@@ -64,6 +64,19 @@ class Client(MachineClient):
     def on_truth(self, msg):
         self.truth = np.array(msg.position)
 
+    def wait_goal(self, stamp, states, timeout: float = 120.0, check=None) -> str:
+        """Wait until the goal sent with `stamp` has gone through `states` (in order; states
+        between may have been missed by the latched status, never the last); its id."""
+        def seen() -> bool:
+            goal_id = self.goal_of(stamp)
+            wanted = list(states)
+            for state in self.goal_states.get(goal_id, []) if goal_id else []:
+                if wanted and state == wanted[0]:
+                    wanted.pop(0)
+            return not wanted
+        self.wait(seen, f'goal states {list(states)}', timeout, check)
+        return self.goal_of(stamp)
+
     def reference(self):
         """The streamed reference as one array, steps first..last."""
         with self.lock:
