@@ -28,6 +28,7 @@ DISTRIBUTION_TO_KEY = {
     'mcap-ros2-support': 'mcap-ros2-support',  # rosdep's key for it has no python3- prefix
     'pytest': 'python3-pytest',
     'rosbags': 'python3-rosbags-pip',
+    'hypothesis': 'python3-hypothesis',
 }
 # exec_depends with no requirement in setup.py, and why.
 PACKAGE_XML_ONLY = {
@@ -41,7 +42,7 @@ ROSDISTRO_KEYS = {
     'unique_identifier_msgs', 'std_msgs', 'std_srvs', 'geometry_msgs', 'sensor_msgs', 'nav_msgs',
     'trajectory_msgs', 'diagnostic_msgs', 'launch', 'launch_ros', 'pinocchio',
     'python3-numpy', 'python3-scipy', 'python3-yaml', 'python3-matplotlib', 'mcap-ros2-support',
-    'python3-pytest', 'python3-rosbags-pip', 'python3-setuptools',
+    'python3-pytest', 'python3-rosbags-pip', 'python3-setuptools', 'python3-hypothesis',
 }
 
 

@@ -94,6 +94,8 @@ class _Declared:
         from rcl_interfaces.msg import SetParametersResult
         by_table: dict[int, tuple] = {}
         for param in params:
+            if not param.name:              # rclpy 7.1 lets '' through its undeclared-name check
+                return SetParametersResult(successful=False, reason='a parameter needs a name (got an empty one)')
             if param.name == USE_SIM_TIME and (problem := self.sim_time_problem(param.value)) is not None:
                 return SetParametersResult(successful=False, reason=problem)
             table = self.tables.get(param.name)
