@@ -182,11 +182,16 @@ def test_trajectory_chunks_replace_and_drop():
     assert trajectory.first == 103 and not trajectory.has(102) and trajectory.has(107)
 
 
-def test_done_when_targets_on_the_trt_eq35_run():
+@pytest.fixture(scope='module')
+def trt_eq35_run():
+    from machine_ctrl.experiments.contour import experiment
+    return experiment(helix=False)
+
+
+def test_done_when_targets_on_the_trt_eq35_run(trt_eq35_run):
     """[5/7]: compensated mean deviation <= 0.05 um and <= 5 % of the largest true contour
     error at its peaks, best of the three at the peaks; orientation (Eq. 28) <= 6 urad."""
-    from machine_ctrl.experiments.contour import experiment
-    summary = experiment(helix=False)[0]['trt_5axis']
+    summary = trt_eq35_run[0]['trt_5axis']
     tip = summary['tool_tip']
     assert summary['fault'] is None
     assert tip['true']['max_um'] > 50.0                  # friction at the reversals makes real errors
@@ -195,3 +200,28 @@ def test_done_when_targets_on_the_trt_eq35_run():
     assert tip['compensated']['peak_max_deviation_um'] < min(tip['basic']['peak_max_deviation_um'],
                                                            tip['shifted']['peak_max_deviation_um'])
     assert max(summary['orientation_max_deviation_urad']['eq28'].values()) <= 6.0
+
+
+def test_the_trt_eq35_statistics_leave_out_only_the_steps_marked_invalid_and_say_so(trt_eq35_run):
+    """[6/8]: the experiment's statistics are over each estimator's valid steps; the invalid
+    ones (the path's start and its final stop, where the estimators break down by ~12 um)
+    are counted by reason, the largest deviation among them is reported, and every valid
+    step lies within its own bound. Recomputed here from the per-step series."""
+    summary, series = trt_eq35_run
+    result, tip = series['result'], summary['trt_5axis']['tool_tip']
+    true = result['true_tip']
+    for method in ESTIMATORS:
+        deviation = np.linalg.norm(result[method] - true, axis=1)
+        valid, stats = result[f'{method}_valid'], tip[method]
+        assert stats['valid_steps'] + stats['invalid_steps'] == len(deviation) == summary['trt_5axis']['steps']
+        assert stats['invalid_steps'] == int((~valid).sum()) > 0
+        assert set(stats['invalid_by_reason']) <= {'start', 'end'}, stats['invalid_by_reason']
+        assert stats['max_deviation_um'] == pytest.approx(deviation[valid].max() * 1e6, rel=1e-12)
+        assert stats['mean_deviation_um'] == pytest.approx(deviation[valid].mean() * 1e6, rel=1e-12)
+        assert stats['max_deviation_invalid_um'] == pytest.approx(deviation[~valid].max() * 1e6, rel=1e-12)
+        assert stats['max_deviation_invalid_um'] > 10.0       # the final stop: hidden from the table, said
+        assert stats['valid_over_bound'] == 0 and np.all(deviation[valid] <= result[f'{method}_bound'][valid])
+    orientation = np.linalg.norm(result['orientation'] - result['true_orientation'], axis=1)
+    valid = result['orientation_valid']
+    assert summary['trt_5axis']['orientation_validity']['invalid_steps'] == int((~valid).sum())
+    assert np.all(orientation[valid] <= result['orientation_bound'][valid])

@@ -4,8 +4,15 @@ Eq. 34) against the true contour errors (closest-point search), along the Eq. (3
 trt_5axis on the offline runner, and the same estimators on the micromill helix.
 
 Per estimator: the deviation |eps_est - eps_true| (vector difference, um) on average and
-at its maximum, over the whole run (rests included) and at the peaks (steps where the
-true contour error is >= half its maximum). Orientation in drive coordinates of the rotary
+at its maximum, over the run's valid steps (rests included) and at the peaks (valid steps
+where the true contour error is >= half its maximum). Steps the estimator itself marks
+invalid (its bound on |eps_est - eps_true| above the tolerance: machine_ctrl.contour.validity,
+README "Contour error" -> "Validity"; the node publishes them as NaN) are excluded from
+these statistics, and said so: 'invalid_steps' (by reason), 'max_deviation_invalid_um' (the
+largest deviation among them, what the exclusion hides) and 'valid_over_bound' (valid steps
+whose deviation exceeds their own bound: 0 if the bound holds). Likewise the orientation
+estimate (Eq. 28): its invalid steps are counted and excluded; Eq. (34) has no validity of
+its own and is compared over every step. Orientation in drive coordinates of the rotary
 axes (Sencer Fig. 10): true J_O^+ eps (Eq. 36 with the pseudo-inverse) vs Eq. (28) through
 J_O^+ (what contour_error_node publishes, in the workpiece frame), vs Eq. (34) as printed
 and vs its exact form (G = J_O^T J_O, :func:`machine_ctrl.contour.estimation.rotary_contour_error`). Inputs are the encoder readings, as the node sees them.
@@ -45,21 +52,52 @@ def estimate_run(kinematics: Kinematics, trajectory: ToolTrajectory, measured) -
         estimates = [estimator.estimate(trajectory, k, pk) for k, pk in enumerate(p.tolist())]
         out[method] = np.array([e.vector for e in estimates])
         out[f'{method}_delay'] = np.array([e.delay for e in estimates])
+        _checks(out, method, estimates)
     orientation = OrientationEstimator()
-    out['orientation'] = np.array([orientation.estimate(trajectory, k, ok) for k, ok in enumerate(o.tolist())])
+    estimates = [orientation.update(trajectory, k, ok) for k, ok in enumerate(o.tolist())]
+    out['orientation'] = np.array([e.vector for e in estimates])
+    _checks(out, 'orientation', estimates)
     return out
 
 
+def _checks(out: dict, name: str, estimates) -> None:
+    """<name>_valid, <name>_bound, <name>_reason per step from the estimates' own checks."""
+    out[f'{name}_valid'] = np.array([e.check.valid for e in estimates], dtype=bool)
+    out[f'{name}_bound'] = np.array([e.check.bound for e in estimates])
+    out[f'{name}_reason'] = np.array([e.check.reason for e in estimates], dtype=object)
+
+
+def validity_statistics(deviation: np.ndarray, valid: np.ndarray, bound: np.ndarray, reason: np.ndarray,
+                        scale: float) -> dict:
+    """How many steps were invalid (and why), the largest deviation among them (what the
+    exclusion hides) and how many valid steps exceed their own bound; `scale` to um/urad."""
+    invalid = ~valid
+    reasons, counts = np.unique(reason[invalid].astype(str), return_counts=True)
+    return {'invalid_steps': int(invalid.sum()),
+            'invalid_by_reason': {str(r): int(c) for r, c in zip(reasons, counts)},
+            'max_deviation_invalid': float(deviation[invalid].max() * scale) if invalid.any() else None,
+            'valid_over_bound': int((deviation[valid] > bound[valid]).sum())}
+
+
 def tip_statistics(result: dict) -> dict:
+    """Deviation statistics of each estimator over its valid steps only (invalid ones counted,
+    not used: validity_statistics)."""
     true = result['true_tip']
     magnitude = np.linalg.norm(true, axis=1)
     peaks = magnitude >= 0.5 * magnitude.max()
     stats = {'true': {'mean_um': magnitude.mean() * UM, 'max_um': magnitude.max() * UM}}
     for method in ESTIMATORS:
         deviation = np.linalg.norm(result[method] - true, axis=1)
-        stats[method] = {'mean_deviation_um': deviation.mean() * UM, 'max_deviation_um': deviation.max() * UM,
-                         'peak_max_deviation_um': deviation[peaks].max() * UM,
-                         'peak_max_deviation_percent': 100 * deviation[peaks].max() / magnitude.max()}
+        valid = result[f'{method}_valid']
+        checks = validity_statistics(deviation, valid, result[f'{method}_bound'], result[f'{method}_reason'], UM)
+        used, at_peaks = deviation[valid], deviation[valid & peaks]
+        stats[method] = {'mean_deviation_um': used.mean() * UM, 'max_deviation_um': used.max() * UM,
+                         'peak_max_deviation_um': at_peaks.max() * UM,
+                         'peak_max_deviation_percent': 100 * at_peaks.max() / magnitude.max(),
+                         'valid_steps': int(valid.sum()), 'invalid_steps': checks['invalid_steps'],
+                         'invalid_by_reason': checks['invalid_by_reason'],
+                         'max_deviation_invalid_um': checks['max_deviation_invalid'],
+                         'valid_over_bound': checks['valid_over_bound']}
     return stats
 
 
@@ -91,12 +129,18 @@ def experiment(progress=lambda text: None, helix: bool = True) -> tuple[dict, di
     result = estimate_run(kinematics, trajectory, record.measured)
     drives = rotary_drive_errors(machine, reference, record, result)
     names = [a.name for a in machine.axes if a.kind == 'rotary']
+    valid = result['orientation_valid']          # Eq. (28)'s own validity; Eq. (34) has none: every step
+    used = {'eq28': valid, 'eq34': np.ones_like(valid), 'eq34_exact': np.ones_like(valid)}
+    deviation = np.linalg.norm(result['orientation'] - result['true_orientation'], axis=1)
     summary = {'trt_5axis': {'steps': len(reference), 'fault': record.fault, 'tool_tip': tip_statistics(result),
                              'orientation_max_deviation_urad': {
-                                 form: {n: float(np.abs(drives[form][:, i] - drives['true'][:, i]).max() * UM)
-                                        for i, n in enumerate(names)} for form in ('eq28', 'eq34', 'eq34_exact')},
+                                 form: {n: float(np.abs(drives[form][used[form], i] - drives['true'][used[form], i]).max()
+                                                 * UM) for i, n in enumerate(names)}
+                                 for form in ('eq28', 'eq34', 'eq34_exact')},
                              'orientation_true_max_urad': {n: float(np.abs(drives['true'][:, i]).max() * UM)
-                                                           for i, n in enumerate(names)}}}
+                                                           for i, n in enumerate(names)},
+                             'orientation_validity': validity_statistics(
+                                 deviation, valid, result['orientation_bound'], result['orientation_reason'], UM)}}
     series = {'period': machine.control_period, 'result': result, 'drives': drives, 'rotary': names}
     if helix:
         summary['micromill_9axis_helix'] = helix_run(progress)
@@ -116,9 +160,12 @@ def helix_run(progress) -> dict:
     progress('micromill_9axis: estimates and true contour errors')
     result = estimate_run(kinematics, trajectory, record.measured)
     deviation = np.linalg.norm(result['orientation'] - result['true_orientation'], axis=1)
+    valid = result['orientation_valid']
     return {'steps': len(reference), 'fault': record.fault, 'tool_tip': tip_statistics(result),
-            'orientation_max_deviation_urad': float(deviation.max() * UM),
-            'orientation_true_max_urad': float(np.linalg.norm(result['true_orientation'], axis=1).max() * UM)}
+            'orientation_max_deviation_urad': float(deviation[valid].max() * UM),
+            'orientation_true_max_urad': float(np.linalg.norm(result['true_orientation'], axis=1).max() * UM),
+            'orientation_validity': validity_statistics(deviation, valid, result['orientation_bound'],
+                                                        result['orientation_reason'], UM)}
 
 
 def plots(series: dict, directory) -> list[str]:
@@ -135,8 +182,8 @@ def plots(series: dict, directory) -> list[str]:
     true = np.linalg.norm(result['true_tip'], axis=1) * UM
     fig, ax = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
     ax[0].plot(t, true, 'k', label='true')
-    for method in ESTIMATORS:
-        magnitude = np.linalg.norm(result[method], axis=1) * UM
+    for method in ESTIMATORS:       # invalid steps are gaps (NaN), as the node publishes them
+        magnitude = np.where(result[f'{method}_valid'], np.linalg.norm(result[method], axis=1) * UM, np.nan)
         ax[0].plot(t, magnitude, '--', lw=0.8, label=method)
         ax[1].plot(t, magnitude - true, lw=0.8, label=method)
     ax[0].set_ylabel('|contour error| (um)')
@@ -175,15 +222,29 @@ def table(summary: dict) -> str:
     for run_name, data in summary.items():
         tip = data['tool_tip']
         lines.append(f'{run_name} ({data["steps"]} steps): true contour error mean {tip["true"]["mean_um"]:.3f} um, '
-                     f'max {tip["true"]["max_um"]:.3f} um')
-        lines.append(f'  {"estimator":<12} {"mean dev um":>12} {"max dev um":>11} {"peak dev um":>12} {"peak dev %":>11}')
+                     f'max {tip["true"]["max_um"]:.3f} um; deviations over each estimator\'s valid steps')
+        lines.append(f'  {"estimator":<12} {"mean dev um":>12} {"max dev um":>11} {"peak dev um":>12} {"peak dev %":>11}'
+                     f' {"invalid":>8} {"max dev there um":>17} {"over bound":>10}')
         for method in ESTIMATORS:
             s = tip[method]
+            hidden = s['max_deviation_invalid_um']
             lines.append(f'  {method:<12} {s["mean_deviation_um"]:12.4f} {s["max_deviation_um"]:11.3f} '
-                         f'{s["peak_max_deviation_um"]:12.4f} {s["peak_max_deviation_percent"]:11.4f}')
+                         f'{s["peak_max_deviation_um"]:12.4f} {s["peak_max_deviation_percent"]:11.4f} '
+                         f'{s["invalid_steps"]:8d} {"-" if hidden is None else f"{hidden:.3f}":>17} '
+                         f'{s["valid_over_bound"]:10d}')
+            if s['invalid_steps']:
+                lines.append(f'  {"":<12} invalid by reason: {json.dumps(s["invalid_by_reason"])}')
         orientation = data['orientation_max_deviation_urad']
+        checks = data['orientation_validity']
+        hidden = checks['max_deviation_invalid']
         lines.append(f'  orientation: max deviation from the true contour error (urad): {json.dumps(orientation)}; '
-                     f'true max {json.dumps(data["orientation_true_max_urad"])}')
+                     f'true max {json.dumps(data["orientation_true_max_urad"])}; Eq. (28) over its valid steps '
+                     f'({checks["invalid_steps"]} invalid {json.dumps(checks["invalid_by_reason"])}, max deviation '
+                     f'there {"-" if hidden is None else f"{hidden:.3f}"} urad, '
+                     f'{checks["valid_over_bound"]} valid over bound)')
+        lines.append('  invalid: steps the estimator marks invalid (bound above tolerance; NaN on the node), '
+                     'excluded from the statistics; "max dev there": the largest deviation among them; '
+                     '"over bound": valid steps deviating more than their own bound')
     return '\n'.join(lines)
 
 
