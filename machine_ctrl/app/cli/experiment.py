@@ -2,9 +2,13 @@
 runner, machine_ctrl.experiments and compensation/), one subcommand each; progress on stderr.
 
 * ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR]``: thesis section 6.3 /
-  Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}}`` with
-  mean_x_tracking, mean_y_tracking, mean_contour, max_x_tracking, max_y_tracking,
-  max_contour in um; frf prints ``{"bandwidth_hz": {"x_c": ..., "x_f": ..., "x_dual": ...,
+  Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}, "measured":
+  {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "encoder_count_um": ...,
+  "steps": ..., "notes": [...]}``; "smc"/"dsfd" hold mean_x_tracking, mean_y_tracking,
+  mean_contour, max_x_tracking, max_y_tracking, max_contour in um, null where the figure is
+  the noise floor (no larger than at rest: tracking.noise_floor), which the table prints as
+  "floor"; "measured" has every encoder figure, "true" the same against the simulator's
+  true positions; frf prints ``{"bandwidth_hz": {"x_c": ..., "x_f": ..., "x_dual": ...,
   ...}, "frequencies_hz": [...], "gain": {...}}``. circle/square ``--record DIR`` also
   write each run as a bag, DIR/smc and DIR/dsfd (machine_ctrl.ros.run_bag, called here: the
   experiments layer is ROS-free).
@@ -67,19 +71,72 @@ def _progress(label: str, done: int, total: int) -> None:
           file=sys.stderr, flush=True)
 
 
+FLOOR = 'floor'     # printed instead of a figure that is the noise floor (tracking.noise_floor)
+
+
+def contouring_notes(result: dict) -> list[str]:
+    """What the table's cells are, and which are not results, in words (table and JSON)."""
+    from machine_ctrl.experiments.tracking import STAT_KEYS
+    count = result['encoder_count_um']
+    notes = ['errors from the encoders, x = x_c + x_f and y = y_c + y_f, as the thesis measured them; '
+             '"true": the same errors against the simulator\'s true positions (in parentheses where the '
+             'encoder figure is the floor)',
+             '"at rest": the same statistics with the machine holding the start point for as long '
+             '(same mode, same simulated noise: hw_sim is seeded)']
+    for mode in ('smc', 'dsfd'):
+        floor = result['noise_floor'][mode]
+        if not floor:
+            continue
+        labels = ', '.join(f'{STAT_LABELS[STAT_KEYS.index(k)].lower()} {result[mode][k]:.3f} '
+                           f'(at rest {result["at_rest"][mode][k]:.3f})' for k in floor)
+        notes.append(f'{FLOOR} ({mode.upper()}): {labels} um: no larger than at rest (maxima within one '
+                     f'{count * 1000:.0f} nm encoder count): the simulated table\'s own force-noise excursion '
+                     f'(plant.force_noise, assumed), not a contouring result; not compared with the thesis')
+    return notes
+
+
+def contouring_json(result: dict) -> dict:
+    """The --json object: 'smc'/'dsfd' hold the results, null where the cell is the noise
+    floor; 'measured' every encoder figure; 'true', 'at_rest', 'noise_floor',
+    'encoder_count_um', 'steps', 'notes'."""
+    out = {mode: {k: (None if k in result['noise_floor'][mode] else v) for k, v in result[mode].items()}
+           for mode in ('smc', 'dsfd')}
+    out['measured'] = {mode: result[mode] for mode in ('smc', 'dsfd')}
+    for key in ('true', 'at_rest', 'noise_floor', 'encoder_count_um', 'steps'):
+        out[key] = result[key]
+    out['notes'] = contouring_notes(result)
+    return out
+
+
 def _print_contouring(kind: str, machine: str, result: dict) -> None:
     from machine_ctrl.experiments.tracking import STAT_KEYS, THESIS
+    floor = result['noise_floor']
+
+    def cell(mode, key):
+        return f'{FLOOR:>9s}' if key in floor[mode] else f'{result[mode][key]:9.3f}'
+
+    def true_cell(mode, key):     # in parentheses: the truth of a floor cell, not a result either
+        value = result['true'][mode][key]
+        return f'{f"({value:.3f})":>9s}' if key in floor[mode] else f'{value:9.3f}'
+
     print(f'{EXPERIMENT_TITLES[kind]}; {machine} simulation; errors in um')
-    print(f'{"":22s} {"SMC sim":>9s} {"thesis":>9s} {"DSFD sim":>9s} {"thesis":>9s}')
+    print(f'{"":22s} {"SMC sim":>9s} {"at rest":>9s} {"thesis":>9s} {"DSFD sim":>9s} {"at rest":>9s} {"thesis":>9s}'
+          f' {"true SMC":>9s} {"true DSFD":>9s}')
     for key, label in zip(STAT_KEYS, STAT_LABELS):
         i = STAT_KEYS.index(key)
-        print(f'{label:22s} {result["smc"][key]:9.3f} {THESIS[kind]["smc"][i]:9.3f} '
-              f'{result["dsfd"][key]:9.3f} {THESIS[kind]["dsfd"][i]:9.3f}')
+        print(f'{label:22s} {cell("smc", key)} {result["at_rest"]["smc"][key]:9.3f} {THESIS[kind]["smc"][i]:9.3f} '
+              f'{cell("dsfd", key)} {result["at_rest"]["dsfd"][key]:9.3f} {THESIS[kind]["dsfd"][i]:9.3f} '
+              f'{true_cell("smc", key)} {true_cell("dsfd", key)}')
     for key, label in (('max_contour', 'max contour'), ('max_y_tracking', 'max y tracking')):
         i = STAT_KEYS.index(key)
-        ours = result['smc'][key] / result['dsfd'][key]
         theirs = THESIS[kind]['smc'][i] / THESIS[kind]['dsfd'][i]
-        print(f'SMC/DSFD {label}: {ours:.2f}x (thesis {theirs:.2f}x)')
+        at_floor = [m.upper() for m in ('smc', 'dsfd') if key in floor[m]]
+        if at_floor:
+            print(f'SMC/DSFD {label}: n/a, {" and ".join(at_floor)} at the noise floor (thesis {theirs:.2f}x)')
+        else:
+            print(f'SMC/DSFD {label}: {result["smc"][key] / result["dsfd"][key]:.2f}x (thesis {theirs:.2f}x)')
+    for note in contouring_notes(result):
+        print(f'* {note}')
 
 
 def _print_frf(machine: str, result: dict) -> None:
@@ -125,7 +182,7 @@ def cmd_experiment(args) -> int:
         return 0
     result = contouring(machine, args.name, progress=progress, record_dir=args.record)
     if args.json:
-        print(json.dumps(result))
+        print(json.dumps(contouring_json(result)))
     else:
         _print_contouring(args.name, machine.name, result)
     return 0
