@@ -42,9 +42,13 @@ class RunRecord:
 
 def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         laws: dict[str, str] | None = None, feedforward: bool = True, steps: int | None = None,
-        progress=None) -> RunRecord:
+        progress=None, initial_position=None) -> RunRecord:
+    """Run `reference` for `steps` steps (default its length; past its end the last
+    position is held) from `initial_position` (default where the reference starts; hw_sim
+    starts at its `initial_position` parameter, the machine's home by default)."""
     steps = len(reference) if steps is None else steps
-    simulator = MachineSimulator(machine, initial_position=reference.position[0])
+    start = reference.position[0] if initial_position is None else initial_position
+    simulator = MachineSimulator(machine, initial_position=start)
     servo = ServoGroup(machine, machine.axis_names, laws, feedforward)
     coupling = DualStageCoupling(machine, dual_stage=dual_stage)
     fine_index = [machine.axis_names.index(a) for a in coupling.fine_axes]

@@ -11,6 +11,7 @@ no ROS test pays nothing. A ROS test asks for ``ros_env`` (directly or through
 ``rclpy_context``/``ros_supervisor``) before it initialises rclpy.
 """
 import contextlib
+import io
 import os
 import sys
 
@@ -135,3 +136,23 @@ class ProgressReporter:
             self.reported = step
             sec, nanosec = self.clock.split(step)
             self.publisher.publish(self.time_type(sec=sec, nanosec=nanosec))
+
+
+def on_disk(path, topic: str | None = None) -> int:
+    """Messages (of `topic`, or all) in the complete chunks of a bag file being written, read
+    as ``machine-ctrl record --recover`` does: what a kill now would not lose."""
+    from pathlib import Path
+
+    from mcap.records import Channel, Message
+
+    from machine_ctrl.recording import bag as bagmod
+    path = Path(path)
+    if not path.exists():
+        return 0
+    data = path.read_bytes()
+    if len(data) < len(bagmod.MAGIC):
+        return 0
+    records = []
+    bagmod._salvage(io.BytesIO(data), len(data), records.append)
+    channels = {r.id: r.topic for r in records if isinstance(r, Channel)}
+    return sum(isinstance(r, Message) and (topic is None or channels.get(r.channel_id) == topic) for r in records)

@@ -14,7 +14,6 @@
 
 Every wait is on a condition, with a generous deadline that only turns a hang into a
 failure."""
-import io
 import signal
 import subprocess
 import sys
@@ -26,6 +25,7 @@ import pytest
 from machine_ctrl.recording import bag as bagmod
 from machine_ctrl.recording import recorder
 from machine_ctrl.recording.bag import Bag
+from ros_fixtures import on_disk
 
 EXE = str(Path(sys.executable).with_name('machine-ctrl'))
 PERIOD = 100_000           # ns, the micromill's control period
@@ -53,18 +53,6 @@ def wait_until(condition, what, spin=None):
             spin()
         else:
             time.sleep(0.05)
-
-
-def on_disk(path: Path) -> int:
-    """Messages in the complete chunks of a bag file being written (read as --recover does)."""
-    if not path.exists():
-        return 0
-    data = path.read_bytes()
-    if len(data) < len(bagmod.MAGIC):
-        return 0
-    messages = []
-    bagmod._salvage(io.BytesIO(data), len(data), lambda r: isinstance(r, bagmod.Message) and messages.append(r))
-    return len(messages)
 
 
 class Publisher:

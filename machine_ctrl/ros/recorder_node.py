@@ -128,6 +128,8 @@ class RecorderNode(Node):
         for topic, type_name in (self.wanted or {}).items():
             if type_name is not None:
                 self.subscribe(topic, type_name, [])
+        if self.pub_progress is not None:
+            self.subscribe_step_topics(namespace)
         self.discovery = wall_timer(self, self.discovery_period, self.discover)
         wall_timer(self, FLUSH_CHECK, self.check_bag)
         self.discover()
@@ -205,10 +207,26 @@ class RecorderNode(Node):
             if offers:                        # wait for a publisher: its QoS decides ours
                 self.subscribe(topic, type_name, offers)
 
-    def subscribe(self, topic: str, type_name: str, offers: list[dict]) -> None:
+    def subscribe_step_topics(self, namespace: str) -> None:
+        """The graph's per-step topics (contract.PER_STEP_TOPICS, all reliable and volatile)
+        are subscribed at once, not on discovery: hw_sim's `min_subscribers` holds step 0
+        only until this node's /joint_states reader is matched, and a per-step topic found a
+        discovery round later would lose its first steps (seen: /servo_commands of steps
+        0-398 with every node in one process). Such a topic joins the bag with its first
+        message (the QoS its publishers offer then), so a topic nobody publishes is not in it."""
+        for topic in contract.PER_STEP_TOPICS:
+            name = topic.full(namespace)
+            if (self.wanted is None and name not in self.excluded or name in (self.wanted or {})) \
+                    and self.subscribed.get(name) is None:
+                self.subscribe(name, topic.type, None)
+
+    def subscribe(self, topic: str, type_name: str, offers: list[dict] | None) -> None:
+        """Subscribe `topic`; `offers` None: the bag learns the topic (with its publishers'
+        offered QoS) from its first message."""
         try:
             cls = message_class(type_name)
-            self.recording.add_topic(topic, type_name, offers)
+            if offers is not None:
+                self.recording.add_topic(topic, type_name, offers)
         except (LookupError, DefinitionNotFound, ValueError) as exc:
             self.get_logger().error(f'not recording {topic}: {exc}', once=True)
             self.subscribed[topic] = None
@@ -218,12 +236,17 @@ class RecorderNode(Node):
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=want['depth'],
                          reliability=ReliabilityPolicy[want['reliability'].upper()],
                          durability=DurabilityPolicy[want['durability'].upper()])
+        unregistered = [offers is None]
 
         def on_message(data: bytes, topic=topic) -> None:
             if self.recording.stopped is not None:
                 return
             now = self.last_message = time.monotonic()
             try:
+                if unregistered[0]:
+                    unregistered[0] = False
+                    self.recording.add_topic(topic, type_name, [offered_profile(info.qos_profile)
+                                                                for info in self.get_publishers_info_by_topic(topic)])
                 due = self.recording.write(topic, data, time.time_ns(), now)
             except BagError as exc:
                 self.stop_recording(str(exc))

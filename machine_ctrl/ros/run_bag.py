@@ -13,12 +13,17 @@ record: same topics, types, stamps and contents per step k (stamp t_k = k T):
   ``TRUTH_DECIMATION`` steps (the nodes' defaults).
 
 There is no wall clock offline: log and publish times are the sim time of the message.
+
+:func:`write_goal_bag` does the same for a tool-path goal run offline (hw_sim.offline_goal:
+the trajectory node's session streams the reference, from hw_sim's initial position): the
+bag `machine-ctrl bringup --record` + `machine-ctrl send` record, for these topics.
 """
 from __future__ import annotations
 
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
+from hw_sim.offline_goal import GoalRun, run_goal
 from hw_sim.simulator import true_geometry
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
@@ -89,3 +94,22 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
     if label:
         custom['machine_ctrl.run'] = label
     return writer.close(custom)
+
+
+def as_received(machine: MachineConfig, cl):
+    """CL data as the trajectory node gets them from a client: sent as a nav_msgs/Path
+    (tool axis as a quaternion, ros_io.path_message, as MachineClient.send_path does) and
+    read back (ros_io.path_to_cl), so the planner sees the same floats."""
+    frame = machine.workpiece_frame
+    return ros_io.path_to_cl(ros_io.path_message(cl, frame), frame)
+
+
+def write_goal_bag(directory, machine: MachineConfig, cl, start_step: int | None = None,
+                   steps: int | None = None, initial_position=None) -> tuple[GoalRun, dict[str, int]]:
+    """Run the tool path `cl` offline as a goal sent to the graph (hw_sim.offline_goal.run_goal:
+    the motion from `start_step`, `steps` steps) and write it as a bag; returns the run and
+    the counts per topic."""
+    run = run_goal(machine, as_received(machine, cl), start_step=start_step, steps=steps,
+                   initial_position=initial_position)
+    label = f'goal: path of {len(cl)} points, motion from step {run.motion_start} to {run.motion_end}'
+    return run, write_run_bag(directory, machine, run.reference, run.record, label)
