@@ -82,6 +82,7 @@ class RecorderGate:
     recorded: int | None = None
     refused: int = 0
     last_refusal: str = ''
+    lost: int = 0                        # recorders lost (their liveliness lease ran out)
     hold_count: int = 0                  # holds begun
     hold_time: float = 0.0               # wall s of the holds ended
     hold_started: float | None = None    # wall time the current hold began

@@ -26,6 +26,9 @@ Faults (the simulator stops: drives off, axes held; the session keeps running an
 reporting): a non-finite command, a stroke violation (found by the simulator), a command
 missing for `command_timeout` s (lock-step, from step 1 on: at step 0 the graph is still
 coming up; never while every command is in hand and the session holds for the recorder).
+In lock-step mode also a stall of hw_sim itself: its process did not run (SIGSTOP,
+starved) for more than `command_timeout` s (:meth:`LockStepSession.watch`, from step 1 on):
+whatever the nodes did meanwhile, the machine stops rather than go on from a gap.
 Malformed commands (unknown or duplicate axes, length mismatch, off-grid or future stamps)
 and progress reports (off-grid, not a published step) are refused with a reason and change
 nothing. A reset clears a fault and restarts the current step from where the axes are
@@ -97,6 +100,7 @@ class Session:
         self.missed_deadlines = 0
         self.ready = False                       # the graph has completed its first step
         self._state_sent_at = self._step_started_at = 0.0
+        self._watched_at = 0.0                   # wall time of the last watch (stall detection)
 
     @property
     def step(self) -> int:
@@ -117,7 +121,12 @@ class Session:
 
     def start(self, now: float) -> None:
         """Send the state of the first step."""
+        self._watched_at = now
         self._send(now)
+
+    def watch(self, now: float) -> None:
+        """Called on every timer of the node (wall time `now`): see LockStepSession."""
+        self._watched_at = now
 
     # -- events ------------------------------------------------------------------------
     def on_command(self, sec: int, nanosec: int, names, values, now: float) -> None:
@@ -221,9 +230,31 @@ class LockStepSession(Session):
         self.gate.recorded = step
         self.advance_if_ready(now)
 
+    def watch(self, now: float) -> None:
+        """hw_sim's own stall: more than `command_timeout` s since the last call (the node
+        calls this from each of its timers, every `timer_period` s) means its process did
+        not run — stopped (SIGSTOP) or starved. From step 1 on that faults the machine (the
+        nodes waited for it, a client may have given up on it): nothing goes on from a gap."""
+        gap = now - self._watched_at
+        self._watched_at = now
+        if gap > self.command_timeout and self.lockstep.step > 0:
+            self.fault(f'hw_sim stalled: its process did not run for {gap:.1f} s (stopped or starved; '
+                       f'limit command_timeout {self.command_timeout:g} s)', now)
+
+    def recorder_alive(self, alive: bool, now: float) -> None:
+        """The recorder's liveliness (its progress writer's lease, contract.PROGRESS_QOS):
+        lost (killed, stopped, hung) releases a hold at once, as a recorder that left the
+        graph does; a recorder that comes back holds again from its next progress report."""
+        if alive or self.gate.recorded is None:
+            return
+        self.gate.lost += 1
+        self.gate.recorded = None
+        self.io.log_info('recorder lost (its liveliness lease ran out): no longer holding for it')
+        self.advance_if_ready(now)
+
     def on_timer(self, now: float) -> None:
         """Watchdog: fault on a command missing too long, else re-send a state waited on;
-        then advance if a hold has ended meanwhile."""
+        then advance if a hold has ended meanwhile. (The node calls :meth:`watch` first.)"""
         if (self.sim.fault is None and self.lockstep.step > 0 and not self.lockstep.complete()
                 and now - self._step_started_at > self.command_timeout):
             self.fault(f'missing command for {" ".join(self.lockstep.missing)} '

@@ -38,11 +38,25 @@ NS_PER_SECOND = 1_000_000_000
 @dataclass(frozen=True)
 class Qos:
     """A QoS profile: keep-last `depth`, reliable or best effort, volatile or transient local
-    (late joiners get the last `depth` messages). Deadline, lifespan and liveliness are the
-    ROS defaults."""
+    (late joiners get the last `depth` messages). Deadline and lifespan are the ROS defaults;
+    liveliness too unless `liveliness_lease` > 0 (s): automatic liveliness with that lease, so
+    a reader that asks for it learns within the lease that the writer's process is gone or
+    stopped (README "Faults"). A reader must request a lease at least the writer's: Fast DDS
+    reports liveliness changes only to readers with a finite lease."""
     depth: int
     reliable: bool = True
     transient_local: bool = False
+    liveliness_lease: float = 0.0
+
+
+# assumed: 2 s = hw_sim's default command_timeout, the time a drive gives its setpoints; the
+# writers assert it from Fast DDS's own threads (not Python), so a busy node is not taken
+# for a lost one; measured with 1 s: a SIGKILL or SIGSTOP is reported after 1.3-1.5 s, a
+# SIGCONT at once (test/test_faults.py checks the behaviour, not the time)
+LIVELINESS_LEASE = 2.0     # s
+# assumed: above the 2.5 s recorder freeze that test_recorder_graph.py must survive holding
+# (a freeze longer than this releases hw_sim's hold: the machine goes on, the bag may lose)
+RECORDER_LIVELINESS_LEASE = 5.0     # s
 
 
 # Per-step traffic must never be dropped silently: reliable, and deep enough for bursts.
@@ -58,12 +72,21 @@ LATCHED_QOS = Qos(depth=1, transient_local=True)
 # writer overwrites a state its readers have not acknowledged yet, so a client under load
 # saw accepted then succeeded, never executing; 100 lists outlast any such lag (each list is
 # complete, so a late joiner's newest one is the truth and older ones only history).
-GOAL_STATUS_QOS = Qos(depth=100, transient_local=True)
+# With a liveliness lease: a client following its goal learns that the trajectory node is
+# gone (or stopped) within it.
+GOAL_STATUS_QOS = Qos(depth=100, transient_local=True, liveliness_lease=LIVELINESS_LEASE)
 # What a client keeps of a latched status stream while it follows a motion.
 LATCHED_READER_QOS = Qos(depth=1000, transient_local=True)
+# The same for the goal status, asking for the writer's liveliness (contract.GOAL_STATUS_QOS).
+GOAL_STATUS_READER_QOS = Qos(depth=1000, transient_local=True, liveliness_lease=LIVELINESS_LEASE)
+# hw_sim's `ready`: latched, with a liveliness lease, so that the trajectory node learns within
+# the lease that hw_sim (the machine) is gone or stopped.
+READY_QOS = Qos(depth=1, transient_local=True, liveliness_lease=LIVELINESS_LEASE)
 # The recorder's progress: one value, latched, so hw_sim learns at once that a recorder is
 # there and how far it is.
-PROGRESS_QOS = Qos(depth=1, transient_local=True)
+# With a liveliness lease, so that hw_sim stops holding for a killed or stopped recorder
+# within it (instead of DDS's participant lease, ~20 s).
+PROGRESS_QOS = Qos(depth=1, transient_local=True, liveliness_lease=RECORDER_LIVELINESS_LEASE)
 # /clock for timers and tools (the per-step nodes take time from the stamps they answer).
 CLOCK_READER_QOS = Qos(depth=10)
 # /diagnostics: every node, 1 Hz and at once on a fault.
@@ -158,7 +181,7 @@ CONTOUR_ORIENTATION_MAGNITUDE = Topic('contour_error/orientation_magnitude', 'st
 GOAL_STATUS = Topic('trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', GOAL_STATUS_QOS,
                     'latched: every goal of the session with its id (UUID) and state: accepted, executing, '
                     'succeeded, canceled, aborted (the reason on /diagnostics)')
-READY = Topic('ready', 'std_msgs/msg/Bool', LATCHED_QOS,
+READY = Topic('ready', 'std_msgs/msg/Bool', READY_QOS,
               'latched: true once every node of the graph has its first state (the graph steps)')
 ROBOT_DESCRIPTION = Topic('robot_description', 'std_msgs/msg/String', LATCHED_QOS,
                           "latched: the machine's URDF, joint names as on /joint_states")

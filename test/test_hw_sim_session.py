@@ -398,3 +398,43 @@ def test_the_urdf_hw_sim_publishes_names_the_axes_of_the_joint_states(name):
     from machine_ctrl.model.config import load_machine
     machine = load_machine(name)
     assert set(urdf.read_joints(machine.urdf_path)) == set(machine.axis_names)
+
+
+def test_hw_sim_s_own_stall_faults_the_machine_from_step_1_on(make):
+    """README "Faults": hw_sim's process not run (SIGSTOP, starved) for more than
+    command_timeout: the machine stops rather than go on from a gap; never at step 0."""
+    s, io = make(command_timeout=2.0)
+    s.watch(now=50.0)                            # at step 0 the graph is still coming up
+    assert s.sim.fault is None
+    run_to(s, 3, now=50.0)
+    s.watch(now=51.9)                            # within the timeout
+    assert s.sim.fault is None
+    io.take()
+    s.watch(now=54.5)
+    assert io.take() == [('fault', 'hw_sim stalled: its process did not run for 2.6 s (stopped or starved; '
+                                   'limit command_timeout 2 s)'), ('state', 3)]
+    command(s, 3, now=54.6)
+    assert s.step == 3                            # faulted: nothing goes on without a reset
+
+
+def test_a_recorder_lost_by_its_liveliness_releases_the_hold_and_a_new_one_holds_again(make):
+    s, io = make(recorder_window=3)
+    run_to(s, 4)
+    s.on_progress(*stamp(0), now=1.0)
+    run_to(s, 10, now=1.0)
+    assert s.step == 4                            # held for the recorder
+    io.take()
+    s.recorder_alive(True, now=1.5)               # alive: nothing changes
+    assert io.take() == [] and s.step == 4
+    s.recorder_alive(False, now=2.0)
+    assert io.take() == [('info', 'recorder lost (its liveliness lease ran out): no longer holding for it'),
+                         ('state', 5)]
+    assert s.gate.lost == 1 and s.status(2.0).values['recorder_step'] == ''
+    run_to(s, 20, now=2.0)
+    assert s.step == 20                           # no hold without a recorder
+    s.on_progress(*stamp(19), now=3.0)            # a recorder back: holds again from its report
+    run_to(s, 30, now=3.0)
+    assert s.step == 23                           # 23 - 19 > the window of 3
+    s.recorder_alive(False, now=4.0)
+    s.recorder_alive(False, now=4.1)              # counted once per loss
+    assert s.gate.lost == 2

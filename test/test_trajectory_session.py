@@ -418,3 +418,45 @@ def test_a_path_is_held_on_the_path_and_its_approach_by_a_stop(micromill, out):
     assert_within_limits(micromill, rows)
     np.testing.assert_allclose(rows[-1], b, rtol=0, atol=1e-15)
     assert out.goal_changes[-1][1] == 'succeeded' and approach > 3000
+
+
+def test_a_stall_of_the_node_aborts_its_goal_and_nothing_of_it_goes_on(micromill, out):
+    """README "Faults": the node's process did not run for more than half the liveliness
+    lease (clients may have taken it for lost): the goal is aborted and its motion stopped."""
+    session = session_of(micromill, out, start_step=0)
+    session.watch(now=10.0, step=0)
+    assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
+    session.tick(2000)
+    session.watch(now=10.05, step=2000)
+    assert session.state == State.RUNNING
+    session.watch(now=10.05 + 1.2, step=2000)     # the process stood for 1.2 s
+    assert out.goal_changes[-1][1] == 'aborted'
+    assert out.goal_changes[-1][2] == 'trajectory stalled: its process did not run for 1.2 s (stopped or starved)'
+    run_until_idle(session)
+    _, rows = streamed(out)
+    assert abs(rows[-1][0] - (HERE[0] - 40e-3)) > 10e-3     # stopped far short of the goal
+    assert (rows[-50:] == rows[-1]).all()         # and at rest
+    session.watch(now=20.0)                       # idle: a gap is no stall of a goal
+    assert session.state == State.IDLE
+
+
+def test_hw_sim_lost_is_a_fault_once_confirmed_and_clears_when_it_is_back_and_healthy(micromill, out):
+    session = session_of(micromill, out, start_step=0)
+    assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
+    session.tick(2000)
+    session.machine_alive(False, now=5.0)        # the lease ran out ...
+    session.machine_heard(now=5.5)                # ... but hw_sim's status came after: a false loss
+    session.machine_alive(False, now=7.0)
+    assert session.state == State.RUNNING
+    session.machine_alive(False, now=8.0)         # lost, and silent for 1.5 s: confirmed
+    session.machine_alive(False, now=9.6)
+    reason = 'hw_sim lost: no sign of life within its 2 s liveliness lease (killed, stopped or hung)'
+    assert session.state == State.FAULT and session.fault == reason
+    assert out.goal_changes[-1][1:] == ('aborted', f'machine faulted: {reason}')
+    session.machine_status(False)                 # a healthy status while still lost: stays faulted
+    assert session.state == State.FAULT
+    session.machine_alive(True, now=10.0)
+    session.machine_status(True, 'hw_sim stalled: its process did not run for 3.0 s', '2100')
+    assert session.fault == 'hw_sim stalled: its process did not run for 3.0 s'   # its own fault step now
+    session.machine_status(False)                 # reset
+    assert session.state == State.IDLE and session.fault == ''

@@ -14,6 +14,10 @@ States (:class:`State`; the values are the message of the node's status):
 * holding: the motion stands; :meth:`Session.resume` goes on with it (running).
 * fault: hw_sim reported a fault (:meth:`Session.machine_status`): the motion is dropped,
   the reference at the fault step held, goals refused until hw_sim is healthy again (idle).
+  Also when hw_sim is lost (:meth:`Session.machine_alive`: its liveliness lease ran out —
+  killed, stopped, hung): the goal is aborted with that reason and a motion under way is
+  stopped as by :meth:`Session.stop` (hw_sim, if it comes back, faults itself and its fault
+  step is then held); the fault clears once hw_sim is alive again and reports healthy.
 
 A motion that has played out returns the state to idle at the next :meth:`Session.tick`.
 Refused goals are counted and the last reason kept (`rejections`: machine_ctrl.diagnostics.Rejections).
@@ -191,6 +195,11 @@ class Session:
         self.program: Program | None = None  # the motion under way, as parts
         self.held: tuple[int, float] | None = None   # a cut hold: (part, planned time) to resume
         self.stopping = False                # a stop or cancel: the goal ends canceled
+        self.machine_lost = False            # hw_sim's liveliness lost (and not back yet)
+        self._watched_at: float | None = None  # wall time of the last watch (own stall)
+        self._lost_since: float | None = None  # hw_sim's liveliness lost at (not confirmed yet)
+        self._heard_at: float | None = None
+        self._await_fault_step = False       # a fault without hw_sim's fault step yet
 
     @property
     def goal(self) -> Goal | None:
@@ -491,10 +500,91 @@ class Session:
         return f'feed {value:g} from step {begin}'
 
     # -- faults ----------------------------------------------------------------------------
+    def watch(self, now: float, step: int | None = None, limit: float = contract.LIVELINESS_LEASE / 2) -> None:
+        """This node's own stall: more than `limit` s (wall, `now`) since the last call — the
+        node calls this from its timers (every 0.05 s) and before each /clock `step` — means
+        its process did not run (SIGSTOP, starved), and its clients may have been told it is
+        lost (the liveliness lease of the goal status runs out between 2/3 of the lease and
+        the lease after its last assertion; half the lease: assumed, the smallest gap a busy
+        Python process is not expected to show). The goal under way is aborted with that reason, nothing of it
+        goes on: a motion the servos still have rows of is stopped as by :meth:`stop`; one
+        they ran out of (they hold the last row at rest) is held at the next row."""
+        gap = 0.0 if self._watched_at is None else now - self._watched_at
+        self._watched_at = now
+        if gap <= limit or self.state not in (State.RUNNING, State.HOLDING, State.PLANNING):
+            return
+        reason = f'trajectory stalled: its process did not run for {gap:.1f} s (stopped or starved)'
+        self.out.warn(reason)
+        goal, newest = self.goal, max(self.step, step if step is not None else 0)
+        if self.state == State.RUNNING and newest + self.chunk_steps < self.stream.next_step:
+            self._halt(keep=False, reason=reason)      # 'too late' is fine: the motion ends at rest
+        elif self.stream is not None:
+            self.stream.abort(self.stream.next_step)   # the servos ran out: hold where they stand
+        if self.state == State.PLANNING or not (self.stream is not None and self.stream.busy(self.stream.next_step)):
+            self.program, self.held, self.stopping, self.planning_goal = None, None, False, None
+            self._set_state(State.IDLE)
+        else:
+            self.held, self.stopping = None, True       # the stop plays out, then idle (tick)
+        if goal is not None:
+            self.goals.set(goal, GoalState.ABORTED, reason)
+
+    def touch(self, now: float) -> None:
+        """A callback of the node ends at wall time `now`: its own duration (a move planned in
+        the callback) is no stall (the clients' liveliness is asserted meanwhile by DDS)."""
+        self._watched_at = now
+
+    def machine_heard(self, now: float) -> None:
+        """A message from hw_sim (its /diagnostics, 1 Hz) came at wall time `now`: a liveliness
+        loss reported before it was false (a reader delayed by this node's own long callback)."""
+        self._heard_at = now
+        if self._lost_since is not None and now > self._lost_since:
+            self._lost_since = None
+
+    def machine_alive(self, alive: bool, now: float | None = None, confirm: float = 1.5) -> None:
+        """hw_sim's liveliness (the lease of its latched `ready`): lost is a fault (module
+        docstring) whose reason names hw_sim, once confirmed — no message from hw_sim for
+        `confirm` s after the loss (assumed: 1.5 x hw_sim's 1 Hz diagnostics; a reader
+        starved by this node's own long callback reports false losses); back again lets
+        hw_sim's next healthy status clear it. The node calls this on each liveliness change
+        and with alive=False from its timer (`now`: wall time) to confirm."""
+        if alive:
+            self.machine_lost, self._lost_since = False, None
+            return
+        if self.machine_lost or now is None:
+            return
+        if self._lost_since is None:
+            self._lost_since = now
+            return
+        if now - self._lost_since < confirm:
+            return
+        self._lost_since = None
+        self._machine_lost(contract.LIVELINESS_LEASE)
+
+    def _machine_lost(self, lease: float) -> None:
+        self.machine_lost = True
+        reason = (f'hw_sim lost: no sign of life within its {lease:g} s liveliness lease '
+                  '(killed, stopped or hung)')
+        self.out.warn(reason)
+        if self.state == State.FAULT:
+            self.fault = f'{self.fault}; {reason}'
+            self._set_state(State.FAULT)
+            return
+        goal = self.goal
+        if self.state == State.RUNNING:
+            self._halt(keep=False, reason=reason)    # 'too late' is fine: the motion ends at rest
+        self.fault = reason
+        self.program, self.held, self.stopping, self.planning_goal = None, None, False, None
+        self._await_fault_step = True
+        self._set_state(State.FAULT)
+        if goal is not None:
+            self.goals.set(goal, GoalState.ABORTED, f'machine faulted: {reason}')
+
     def machine_status(self, faulted: bool, reason: str = '', step_text: str = '') -> None:
         """hw_sim's status: `faulted` with the fault `reason` and the fault step (text, as
-        hw_sim reports it), or healthy (a reset clears the fault: idle)."""
-        if faulted and self.state != State.FAULT:
+        hw_sim reports it), or healthy (a reset clears the fault: idle; not while hw_sim is
+        lost)."""
+        if faulted and (self.state != State.FAULT or self._await_fault_step):
+            self._await_fault_step = False
             self.fault = reason
             if self.stream is not None and step_text.isdigit():
                 self.stream.abort(int(step_text) + 1)     # hw_sim stopped at the fault step
@@ -504,7 +594,7 @@ class Session:
             self._set_state(State.FAULT)
             if goal is not None:
                 self.goals.set(goal, GoalState.ABORTED, f'machine faulted: {reason}')
-        elif not faulted and self.state == State.FAULT:
+        elif not faulted and self.state == State.FAULT and not self.machine_lost:
             self.fault = ''
             self._set_state(State.IDLE)
 

@@ -6,6 +6,10 @@ the graph tests. Spins its own node in a background thread.
 Readiness: hw_sim publishes contract.READY (latched) once the graph has completed its first
 step; :meth:`MachineClient.wait_ready` waits for it with a timeout and a clear message.
 
+Losses: the goal status is read with the writer's liveliness lease (contract.GOAL_STATUS_QOS),
+so :attr:`MachineClient.trajectory_lost` says within the lease that the trajectory node is
+gone or stopped; hw_sim's loss the trajectory node reports itself (the goal aborted).
+
 Goals: a goal sent with a stamp (:meth:`MachineClient.stamp_now`: the wall clock, unique per
 request) is found in the latched goal status (action_msgs/GoalStatusArray) by that stamp —
 GoalInfo.stamp is the request's header.stamp — which gives its id (:meth:`goal_of`); its
@@ -30,6 +34,7 @@ from std_msgs.msg import Float64
 
 from machine_ctrl import contract
 from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.ros.node_common import watch_liveliness
 from machine_ctrl.model.config import MachineConfig
 
 READY_TIMEOUT = 30.0            # s (wall) a command-line client waits for the graph
@@ -56,8 +61,11 @@ class MachineClient:
         node.create_subscription(DiagnosticStatus, contract.TRAJECTORY_STATUS.name, self.statuses.append,
                                  ros_io.qos(contract.LATCHED_READER_QOS))
         node.create_subscription(Bool, contract.READY.name, self._on_ready, ros_io.qos(contract.READY.qos))
-        node.create_subscription(GoalStatusArray, contract.GOAL_STATUS.name, self._on_goals,
-                                 ros_io.qos(contract.LATCHED_READER_QOS))
+        # asks for the goal status writer's liveliness: the trajectory node lost (killed,
+        # stopped, hung) is known within the lease (README "Faults")
+        self.trajectory_alive: bool | None = None          # None: not heard of yet
+        watch_liveliness(node, GoalStatusArray, contract.GOAL_STATUS.name, contract.GOAL_STATUS_READER_QOS,
+                         self._on_trajectory_alive, self._on_goals)
         node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self._on_diagnostics,
                                  ros_io.qos(contract.DIAGNOSTICS_READER_QOS))
         self.pub_path = node.create_publisher(Path, contract.PATH.name, ros_io.qos(contract.PATH.qos))
@@ -82,6 +90,18 @@ class MachineClient:
     # -- subscriptions (the spin thread) ---------------------------------------------------
     def _on_ready(self, msg: Bool) -> None:
         self.ready = bool(msg.data)
+
+    def _on_trajectory_alive(self, alive: bool) -> None:
+        self.trajectory_alive = alive
+
+    @property
+    def trajectory_lost(self) -> str | None:
+        """Why the trajectory node is taken for lost (it was alive, its liveliness lease ran
+        out), or None."""
+        if self.trajectory_alive is False:
+            return (f'the trajectory node (no sign of life within the {contract.LIVELINESS_LEASE:g} s liveliness '
+                    f'lease of {contract.GOAL_STATUS.name}: killed, stopped or hung)')
+        return None
 
     def _on_goals(self, msg: GoalStatusArray) -> None:
         for status in msg.status_list:

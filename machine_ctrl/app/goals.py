@@ -31,7 +31,9 @@ def _entry(client, goal_id: str, state: str) -> dict:
 def follow_goal(client, publish, timeout: float, out=sys.stdout) -> int:
     """Send with `publish(stamp)`, follow the goal by its id, show its states and the
     progress until it ends: 0 when it succeeded; 1 when refused or aborted (planning failed,
-    machine faulted), canceled (stopped) or timed out, with the reason on stderr."""
+    machine faulted, hw_sim lost), canceled (stopped), the trajectory node lost (its
+    liveliness lease ran out: it can no longer say what became of the goal) or timed out,
+    with the reason in one line on stderr."""
     from machine_ctrl.app.bringup import StateReporter
     from machine_ctrl.app.client import TERMINAL
     stamp = client.stamp_now()
@@ -50,6 +52,10 @@ def follow_goal(client, publish, timeout: float, out=sys.stdout) -> int:
         reporter.poll()
         if state in TERMINAL:
             break
+        if client.trajectory_lost is not None:
+            where = f'goal {goal_id} was {state}' if goal_id else 'the goal never appeared in the goal status'
+            print(f'machine-ctrl: lost: {client.trajectory_lost}; {where}', file=sys.stderr)
+            return 1
         if time.monotonic() > deadline:
             where = f'goal {goal_id} {state}' if goal_id else 'the goal never appeared in the goal status'
             print(f'machine-ctrl: timed out after {timeout:g} s; {where}; status {client.status()}', file=sys.stderr)

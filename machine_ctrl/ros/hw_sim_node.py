@@ -62,7 +62,7 @@ from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.model.kinematics import Kinematics
-from machine_ctrl.ros.node_common import main_for, subscribe_joint_states, wall_timer
+from machine_ctrl.ros.node_common import main_for, qos, subscribe_joint_states, wall_timer, watch_liveliness
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 
 
@@ -99,7 +99,8 @@ class HwSimNode(Node):
         self.pub_pose = self.create_publisher(PoseStamped, contract.TRUE_TOOL_POSE.name, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
-        self.pub_ready = self.create_publisher(Bool, contract.READY.name, ros_io.qos(contract.READY.qos))
+        # with a liveliness lease: the trajectory node learns from it that hw_sim is gone
+        self.pub_ready = self.create_publisher(Bool, contract.READY.name, qos(contract.READY.qos))
         self.pub_description = self.create_publisher(String, contract.ROBOT_DESCRIPTION.name,
                                                      ros_io.qos(contract.ROBOT_DESCRIPTION.qos))
         self.pub_description.publish(String(data=self.machine.urdf_path.read_text()))
@@ -109,6 +110,11 @@ class HwSimNode(Node):
         self.sub_progress = (self.create_subscription(Time, contract.RECORDER_PROGRESS.name, self.on_progress,
                                                      ros_io.qos(contract.PROGRESS_QOS))
                              if values.recorder_window > 0 else None)
+        # the recorder's liveliness (a second subscription: this one asks for the lease, which a
+        # progress writer without one would not match): lost releases a hold within the lease
+        self.sub_recorder_alive = (watch_liveliness(self, Time, contract.RECORDER_PROGRESS.name, contract.PROGRESS_QOS,
+                                                    self.on_recorder_alive)
+                                   if values.recorder_window > 0 else None)
         self.create_service(Trigger, contract.RESET.name, self.on_reset)
         wall_timer(self, 1.0, self.publish_diagnostics)
         wall_timer(self, self.session.timer_period, self.on_timer)
@@ -145,8 +151,13 @@ class HwSimNode(Node):
     def on_progress(self, msg: Time) -> None:
         self.session.on_progress(msg.sec, msg.nanosec, time.monotonic())
 
+    def on_recorder_alive(self, alive: bool) -> None:
+        self.session.recorder_alive(alive, time.monotonic())
+
     def on_timer(self) -> None:
-        self.session.on_timer(time.monotonic())
+        now = time.monotonic()
+        self.session.watch(now)                  # hw_sim's own stall first (README "Faults")
+        self.session.on_timer(now)
 
     def on_reset(self, request, response):
         response.success = True
@@ -193,7 +204,11 @@ class HwSimNode(Node):
                                                           self.true_tool_pose(self.sim.true_position)))
 
     def publish_diagnostics(self) -> None:
-        status = self.session.status(time.monotonic())
+        now = time.monotonic()
+        self.session.watch(now)                  # a stall seen by whichever timer runs first
+        status = self.session.status(now)
+        if self.sub_recorder_alive is not None:
+            status.values['recorder_lost'] = self.session.gate.lost
         level = DiagnosticStatus.ERROR if status.fault else DiagnosticStatus.OK
         self.pub_diag.publish(ros_io.diagnostics(self.clock.stamp(self.session.step), 'hw_sim', level,
                                                  status.message, status.values))

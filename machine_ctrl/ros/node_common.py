@@ -17,9 +17,11 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
+from machine_ctrl import contract
 from machine_ctrl.control.stepping import StepAnswerer
 from machine_ctrl.diagnostics import Rejections
 from machine_ctrl.recording.cdr import ChunkDecoder, JointStateDecoder
+from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.ros.messages import REFERENCE_QOS, STEP_QOS, InvalidMessage, parse_chunk_bytes
 
 # Events executor: several times faster than SingleThreadedExecutor here (bench/RESULTS.md).
@@ -137,6 +139,36 @@ def subscribe_reference(node: Node, topic: str, clock, wanted, on_chunk, refuse)
             return
         on_chunk(*chunk)
     return node.create_subscription(JointTrajectory, topic, take, REFERENCE_QOS, raw=True)
+
+
+def qos(spec):
+    """The rclpy profile of a contract QoS (machine_ctrl.ros.messages.qos), with its
+    liveliness lease when it has one: automatic liveliness, asserted by DDS's own threads, so
+    its readers learn within the lease that the writer's process is gone or stopped."""
+    profile = ros_io.qos(spec)
+    if spec.liveliness_lease > 0:
+        from rclpy.duration import Duration
+        from rclpy.qos import LivelinessPolicy
+        profile.liveliness = LivelinessPolicy.AUTOMATIC
+        profile.liveliness_lease_duration = Duration(nanoseconds=contract.seconds_to_ns(spec.liveliness_lease))
+    return profile
+
+
+def watch_liveliness(node: Node, msg_type, topic: str, spec, on_change, on_message=None):
+    """A subscription to `topic` that asks for its writers' liveliness (`spec` must carry
+    the lease the writers offer, or a longer one; a writer that offers none does not match):
+    `on_change(alive)` with True when the first writer (again) asserts its liveliness and
+    False when no writer is alive any more (lost within the lease: killed, stopped, hung, or
+    gone). `on_message(msg)` takes the messages (default: none wanted)."""
+    from rclpy.event_handler import SubscriptionEventCallbacks
+
+    def changed(info) -> None:
+        if info.alive_count_change > 0 and info.alive_count == info.alive_count_change:
+            on_change(True)
+        elif info.alive_count_change < 0 and info.alive_count == 0:
+            on_change(False)
+    return node.create_subscription(msg_type, topic, on_message or (lambda _msg: None), qos(spec),
+                                    event_callbacks=SubscriptionEventCallbacks(liveliness=changed))
 
 
 def main_for(node_class):

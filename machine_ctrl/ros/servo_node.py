@@ -6,9 +6,10 @@ ahead in chunks on /reference, trajectory_msgs/JointTrajectory on the control gr
 for fine axes of a dual-stage pair, the offsets of step k (/dual_stage/offsets). An input
 stream that has never delivered is waited for (reported on /diagnostics as waiting_for);
 once it has, the node waits for a missing step up to `input_timeout` s (wall) — so a
-lock-step run does not depend on message timing — and then goes on without it: no
-reference row = hold the last reference position at rest (underrun, counted and reported);
-no offsets = zero offsets.
+lock-step run does not depend on message timing — and then: no reference row = hold the
+last reference position at rest (underrun, counted and reported); no offsets = no answer
+(a fine axis has no setpoint without them; counted as missing_offsets), so hw_sim faults
+naming the fine axes after its command_timeout (README "Faults": the dual-stage node lost).
 A repeated state stamp (hw_sim re-sends while waiting) is answered with the command already
 computed, so no controller state is ever advanced twice.
 
@@ -56,7 +57,8 @@ class ServoNode(StepNode):
         self.wait_for_offsets = coupled and bool(self.fine_slots)
         self.offsets: dict[int, list[float]] = {}
         self.offsets_started = False
-        self.missing_offsets = 0
+        self.missing_offsets = 0           # steps left unanswered for want of offsets
+        self.offsets_lost_step = None      # the newest such step
 
         self.make_buffer(self.axes)
         self.encoder = JointStateEncoder(self.axes)
@@ -121,14 +123,20 @@ class ServoNode(StepNode):
         if measured is None:
             return None
         position, velocity = measured
-        ref_pos, ref_vel, ref_acc, _ = self.buffer.take(step, position)
         offsets = self.offsets.pop(step, None)
         for old in [s for s in self.offsets if s < step]:
             del self.offsets[old]
+        if offsets is None and self.wait_for_offsets:
+            # the dual-stage node lost (killed, stopped): no offsets within input_timeout. A
+            # fine axis without its offsets has no setpoint: no answer, so hw_sim faults on
+            # the fine axes after its command_timeout (README "Faults"); the offsets of a
+            # respawned dual_stage for this step (hw_sim re-sends it) are answered as usual
+            self.missing_offsets += 1
+            self.offsets_lost_step = step
+            return None
+        ref_pos, ref_vel, ref_acc, _ = self.buffer.take(step, position)
         if offsets is not None:
             ref_pos = apply_offsets(ref_pos, self.fine_slots, offsets)
-        elif self.wait_for_offsets:
-            self.missing_offsets += 1
         commands = self.servo.step(ref_pos, ref_vel, ref_acc, position, velocity)
         return self.encoder.encode(msg.sec, msg.nanosec, effort=commands)
 
@@ -138,6 +146,9 @@ class ServoNode(StepNode):
         missing = [] if self.buffer.started else [f'{contract.REFERENCE.name} (never received)']
         if self.wait_for_offsets and not self.offsets_started:
             missing.append(f'{contract.DUAL_STAGE_OFFSETS.name} (never received)')
+        elif self.wait_for_offsets and self.offsets_lost_step is not None and self.offsets_lost_step >= self.responder.answered_step:
+            missing.append(f'{contract.DUAL_STAGE_OFFSETS.name} (none for step {self.offsets_lost_step} within '
+                           f'{self.input_timeout:g} s: not answered)')
         return ', '.join(missing) or 'inputs of the current step'
 
     def publish_diagnostics(self) -> None:

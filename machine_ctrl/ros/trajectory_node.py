@@ -53,11 +53,15 @@ ahead; a new motion starts at the first row not yet streamed, so it begins up to
 Before the first /joint_states arrives nothing is streamed (the servos wait); then the
 stream holds the measured position. When hw_sim reports a fault (/diagnostics, level
 ERROR) the motion is dropped and the reference at the fault step is held; after hw_sim's
-reset the state returns to idle.
+reset the state returns to idle. hw_sim's loss (the liveliness lease of its latched `ready`
+runs out: killed, stopped, hung) is a fault too: the goal aborted naming hw_sim, the motion
+stopped (trajectory/session.py). `/trajectory/goal_status` is offered with a liveliness
+lease, so a client learns within it that this node is gone (README "Faults").
 """
 from __future__ import annotations
 
 import multiprocessing
+import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
@@ -68,7 +72,7 @@ from nav_msgs.msg import Path
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 from unique_identifier_msgs.msg import UUID
@@ -76,7 +80,7 @@ from unique_identifier_msgs.msg import UUID
 from machine_ctrl import contract, parameters
 from machine_ctrl.diagnostics import error_text
 from machine_ctrl.ros import messages as ros_io
-from machine_ctrl.ros.node_common import main_for, use_sim_time, wall_timer
+from machine_ctrl.ros.node_common import main_for, qos, use_sim_time, wall_timer, watch_liveliness
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 from trajectory.goals import Goal, GoalState
 from trajectory.session import Answer, Session, plan_path, planner_process_init
@@ -127,8 +131,8 @@ class TrajectoryNode(Node):
 
         self.pub_reference = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
         self.pub_status = self.create_publisher(DiagnosticStatus, contract.TRAJECTORY_STATUS.name, LATCHED)
-        self.pub_goals = self.create_publisher(GoalStatusArray, contract.GOAL_STATUS.name,
-                                               ros_io.qos(contract.GOAL_STATUS.qos))
+        # with a liveliness lease: a client following its goal learns that this node is gone
+        self.pub_goals = self.create_publisher(GoalStatusArray, contract.GOAL_STATUS.name, qos(contract.GOAL_STATUS.qos))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
         self.sub_state = self.create_subscription(JointState, contract.JOINT_STATES.name, self.on_first_state,
@@ -139,6 +143,9 @@ class TrajectoryNode(Node):
         self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics,
                                  ros_io.qos(contract.DIAGNOSTICS_READER_QOS))
         self.create_subscription(Float64, contract.FEED_OVERRIDE.name, self.on_feed_override, GOAL_QOS)
+        # hw_sim's liveliness (the lease of its latched `ready`): lost is a fault (README "Faults")
+        self.machine_lost_at: float | None = None
+        watch_liveliness(self, Bool, contract.READY.name, contract.READY.qos, self.on_machine_alive)
         self.create_service(Trigger, contract.HOLD.name, self.on_hold)
         self.create_service(Trigger, contract.RESUME.name, self.on_resume)
         self.create_service(Trigger, contract.STOP.name, self.on_stop)
@@ -174,6 +181,7 @@ class TrajectoryNode(Node):
             step = self.clock.step(msg.clock)
         except ros_io.InvalidMessage:
             return
+        self.session.watch(time.monotonic(), step)     # a stall of this node first (README "Faults")
         self.session.tick(step)
 
     # -- goals -----------------------------------------------------------------------------
@@ -193,9 +201,18 @@ class TrajectoryNode(Node):
             return
         self.planning = self.planner.submit(plan_path, self.machine, cl, self.feed)
         self.session.planning(f'path of {len(cl)} points', stamp)
+        self.session.touch(time.monotonic())         # reading a long path took this callback's time
+
+    def on_machine_alive(self, alive: bool) -> None:
+        self.machine_lost_at = None if alive else time.monotonic()
+        self.session.machine_alive(alive, self.machine_lost_at)
 
     def check_planning(self) -> None:
         """Hand a finished plan to the session (approach from the held position, then the path)."""
+        now = time.monotonic()
+        self.session.watch(now)
+        if self.machine_lost_at is not None:
+            self.session.machine_alive(False, now)        # confirmed once hw_sim stays silent
         if self.planning is None or not self.planning.done():
             return
         future, self.planning = self.planning, None
@@ -209,18 +226,20 @@ class TrajectoryNode(Node):
         except Exception as exc:  # noqa: BLE001 - any planning error refuses the goal, the node goes on
             reference, failure = None, error_text(exc)
         self.session.path_planned(reference, failure)
+        self.session.touch(time.monotonic())         # the approach planned in the callback
 
     def on_joint_goal(self, msg: JointTrajectory) -> None:
         times = [contract.seconds(p.time_from_start.sec, p.time_from_start.nanosec) for p in msg.points]
         self.session.accept_joint_goal(msg.joint_names, [list(p.positions) for p in msg.points], times,
                                        self.request_stamp(msg))
+        self.session.touch(time.monotonic())         # planning the move took this callback's time
 
     def on_feed_override(self, msg: Float64) -> None:
         self.session.set_feed_override(msg.data)
 
-    @staticmethod
-    def answer(response, answer: Answer):
+    def answer(self, response, answer: Answer):
         response.success, response.message = answer.success, answer.message
+        self.session.touch(time.monotonic())         # a stop or move planned in the callback
         return response
 
     def on_hold(self, request, response):
@@ -242,6 +261,7 @@ class TrajectoryNode(Node):
         code, goals = self.session.cancel(goal_id if any(goal_id) else None, (info.stamp.sec, info.stamp.nanosec))
         response.return_code = code
         response.goals_canceling = [self.goal_info(goal) for goal in goals]
+        self.session.touch(time.monotonic())
         return response
 
     # -- faults ----------------------------------------------------------------------------
@@ -250,6 +270,7 @@ class TrajectoryNode(Node):
             if status.name != 'hw_sim':
                 continue
             values = {kv.key: kv.value for kv in status.values}
+            self.session.machine_heard(time.monotonic())
             self.session.machine_status(status.level == DiagnosticStatus.ERROR,
                                         values.get('fault', status.message), values.get('step', ''))
         if not self.session.awaiting_plan:

@@ -1,0 +1,272 @@
+"""The fault model (README "Faults"): each node of the running graph lost (SIGKILL) or stalled
+(SIGSTOP, then SIGCONT) mid-goal, real nodes over real DDS, each in its own process. What the
+others do — hw_sim faults naming the axes, the goal aborted with the reason, `machine-ctrl
+move` exits 1 with one line, the non-control contour_error changes nothing — then restart
+and /hw_sim/reset, after which nothing moves without a new goal.
+
+One graph for the module (hw_sim, servo_coarse, servo_fine, dual_stage, trajectory,
+contour_error); a killed node is started again by the test, and the tests that kill hw_sim
+come last. Every wait is on a condition (a goal state, a fault, a process exit, a line);
+GUARD only bounds a failure.
+"""
+import signal
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from machine_ctrl import contract
+from machine_ctrl.app.client import MachineClient
+from machine_ctrl.app.processes import Supervisor
+from machine_ctrl.ros.graph import default_graph
+from ros_fixtures import private_context
+
+GUARD = 120.0          # s: a failure guard only, never a measured time (2 busy cores)
+TERMINAL = ('succeeded', 'canceled', 'aborted')
+
+
+def specs(machine):
+    return {spec.name: spec for spec in default_graph(machine, contour=None, contour_error=True)}
+
+
+class Client(MachineClient):
+    """The command API plus what the test observes: every node's newest /diagnostics values
+    and the true axis positions (hw_sim's ground truth, decimated)."""
+
+    def __init__(self, node, machine):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from sensor_msgs.msg import JointState
+        self.diagnostics, self.truth = {}, None
+        node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics, 100)
+        node.create_subscription(JointState, contract.TRUE_JOINT_STATES.name, self.on_truth, 10)
+        super().__init__(node, machine)
+
+    def on_diagnostics(self, msg):
+        for status in msg.status:
+            self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
+
+    def on_truth(self, msg):
+        self.truth = np.array(msg.position)
+
+    def diag(self, node, key, default=''):
+        return self.diagnostics.get(node, {}).get(key, default)
+
+    def goal(self, stamp):
+        """(id, newest state, reason) of the goal sent with `stamp` (id None before it shows)."""
+        goal_id = self.goal_of(stamp)
+        if goal_id is None:
+            return None, '', ''
+        return goal_id, self.goal_state(goal_id), self.goal_entries.get(goal_id, {}).get('reason', '')
+
+    def wait_goal(self, stamp, states, check):
+        self.wait(lambda: self.goal(stamp)[1] in states, f'the goal {states}', GUARD, check)
+        return self.goal(stamp)
+
+
+@pytest.fixture(scope='module')
+def graph(micromill, ros_env, tmp_path_factory):
+    with Supervisor(ros_env, log_dir=tmp_path_factory.mktemp('logs'), stop_timeout=3.0) as supervisor:
+        supervisor.start_nodes(specs(micromill).values())
+        yield supervisor
+
+
+@pytest.fixture(scope='module')
+def client(micromill, graph, ros_env):
+    import rclpy
+    with private_context(ros_env) as context:
+        node = rclpy.create_node('faults_client', context=context)
+        c = Client(node, micromill)
+        try:
+            c.wait_ready(GUARD, graph.check)
+            c.wait(lambda: c.status().get('state') == 'idle' and c.truth is not None
+                   and c.trajectory_alive and all(n in c.diagnostics for n in specs(micromill)),
+                   'the graph running', GUARD, graph.check)
+            yield c
+        finally:
+            c.close()
+            node.destroy_node()
+
+
+def kill(graph, name):
+    """SIGKILL node `name` (its process group) and wait until it is gone."""
+    graph[name].stopping = True                   # its end is expected: graph.check() stays quiet
+    graph[name].signal_group(signal.SIGKILL)
+    assert graph.wait(name, GUARD) == -signal.SIGKILL
+
+
+def restart(graph, micromill, name):
+    spec = specs(micromill)[name]
+    graph.start(name, spec.argv())
+    graph.wait_for_line(name, 'ready', GUARD)
+
+
+def slow_goal(client, axis='x_c', distance=1e-3, seconds=3.0):
+    """A joint goal on `axis` that takes `seconds` of sim time: long enough to fail under way."""
+    here = client.truth[client.machine.axis_names.index(axis)]
+    return client.send_goal([axis], [[here + distance]], [seconds]), here + distance
+
+
+def succeeded(client, stamp, graph):
+    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+    assert state == 'succeeded', reason
+    return True
+
+
+def answering(client, node):
+    """`node` answers the step hw_sim holds (it is back in lock-step)."""
+    return lambda: client.diag(node, 'answered_step') == client.diag('hw_sim', 'step') != ''
+
+
+def reset_and_move(client, graph, axis='x_c', still=True):
+    """/hw_sim/reset, the trajectory idle, nothing moving (`still`; else the stop of the
+    aborted goal may still play out); then a new goal succeeds."""
+    held = client.truth.copy()
+    assert client.call(contract.RESET.name)[0]
+    client.wait(lambda: client.status().get('state') == 'idle' and client.diag('hw_sim', 'fault') == '',
+                'idle after the reset', GUARD, graph.check)
+    step = int(client.diag('hw_sim', 'step'))
+    client.wait(lambda: int(client.diag('hw_sim', 'step') or 0) > step + 1000, 'the machine stepping', GUARD,
+                graph.check)
+    i = client.machine.axis_names.index(axis)
+    assert not still or abs(client.truth[i] - held[i]) < 1e-6    # the aborted goal's axis: no goal, no motion
+    stamp, target = slow_goal(client, axis, 10e-6 if axis.endswith('_f') else 0.5e-3, 0.0)
+    assert succeeded(client, stamp, graph)
+
+    client.wait(lambda: abs(client.truth[i] - target) < 2e-6, f'{axis} at its goal', GUARD, graph.check)
+
+
+def move_cli(graph, ros_env, name, *goal):
+    """`machine-ctrl move` as a process of its own, as a user runs it."""
+    exe = str(Path(sys.executable).parent / 'machine-ctrl')
+    graph.start(name, [exe, 'move', *goal, '--machine', 'micromill_9axis', '--timeout', '3600'])
+    graph[name].stopping = True                   # it is meant to end
+
+
+# -- a non-control node: nothing stops -------------------------------------------------------
+
+def test_contour_error_stalled_or_killed_does_not_stop_the_machine(micromill, graph, client):
+    graph['contour_error'].signal_group(signal.SIGSTOP)
+    stamp, _ = slow_goal(client, seconds=0.0)
+    assert succeeded(client, stamp, graph)
+    graph['contour_error'].signal_group(signal.SIGCONT)
+    kill(graph, 'contour_error')
+    stamp, _ = slow_goal(client, distance=-1e-3, seconds=0.0)
+    assert succeeded(client, stamp, graph)
+    assert client.diag('hw_sim', 'fault') == ''
+    restart(graph, micromill, 'contour_error')
+    graph.check()
+
+
+# -- servos and dual stage: hw_sim faults naming the axes ----------------------------------
+
+def test_a_stopped_servo_faults_hw_sim_naming_its_axes_and_aborts_the_goal(micromill, graph, client):
+    axes = ' '.join(specs(micromill)['servo_coarse'].parameters['axes'])
+    stamp, _ = slow_goal(client)
+    client.wait_goal(stamp, ('executing',), graph.check)
+    graph['servo_coarse'].signal_group(signal.SIGSTOP)
+    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+    assert state == 'aborted' and f'machine faulted: missing command for {axes} ' in reason, reason
+    assert client.diag('hw_sim', 'fault') in reason
+    held = client.truth.copy()
+    graph['servo_coarse'].signal_group(signal.SIGCONT)
+    client.wait(answering(client, 'servo_coarse'), 'the servo answering the held step', GUARD, graph.check)
+    assert client.status()['state'] == 'fault' and np.abs(client.truth - held).max() < 1e-9   # drives off: held
+    reset_and_move(client, graph)
+
+
+def test_a_killed_dual_stage_faults_hw_sim_naming_the_fine_axes_restart_and_reset_recover(micromill, graph, client):
+    fine = ' '.join(specs(micromill)['servo_fine'].parameters['axes'])
+    stamp, _ = slow_goal(client, 'x_f', 20e-6, 3.0)
+    client.wait_goal(stamp, ('executing',), graph.check)
+    kill(graph, 'dual_stage')
+    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+    assert state == 'aborted' and f'machine faulted: missing command for {fine} ' in reason, reason
+    client.wait(lambda: 'dual_stage/offsets (none for step' in client.diag('servo_fine', 'waiting_for'),
+                'servo_fine naming the offsets it lacks', GUARD, graph.check)
+    restart(graph, micromill, 'dual_stage')
+    client.wait(answering(client, 'servo_fine'), 'servo_fine answering with the new offsets', GUARD, graph.check)
+    reset_and_move(client, graph, 'x_f')
+
+
+# -- the trajectory node: clients learn it is lost; its goal never goes on --------------------
+
+def test_a_killed_trajectory_makes_move_exit_with_the_reason_and_the_servos_hold(micromill, graph, client, ros_env):
+    client.set_feed_override(0.02)                # the move takes ~50x longer: time to kill it
+    client.wait(lambda: client.status().get('feed_override_setting') == '0.02', 'the override', GUARD, graph.check)
+    here = client.truth[0]
+    move_cli(graph, ros_env, 'move', f'x_c={float(here) + 5e-3!r}')
+    graph.wait_for_line('move', ': executing', GUARD)
+    kill(graph, 'trajectory')
+    assert graph.wait('move', GUARD) == 1
+    lines = graph['move'].tail(5)
+    assert lines[-1].startswith('machine-ctrl: lost: the trajectory node (no sign of life'), lines
+    # the servos run out of reference and hold its last row: hw_sim does not fault
+    client.wait(lambda: int(client.diag('servo_coarse', 'reference_underruns', '0')) > 0, 'an underrun', GUARD,
+                graph.check)
+    assert client.diag('hw_sim', 'fault') == ''
+    assert abs(client.truth[0] - here - 5e-3) > 1e-3            # stopped short of the goal
+    restart(graph, micromill, 'trajectory')
+    client.wait(lambda: client.trajectory_alive and client.status().get('state') == 'idle'
+                and client.status().get('streamed_to_step') != '', 'the new trajectory node streaming', GUARD,
+                graph.check)
+    held = client.truth.copy()
+    step = int(client.status()['streamed_to_step'])
+    client.wait(lambda: int(client.diag('hw_sim', 'step') or 0) > step, 'its first rows played', GUARD, graph.check)
+    assert abs(client.truth[0] - held[0]) < 5e-6                # it holds where the machine stands
+    stamp, _ = slow_goal(client, distance=-1e-3, seconds=0.0)
+    assert succeeded(client, stamp, graph)
+
+
+def test_a_stopped_trajectory_aborts_its_goal_on_cont_and_the_motion_does_not_go_on(micromill, graph, client):
+    here = client.truth[0]
+    stamp, target = slow_goal(client, distance=5e-3, seconds=20.0)
+    goal_id, _, _ = client.wait_goal(stamp, ('executing',), graph.check)
+    graph['trajectory'].signal_group(signal.SIGSTOP)
+    client.wait(lambda: client.trajectory_lost is not None, 'the trajectory node taken for lost', GUARD, graph.check)
+    underruns = int(client.diag('servo_coarse', 'reference_underruns', '0'))
+    client.wait(lambda: int(client.diag('servo_coarse', 'reference_underruns', '0')) > underruns,
+                'the servos out of reference', GUARD, graph.check)
+    graph['trajectory'].signal_group(signal.SIGCONT)
+    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+    assert state == 'aborted' and reason.startswith('trajectory stalled: its process did not run for'), reason
+    client.wait(lambda: client.status().get('state') == 'idle', 'idle', GUARD, graph.check)
+    end = int(client.status()['streamed_to_step'])
+    client.wait(lambda: int(client.diag('hw_sim', 'step') or 0) > end, 'every streamed row played', GUARD,
+                graph.check)
+    assert abs(client.truth[0] - here) < abs(target - here) / 2            # far from the goal: it did not go on
+    stamp, _ = slow_goal(client, distance=-0.5e-3, seconds=0.0)
+    assert succeeded(client, stamp, graph)
+
+
+# -- hw_sim: the trajectory node aborts the goal naming it; hw_sim faults itself on SIGCONT -------
+
+def test_a_stopped_hw_sim_aborts_the_goal_naming_it_and_faults_itself_when_continued(micromill, graph, client):
+    stamp, target = slow_goal(client, seconds=3.0)
+    client.wait_goal(stamp, ('executing',), graph.check)
+    graph['hw_sim'].signal_group(signal.SIGSTOP)
+    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+    assert state == 'aborted' and reason.startswith('machine faulted: hw_sim lost: no sign of life'), reason
+    assert client.status()['state'] == 'fault'
+    graph['hw_sim'].signal_group(signal.SIGCONT)
+    # stopped longer than command_timeout (2 s), hw_sim faults itself; a shorter stall (the
+    # lease may run out after 2/3 of it) does not, and the trajectory node goes idle
+    client.wait(lambda: client.diag('hw_sim', 'fault').startswith('hw_sim stalled: its process did not run for')
+                or client.status().get('state') == 'idle', 'hw_sim back', GUARD, graph.check)
+    if client.status().get('state') == 'fault':
+        assert float(client.diag('hw_sim', 'fault').split(' for ')[1].split(' s')[0]) > 2.0
+    reset_and_move(client, graph, still=False)
+    assert abs(client.truth[0] - target) > 0.5e-3 - 1e-4     # the aborted goal did not go on (+0.5 mm since)
+
+
+def test_a_killed_hw_sim_aborts_the_goal_and_move_exits_with_the_reason(micromill, graph, client, ros_env):
+    client.set_feed_override(0.02)
+    client.wait(lambda: client.status().get('feed_override_setting') == '0.02', 'the override', GUARD, graph.check)
+    move_cli(graph, ros_env, 'move_2', f'x_c={float(client.truth[0]) + 5e-3!r}')
+    graph.wait_for_line('move_2', ': executing', GUARD)
+    kill(graph, 'hw_sim')
+    assert graph.wait('move_2', GUARD) == 1
+    lines = graph['move_2'].tail(5)
+    assert lines[-1].startswith('machine-ctrl: aborted: machine faulted: hw_sim lost: no sign of life'), lines
+    assert client.status()['state'] == 'fault'
+    graph.check()                                  # every other node still up
