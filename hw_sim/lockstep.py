@@ -17,6 +17,11 @@ class LockStepStats:
     refused: int = 0        # malformed or from the future
     last_refusal: str = ''
 
+    def refuse(self, reason: str) -> str:
+        self.refused += 1
+        self.last_refusal = reason
+        return reason
+
 
 @dataclass
 class LockStep:
@@ -45,9 +50,7 @@ class LockStep:
             if unknown:
                 reason = f'unknown axes {", ".join(unknown)}'
         if reason is not None:
-            self.stats.refused += 1
-            self.stats.last_refusal = reason
-            return reason
+            return self.stats.refuse(reason)
         for name, value in zip(names, values):
             self._commands[self._index[name]] = float(value)
         return None

@@ -134,8 +134,8 @@ class Session:
         (sec, nanosec)."""
         try:
             step = self.clock.step_at(sec, nanosec)
-        except InvalidMessage as exc:
-            self.io.refuse_command(str(exc))
+        except InvalidMessage as exc:           # off the grid, nanosec out of range: counted too
+            self.io.refuse_command(self.lockstep.stats.refuse(str(exc)))
             return
         if len(values) == len(names) and not all_finite(values):
             bad = [n for n, v in zip(names, values) if not math.isfinite(v)]

@@ -629,10 +629,7 @@ def test_a_rogue_hw_sim_fault_status_is_trusted_as_documented(campaign, graph, f
     client.trim()
 
 
-# -- 5. defects found by the fuzzing (xfail until fixed; strict: they flip when fixed) ---------------
-@pytest.mark.xfail(strict=True, reason='hw_sim refuses a servo_commands stamp off the control grid (or with nanosec '
-                   '>= 1e9) in hw_sim_node.refuse_command: logged only, not counted in refused_commands nor named in '
-                   'last_refusal on /diagnostics (README: refusals are counted with their reason)')
+# -- 5. defects the fuzzing found, fixed (each was a strict xfail until then) -------------------------
 def test_an_off_grid_servo_command_is_counted_on_diagnostics(campaign, graph):
     client = campaign.client
     key = ('hw_sim', 'refused_commands')
@@ -646,10 +643,6 @@ def test_an_off_grid_servo_command_is_counted_on_diagnostics(campaign, graph):
     assert client.counter(*key) == before + 2, client.diagnostics['hw_sim']
 
 
-@pytest.mark.xfail(strict=True, reason='hw_sim faults the machine on a servo_commands message of finite values whose '
-                   'sum overflows (e.g. 1e308, 1e308), whatever its stamp: session.on_command tests '
-                   'numeric.all_finite (one fsum) before the step, and the fault names no axis ("non-finite command '
-                   'for "); a command for a step ahead is refused otherwise')
 def test_finite_commands_beyond_the_float_range_for_a_step_ahead_are_refused(campaign, graph):
     client = campaign.client
     key = ('hw_sim', 'refused_commands')
@@ -669,9 +662,6 @@ def test_finite_commands_beyond_the_float_range_for_a_step_ahead_are_refused(cam
                         'hw_sim reset', check=graph.check)
 
 
-@pytest.mark.xfail(strict=True, reason="trajectory_node: an ERROR status named hw_sim whose step is a non-decimal "
-                   "digit ('²'.isdigit() is True, int('²') raises) makes on_diagnostics raise ValueError "
-                   "(Session.machine_status); the node logs 'callback failed' and never enters fault")
 def test_a_fault_step_in_unicode_digits_faults_the_trajectory_node(campaign, graph):
     client = campaign.client
     n = len(client.statuses)
@@ -684,10 +674,6 @@ def test_a_fault_step_in_unicode_digits_faults_the_trajectory_node(campaign, gra
     assert faults[0] == 'fault with step ²', faults
 
 
-@pytest.mark.xfail(strict=True, reason='contour_error_node takes a well-formed state stamped far ahead (no '
-                   'skip-ahead check, unlike the step nodes: README "A well-formed state stamped more than one '
-                   'step ahead is refused unless it comes again"); it then ignores every real state as older and '
-                   'estimates nothing more')
 def test_a_well_formed_future_state_is_refused_by_contour_error(campaign, graph):
     """Last of the module: when it fails, contour_error estimates nothing more (and would
     hold hw_sim, which follows its pace: released first)."""

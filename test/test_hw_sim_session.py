@@ -145,7 +145,8 @@ def test_commands_from_the_future_and_off_the_grid_are_refused(make):
                          ('refused', 'stamp 150001 ns is not on the 100000 ns control grid'),
                          ('refused', 'stamp nanosec 1500000000 is not in [0, 1e9)')]
     assert s.step == 0
-    assert s.lockstep.stats.refused == 1          # stamps that are no step are not counted (as before)
+    assert s.lockstep.stats.refused == 3          # stamps that are no step are counted too
+    assert s.lockstep.stats.last_refusal == 'stamp nanosec 1500000000 is not in [0, 1e9)'
 
 
 def test_a_non_finite_command_stops_the_machine_until_reset(make):
@@ -438,3 +439,14 @@ def test_a_recorder_lost_by_its_liveliness_releases_the_hold_and_a_new_one_holds
     s.recorder_alive(False, now=4.0)
     s.recorder_alive(False, now=4.1)              # counted once per loss
     assert s.gate.lost == 2
+
+
+def test_finite_commands_whose_sum_leaves_the_float_range_are_not_taken_for_non_finite(make):
+    """1e308 + 1e308 overflows a sum, yet both are finite: a command for a step ahead is
+    refused as such (no fault); a NaN among them still faults, naming its axis."""
+    s, io = make()
+    io.take()
+    command(s, 5, ('x_c', 'y_c'), [1e308, 1e308])
+    assert io.take() == [('refused', 'command for step 5 while at step 0')] and s.sim.fault is None
+    command(s, 0, ('x_c', 'y_c'), [1e308, math.nan])
+    assert io.take()[0] == ('fault', 'non-finite command for y_c')

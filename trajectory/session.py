@@ -586,7 +586,7 @@ class Session:
         if faulted and (self.state != State.FAULT or self._await_fault_step):
             self._await_fault_step = False
             self.fault = reason
-            if self.stream is not None and step_text.isdigit():
+            if self.stream is not None and step_text.isascii() and step_text.isdigit():
                 self.stream.abort(int(step_text) + 1)     # hw_sim stopped at the fault step
                 self._fill()
             goal = self.goal

@@ -6,9 +6,11 @@ import math
 
 def all_finite(values) -> bool:
     """True if no value is NaN or inf: one C-level sum, through which NaN and inf propagate
-    (inf - inf raises; a sum beyond the float range, impossible for real values, counts as
-    not finite)."""
+    (inf - inf raises); a sum beyond the float range (finite values near 1e308) is checked
+    value by value."""
     try:
         return math.isfinite(math.fsum(values))
-    except (ValueError, OverflowError):
+    except ValueError:                   # inf - inf
         return False
+    except OverflowError:                # finite values whose sum leaves the float range
+        return all(math.isfinite(v) for v in values)

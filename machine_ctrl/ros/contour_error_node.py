@@ -109,7 +109,12 @@ class ContourErrorNode(Node):
         except ros_io.InvalidMessage as exc:
             self.rejections.add('state', str(exc))
             return
-        if self.pending.add(step, q):
+        try:
+            taken = self.pending.add(step, q)
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('state', str(exc))
+            return
+        if taken:
             self.process()
 
     def process(self) -> None:
@@ -185,6 +190,7 @@ class PendingStates:
         self.gaps = 0
         self.gap_since: int | None = None    # first step given up in the current gap
         self.gap_steps = 0                   # steps given up in the current gap
+        self.skip_candidate = None           # (step, q) of a state far ahead, seen once
         self._started_told = False
 
     def __len__(self) -> int:
@@ -204,14 +210,32 @@ class PendingStates:
 
     def add(self, step: int, q) -> bool:
         """A state; False for one already taken (hw_sim's re-sends). No reference for
-        `history` steps: the oldest waiting state is given up."""
+        `history` steps: the oldest waiting state is given up. A state more than one step
+        ahead of the newest is refused (InvalidMessage) until it is confirmed — it comes
+        again, or the state of its next step follows (states lost on the way: a real gap) —
+        so a stray state stamped in the future cannot make the node ignore every real state
+        as older (README "A well-formed state stamped more than one step ahead is refused
+        unless it comes again"). The first state is taken wherever it is (a node started
+        while the graph runs)."""
         if step <= self.last_step:
             return False
+        if self.last_step >= 0 and step > self.last_step + 1:
+            candidate = self.skip_candidate
+            if candidate is not None and step == candidate[0] + 1:
+                self._take(*candidate)            # confirmed by its successor: a real gap
+            elif candidate is None or step != candidate[0]:
+                self.skip_candidate = (step, q)
+                raise ros_io.InvalidMessage(f"state of step {step} skips ahead of step {self.last_step + 1} "
+                                     '(taken only if it comes again or its next step follows)')
+        self._take(step, q)
+        return True
+
+    def _take(self, step: int, q) -> None:
+        self.skip_candidate = None
         self.last_step = step
         self.queue.append((step, q))
         if len(self.queue) > self.history:
             self._give_up(self.queue.popleft()[0], 'waited')
-        return True
 
     def ready(self, trajectory):
         """The waiting states whose rows `trajectory` holds, in step order; states it shows
