@@ -64,6 +64,10 @@ STEP_QOS = Qos(depth=200)
 # References are streamed ahead in chunks; a node that joins late still gets the last
 # chunks (transient local), so no step's reference depends on discovery timing.
 REFERENCE_QOS = Qos(depth=50, transient_local=True)
+# The compensation node's output (/reference, when compensation runs): the same, with a
+# liveliness lease, so that the trajectory node learns within it that its reference no
+# longer reaches the servos (README "Faults"). Readers that ask for no lease match it alike.
+COMPENSATED_REFERENCE_QOS = Qos(depth=50, transient_local=True, liveliness_lease=LIVELINESS_LEASE)
 # Goals, overrides and the like from other programs.
 COMMAND_QOS = Qos(depth=10)
 # A status whose last value a late joiner must see (the trajectory status).

@@ -1,7 +1,7 @@
 """What the nodes and their sessions report on /diagnostics about refused inputs, ROS-free
 (beside :mod:`machine_ctrl.contract`) so that the cores keep it the same way as the nodes:
-the count of refused messages or goals and the last reason, and the one-line text of an
-error that refuses an input."""
+the count of refused messages or goals and the last reason, the one-line text of an
+error that refuses an input, and a peer's liveliness as a node concludes it."""
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -26,3 +26,35 @@ def error_text(exc: BaseException) -> str:
     """The reason an error gives for refusing an input: a ValueError's message as it is
     (it says what is wrong with the input), any other error with its type."""
     return str(exc) if isinstance(exc, ValueError) else f'{type(exc).__name__}: {exc}'
+
+
+class PeerLiveliness:
+    """Whether a peer node is lost, as a node concludes it from the peer's liveliness lease
+    (README "Faults"): the lease ran out and nothing was heard from the peer for `confirm` s
+    (wall) since — a reader starved by its own node's long callback reports false losses, so
+    one of the peer's messages (its 1 Hz /diagnostics) arriving after the report cancels it.
+    Feed it :meth:`alive`, :meth:`heard` and :meth:`losing` (on each loss report and from a
+    timer while lost); :meth:`losing` says True once, when the loss is confirmed."""
+
+    def __init__(self, confirm: float):
+        self.confirm = confirm
+        self.lost = False                    # confirmed, and not back yet
+        self._since: float | None = None     # reported lost at (not confirmed yet)
+
+    def alive(self) -> None:
+        self.lost, self._since = False, None
+
+    def heard(self, now: float) -> None:
+        if self._since is not None and now > self._since:
+            self._since = None
+
+    def losing(self, now: float) -> bool:
+        if self.lost:
+            return False
+        if self._since is None:
+            self._since = now
+            return False
+        if now - self._since < self.confirm:
+            return False
+        self._since, self.lost = None, True
+        return True

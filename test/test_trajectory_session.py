@@ -102,7 +102,7 @@ def test_the_first_state_is_held_lookahead_rows_ahead(micromill, out):
 
 KEYS = ['state', 'step', 'progress', 'motion', 'motion_start_step', 'motion_end_step', 'streamed_to_step',
         'feed_override', 'feed_override_setting', 'fault', 'rejected_goals', 'last_rejection', 'goal_id',
-        'goal_status']
+        'goal_status', 'reference_lost']
 
 
 def test_a_joint_goal_runs_from_the_first_row_not_streamed_and_ends_idle(micromill, out):
@@ -460,3 +460,28 @@ def test_hw_sim_lost_is_a_fault_once_confirmed_and_clears_when_it_is_back_and_he
     assert session.fault == 'hw_sim stalled: its process did not run for 3.0 s'   # its own fault step now
     session.machine_status(False)                 # reset
     assert session.state == State.IDLE and session.fault == ''
+
+
+def test_the_compensation_node_lost_aborts_the_goal_and_refuses_goals_until_it_is_back(micromill, out):
+    """README "Faults": with compensation in the chain, its loss (confirmed as hw_sim's) means
+    the reference no longer reaches the servos: the goal is aborted naming it, nothing of the
+    motion goes on, and goals are refused until it is back."""
+    session = session_of(micromill, out, start_step=0)
+    assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
+    session.tick(2000)
+    session.chain_alive('compensation', False, now=3.0)
+    session.chain_heard(now=3.2)                  # its status came after the report: a false loss
+    session.chain_alive('compensation', False, now=5.0)
+    assert session.state == State.RUNNING and session.status_values()['reference_lost'] == ''
+    session.chain_alive('compensation', False, now=6.6)     # 1.6 s silent since the report: confirmed
+    reason = ('compensation lost: no sign of life within its 2 s liveliness lease (killed, stopped or hung); '
+              'the reference does not reach the servos')
+    assert out.goal_changes[-1][1:] == ('aborted', reason)
+    assert session.status_values()['reference_lost'] == reason
+    run_until_idle(session)
+    _, rows = streamed(out)
+    assert abs(rows[-1][0] - (HERE[0] - 40e-3)) > 10e-3 and (rows[-50:] == rows[-1]).all()   # stopped short, at rest
+    assert not session.accept_joint_goal(['x_c'], [[0.0]], [0.0])
+    assert session.rejections.last == f'joint goal: {reason}'
+    session.chain_alive('compensation', True)
+    assert session.accept_joint_goal(['x_c'], [[rows[-1][0] + 1e-3]], [0.0])

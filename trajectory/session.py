@@ -61,7 +61,7 @@ from typing import Protocol
 import numpy as np
 
 from machine_ctrl import contract
-from machine_ctrl.diagnostics import Rejections, error_text
+from machine_ctrl.diagnostics import PeerLiveliness, Rejections, error_text
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.model.reference import Reference
@@ -195,10 +195,11 @@ class Session:
         self.program: Program | None = None  # the motion under way, as parts
         self.held: tuple[int, float] | None = None   # a cut hold: (part, planned time) to resume
         self.stopping = False                # a stop or cancel: the goal ends canceled
-        self.machine_lost = False            # hw_sim's liveliness lost (and not back yet)
+        # assumed: 1.5 s = 1.5 x the peers' 1 Hz /diagnostics (PeerLiveliness)
+        self.hw_sim = PeerLiveliness(confirm=1.5)       # hw_sim's liveliness
+        self.chain = PeerLiveliness(confirm=1.5)        # the node between this one and the servos
+        self.chain_lost = ''                 # why the reference does not reach the servos
         self._watched_at: float | None = None  # wall time of the last watch (own stall)
-        self._lost_since: float | None = None  # hw_sim's liveliness lost at (not confirmed yet)
-        self._heard_at: float | None = None
         self._await_fault_step = False       # a fault without hw_sim's fault step yet
 
     @property
@@ -263,6 +264,8 @@ class Session:
             reason = f'machine is faulted ({self.fault}); reset hw_sim first'
         elif self.state != State.IDLE:
             reason = f'busy ({self.state}); one motion at a time'
+        elif self.chain_lost:
+            reason = self.chain_lost
         else:
             return True
         self.refuse(what, reason, stamp, label)
@@ -515,7 +518,14 @@ class Session:
             return
         reason = f'trajectory stalled: its process did not run for {gap:.1f} s (stopped or starved)'
         self.out.warn(reason)
-        goal, newest = self.goal, max(self.step, step if step is not None else 0)
+        self._abort(reason, max(self.step, step if step is not None else 0))
+
+    def _abort(self, reason: str, newest: int) -> None:
+        """Abort the goal under way with `reason` (`newest`: the newest step the graph has
+        reached); nothing of it goes on: a motion the servos still have rows of is stopped as
+        by :meth:`stop`, one they ran out of (they hold the last row at rest) is held at the
+        next row."""
+        goal = self.goal
         if self.state == State.RUNNING and newest + self.chunk_steps < self.stream.next_step:
             self._halt(keep=False, reason=reason)      # 'too late' is fine: the motion ends at rest
         elif self.stream is not None:
@@ -536,32 +546,49 @@ class Session:
     def machine_heard(self, now: float) -> None:
         """A message from hw_sim (its /diagnostics, 1 Hz) came at wall time `now`: a liveliness
         loss reported before it was false (a reader delayed by this node's own long callback)."""
-        self._heard_at = now
-        if self._lost_since is not None and now > self._lost_since:
-            self._lost_since = None
+        self.hw_sim.heard(now)
 
-    def machine_alive(self, alive: bool, now: float | None = None, confirm: float = 1.5) -> None:
+    def machine_alive(self, alive: bool, now: float | None = None) -> None:
         """hw_sim's liveliness (the lease of its latched `ready`): lost is a fault (module
-        docstring) whose reason names hw_sim, once confirmed — no message from hw_sim for
-        `confirm` s after the loss (assumed: 1.5 x hw_sim's 1 Hz diagnostics; a reader
-        starved by this node's own long callback reports false losses); back again lets
+        docstring) whose reason names hw_sim, once confirmed (PeerLiveliness); back again lets
         hw_sim's next healthy status clear it. The node calls this on each liveliness change
         and with alive=False from its timer (`now`: wall time) to confirm."""
         if alive:
-            self.machine_lost, self._lost_since = False, None
+            self.hw_sim.alive()
+        elif now is not None and self.hw_sim.losing(now):
+            self._machine_lost(contract.LIVELINESS_LEASE)
+
+    @property
+    def machine_lost(self) -> bool:
+        return self.hw_sim.lost
+
+    def chain_heard(self, now: float) -> None:
+        """A message from the node between this one and the servos (the compensation node's
+        /diagnostics) came at `now` (as :meth:`machine_heard`)."""
+        self.chain.heard(now)
+
+    def chain_alive(self, who: str, alive: bool, now: float | None = None) -> None:
+        """The liveliness of `who`, the node that carries this node's reference on to the
+        servos (the compensation node): lost (confirmed as for hw_sim), the reference no longer
+        reaches the servos — they run out of rows and hold — so the goal under way is aborted
+        naming it, its motion stopped, and goals are refused until it is back."""
+        if alive:
+            self.chain.alive()
+            if self.chain_lost:
+                self.chain_lost = ''
+                self.out.log(f'{who} back: goals accepted again')
+                self.out.status()
             return
-        if self.machine_lost or now is None:
+        if now is None or not self.chain.losing(now):
             return
-        if self._lost_since is None:
-            self._lost_since = now
-            return
-        if now - self._lost_since < confirm:
-            return
-        self._lost_since = None
-        self._machine_lost(contract.LIVELINESS_LEASE)
+        self.chain_lost = (f'{who} lost: no sign of life within its {contract.LIVELINESS_LEASE:g} s liveliness '
+                           'lease (killed, stopped or hung); the reference does not reach the servos')
+        self.out.warn(self.chain_lost)
+        if self.state in (State.RUNNING, State.HOLDING, State.PLANNING):
+            self._abort(self.chain_lost, self.step)
+        self.out.status()
 
     def _machine_lost(self, lease: float) -> None:
-        self.machine_lost = True
         reason = (f'hw_sim lost: no sign of life within its {lease:g} s liveliness lease '
                   '(killed, stopped or hung)')
         self.out.warn(reason)
@@ -625,4 +652,5 @@ class Session:
                 'fault': self.fault, 'rejected_goals': self.rejections.count,
                 'last_rejection': self.rejections.last,
                 'goal_id': goal.uuid if goal is not None else '',
-                'goal_status': goal.state.text if goal is not None else ''}
+                'goal_status': goal.state.text if goal is not None else '',
+                'reference_lost': self.chain_lost}

@@ -26,7 +26,7 @@ from compensation.stream import CompensationStream
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.model.errors import ConfigError
-from machine_ctrl.ros.node_common import main_for, rejections, subscribe_reference, wall_timer
+from machine_ctrl.ros.node_common import main_for, qos, rejections, subscribe_reference, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 
 
@@ -44,7 +44,9 @@ class CompensationNode(Node):
         self.stream = CompensationStream(compensator, self.machine.control_period, enabled)
         self.clock = ros_io.StepClock.of(self.machine)
         self.rejections = rejections(self)
-        self.pub = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
+        # with a liveliness lease: the trajectory node learns that its reference no longer
+        # reaches the servos when this node is gone (README "Faults")
+        self.pub = self.create_publisher(JointTrajectory, output_topic, qos(contract.COMPENSATED_REFERENCE_QOS))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
         subscribe_reference(self, input_topic, self.clock, self.machine.axis_names, self.on_chunk,

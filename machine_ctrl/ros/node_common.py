@@ -159,7 +159,7 @@ def watch_liveliness(node: Node, msg_type, topic: str, spec, on_change, on_messa
     the lease the writers offer, or a longer one; a writer that offers none does not match):
     `on_change(alive)` with True when the first writer (again) asserts its liveliness and
     False when no writer is alive any more (lost within the lease: killed, stopped, hung, or
-    gone). `on_message(msg)` takes the messages (default: none wanted)."""
+    gone). `on_message(msg)` takes the messages (default: none wanted, and none deserialized)."""
     from rclpy.event_handler import SubscriptionEventCallbacks
 
     def changed(info) -> None:
@@ -167,8 +167,9 @@ def watch_liveliness(node: Node, msg_type, topic: str, spec, on_change, on_messa
             on_change(True)
         elif info.alive_count_change < 0 and info.alive_count == 0:
             on_change(False)
-    return node.create_subscription(msg_type, topic, on_message or (lambda _msg: None), qos(spec),
-                                    event_callbacks=SubscriptionEventCallbacks(liveliness=changed))
+    return node.create_subscription(msg_type, topic, on_message or (lambda _data: None), qos(spec),
+                                    event_callbacks=SubscriptionEventCallbacks(liveliness=changed),
+                                    raw=on_message is None)
 
 
 def main_for(node_class):

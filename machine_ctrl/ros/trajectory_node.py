@@ -146,6 +146,12 @@ class TrajectoryNode(Node):
         # hw_sim's liveliness (the lease of its latched `ready`): lost is a fault (README "Faults")
         self.machine_lost_at: float | None = None
         watch_liveliness(self, Bool, contract.READY.name, contract.READY.qos, self.on_machine_alive)
+        # with compensation, its liveliness (the lease of its /reference): lost, the reference no
+        # longer reaches the servos (README "Faults")
+        self.chain_lost_at: float | None = None
+        if output_topic == contract.TRAJECTORY_REFERENCE.name:
+            watch_liveliness(self, JointTrajectory, contract.REFERENCE.name, contract.COMPENSATED_REFERENCE_QOS,
+                             self.on_chain_alive)
         self.create_service(Trigger, contract.HOLD.name, self.on_hold)
         self.create_service(Trigger, contract.RESUME.name, self.on_resume)
         self.create_service(Trigger, contract.STOP.name, self.on_stop)
@@ -207,12 +213,18 @@ class TrajectoryNode(Node):
         self.machine_lost_at = None if alive else time.monotonic()
         self.session.machine_alive(alive, self.machine_lost_at)
 
+    def on_chain_alive(self, alive: bool) -> None:
+        self.chain_lost_at = None if alive else time.monotonic()
+        self.session.chain_alive('compensation', alive, self.chain_lost_at)
+
     def check_planning(self) -> None:
         """Hand a finished plan to the session (approach from the held position, then the path)."""
         now = time.monotonic()
         self.session.watch(now)
         if self.machine_lost_at is not None:
             self.session.machine_alive(False, now)        # confirmed once hw_sim stays silent
+        if self.chain_lost_at is not None:
+            self.session.chain_alive('compensation', False, now)
         if self.planning is None or not self.planning.done():
             return
         future, self.planning = self.planning, None
@@ -267,6 +279,8 @@ class TrajectoryNode(Node):
     # -- faults ----------------------------------------------------------------------------
     def on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
+            if status.name == 'compensation':
+                self.session.chain_heard(time.monotonic())
             if status.name != 'hw_sim':
                 continue
             values = {kv.key: kv.value for kv in status.values}

@@ -1,0 +1,71 @@
+"""The fault model (README "Faults") for the compensation node, which carries the trajectory
+node's reference on to the servos: killed mid-goal, the servos run out of reference and hold
+(hw_sim does not fault), the trajectory node aborts the goal naming it and refuses goals
+until it is back; started again, a new goal succeeds. Real nodes over real DDS, each in its
+own process (the graph of test_faults.py with compensation in the chain)."""
+import signal
+
+import pytest
+
+from machine_ctrl.app.processes import Supervisor
+from machine_ctrl.ros.graph import default_graph
+from ros_fixtures import private_context
+from test_faults import GUARD, TERMINAL, Client, slow_goal
+
+
+def specs(machine):
+    model = str(machine.simulation.error_map_path(machine.yaml_path))
+    return {spec.name: spec for spec in default_graph(machine, contour=None, compensation_model=model)}
+
+
+@pytest.fixture(scope='module')
+def graph(micromill, ros_env, tmp_path_factory):
+    with Supervisor(ros_env, log_dir=tmp_path_factory.mktemp('logs'), stop_timeout=3.0) as supervisor:
+        supervisor.start_nodes(specs(micromill).values())
+        yield supervisor
+
+
+@pytest.fixture(scope='module')
+def client(micromill, graph, ros_env):
+    import rclpy
+    with private_context(ros_env) as context:
+        node = rclpy.create_node('faults_compensation_client', context=context)
+        c = Client(node, micromill)
+        try:
+            c.wait_ready(GUARD, graph.check)
+            c.wait(lambda: c.status().get('state') == 'idle' and c.truth is not None
+                   and all(n in c.diagnostics for n in specs(micromill)), 'the graph running', GUARD, graph.check)
+            yield c
+        finally:
+            c.close()
+            node.destroy_node()
+
+
+def test_a_killed_compensation_aborts_the_goal_naming_it_the_servos_hold_and_goals_wait_for_it(
+        micromill, graph, client):
+    x = micromill.axis_names.index('x_c')
+    stamp, target = slow_goal(client, seconds=3.0)
+    client.wait_goal(stamp, ('executing',), graph.check)
+    graph['compensation'].stopping = True
+    graph['compensation'].signal_group(signal.SIGKILL)
+    assert graph.wait('compensation', GUARD) == -signal.SIGKILL
+    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+    lost = ('compensation lost: no sign of life within its 2 s liveliness lease (killed, stopped or hung); '
+            'the reference does not reach the servos')
+    assert (state, reason) == ('aborted', lost)
+    assert client.status()['reference_lost'] == lost
+    # the servos run out of reference and hold its last row: the machine stands, no fault
+    client.wait(lambda: int(client.diag('servo_coarse', 'reference_underruns', '0')) > 0, 'an underrun', GUARD,
+                graph.check)
+    assert client.diag('hw_sim', 'fault') == '' and abs(client.truth[x] - target) > 0.2e-3
+    refused, _ = slow_goal(client, distance=-0.5e-3, seconds=0.0)
+    _, state, reason = client.wait_goal(refused, TERMINAL, graph.check)
+    assert (state, reason) == ('aborted', f'joint goal: {lost}')      # refused while it is lost
+
+    graph.start('compensation', specs(micromill)['compensation'].argv())
+    graph.wait_for_line('compensation', 'ready', GUARD)
+    client.wait(lambda: client.status().get('reference_lost') == '', 'the compensation node back', GUARD, graph.check)
+    stamp, target = slow_goal(client, distance=-0.5e-3, seconds=0.0)
+    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+    assert state == 'succeeded', reason
+    graph.check()
