@@ -47,7 +47,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+from machine_ctrl.app.processes import Supervisor, isolated_ros_env, proc_stats, reserve_ros_domain
 
 TOOL = str(Path(sys.executable).with_name('machine-ctrl'))
 RSS_LIMIT = 0.05            # growth after warm-up that fails the soak
@@ -68,17 +68,10 @@ def _interrupt(*_):
 
 def _ppid_map() -> dict[int, int]:
     parents = {}
-    for entry in os.scandir('/proc'):
-        if not entry.name.isdigit():
-            continue
-        try:
-            with open(f'/proc/{entry.name}/stat', 'rb') as f:
-                stat = f.read()
-        except OSError:
-            continue
+    for pid, stat in proc_stats():
         fields = stat[stat.rfind(b')') + 2:].split()
         if fields[0] not in (b'Z', b'X'):
-            parents[int(entry.name)] = int(fields[1])
+            parents[int(pid)] = int(fields[1])
     return parents
 
 

@@ -143,6 +143,15 @@ def move_cli(graph, ros_env, name, *goal):
     graph[name].stopping = True                   # it is meant to end
 
 
+def slow_move_cli(client, graph, ros_env, name):
+    """`machine-ctrl move` of x_c by 5 mm at feed override 0.02 (~50x longer: time to kill a
+    node under way), followed until it is executing."""
+    client.set_feed_override(0.02)
+    client.wait(lambda: client.status().get('feed_override_setting') == '0.02', 'the override', GUARD, graph.check)
+    move_cli(graph, ros_env, name, f'x_c={float(client.truth[0]) + 5e-3!r}')
+    graph.wait_for_line(name, ': executing', GUARD)
+
+
 # -- a non-control node: nothing stops -------------------------------------------------------
 
 def test_contour_error_stalled_or_killed_does_not_stop_the_machine(micromill, graph, client):
@@ -192,11 +201,8 @@ def test_a_killed_dual_stage_faults_hw_sim_naming_the_fine_axes_restart_and_rese
 # -- the trajectory node: clients learn it is lost; its goal never goes on --------------------
 
 def test_a_killed_trajectory_makes_move_exit_with_the_reason_and_the_servos_hold(micromill, graph, client, ros_env):
-    client.set_feed_override(0.02)                # the move takes ~50x longer: time to kill it
-    client.wait(lambda: client.status().get('feed_override_setting') == '0.02', 'the override', GUARD, graph.check)
     here = client.truth[0]
-    move_cli(graph, ros_env, 'move', f'x_c={float(here) + 5e-3!r}')
-    graph.wait_for_line('move', ': executing', GUARD)
+    slow_move_cli(client, graph, ros_env, 'move')
     kill(graph, 'trajectory')
     assert graph.wait('move', GUARD) == 1
     lines = graph['move'].tail(5)
@@ -260,10 +266,7 @@ def test_a_stopped_hw_sim_aborts_the_goal_naming_it_and_faults_itself_when_conti
 
 
 def test_a_killed_hw_sim_aborts_the_goal_and_move_exits_with_the_reason(micromill, graph, client, ros_env):
-    client.set_feed_override(0.02)
-    client.wait(lambda: client.status().get('feed_override_setting') == '0.02', 'the override', GUARD, graph.check)
-    move_cli(graph, ros_env, 'move_2', f'x_c={float(client.truth[0]) + 5e-3!r}')
-    graph.wait_for_line('move_2', ': executing', GUARD)
+    slow_move_cli(client, graph, ros_env, 'move_2')
     kill(graph, 'hw_sim')
     assert graph.wait('move_2', GUARD) == 1
     lines = graph['move_2'].tail(5)

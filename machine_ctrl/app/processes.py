@@ -320,19 +320,24 @@ def _group_alive(pgid: int) -> bool:
     return any(True for _ in _live_group_members(pgid))
 
 
-def _live_group_members(pgid: int):
-    """pids of non-zombie processes whose process group is ``pgid`` (Linux /proc)."""
+def proc_stats():
+    """(pid as text, the bytes of /proc/PID/stat) of every process that is still there (Linux)."""
     for entry in os.scandir('/proc'):
         if not entry.name.isdigit():
             continue
         try:
             with open(f'/proc/{entry.name}/stat', 'rb') as f:
-                stat = f.read()
+                yield entry.name, f.read()
         except OSError:
             continue
+
+
+def _live_group_members(pgid: int):
+    """pids of non-zombie processes whose process group is ``pgid`` (Linux /proc)."""
+    for pid, stat in proc_stats():
         state, pgrp = _state_and_pgrp(stat)
-        if pgrp == pgid and (state not in _DEAD or _any_thread_running(entry.name)):
-            yield int(entry.name)
+        if pgrp == pgid and (state not in _DEAD or _any_thread_running(pid)):
+            yield int(pid)
 
 
 _DEAD = (b'Z', b'X')
