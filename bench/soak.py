@@ -28,8 +28,8 @@ Criteria (exit status 1 if one fails): RSS growth < 5 % for every process; no FD
 stopped cleanly and left no process; the bag reads back (every message, through
 machine_ctrl.recording.bag.Bag, the counts equal the summary's). A goal that failed because
 the machine faulted (on a loaded machine: a node starved past hw_sim's command_timeout)
-is followed by /hw_sim/reset, so the measurement goes on; the run still fails, and stops
-after 3 failed goals in a row. Ctrl-C / SIGTERM stop
+is followed by /hw_sim/reset, and one whose client timed out by /trajectory/stop, so the
+measurement goes on; the run still fails, and stops after 3 failed goals in a row. Ctrl-C / SIGTERM stop
 everything (the Supervisor's escalation on every process group) and print what was
 measured so far.
 """
@@ -47,6 +47,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from machine_ctrl import contract
 from machine_ctrl.app.processes import Supervisor, isolated_ros_env, proc_stats, reserve_ros_domain
 
 TOOL = str(Path(sys.executable).with_name('machine-ctrl'))
@@ -235,9 +236,13 @@ def soak(args, run: Run, sup: Supervisor, bag_dir: Path) -> None:
                                         + ' | '.join(tail))
                 consecutive_failures += 1
                 print(f'soak: {run.goals_failed[-1]}', file=sys.stderr, flush=True)
-                if any('fault' in text for text in tail):
-                    run.resets.append(f'after goal {n}: ' + reset_machine(sup, args.machine))
-                    print(f'soak: /hw_sim/reset {run.resets[-1]}', file=sys.stderr, flush=True)
+                # recover so the measurement goes on: a goal the client gave up on (timed out)
+                # is stopped, a faulted machine reset; the failed goal still fails the run
+                service = (contract.STOP.name if tail and 'timed out' in tail[-1]
+                           else contract.RESET.name if tail and 'fault' in tail[-1] else None)
+                if service is not None:
+                    run.resets.append(f'{service} after goal {n}: ' + call_service(sup, args.machine, service))
+                    print(f'soak: {run.resets[-1]}', file=sys.stderr, flush=True)
             sending = None
             if consecutive_failures >= 3:
                 print('soak: 3 goals in a row failed; stopping', file=sys.stderr, flush=True)
@@ -260,21 +265,22 @@ def soak(args, run: Run, sup: Supervisor, bag_dir: Path) -> None:
     sample_all(run, run.end_at, root)
 
 
-RESET = """
+CALL = """
 import sys
 from machine_ctrl.app.bringup import client_session
 from machine_ctrl.model.config import load_machine
-with client_session(load_machine(sys.argv[1]), 'soak_reset') as client:
+with client_session(load_machine(sys.argv[1]), 'soak_recover') as client:
     client.wait_ready(30)
-    print(*client.call('/hw_sim/reset'))
+    print(*client.call(sys.argv[2]))
 """
 
 
-def reset_machine(sup: Supervisor, machine: str) -> str:
-    """A faulted machine (e.g. a node starved past command_timeout on a loaded machine):
-    /hw_sim/reset so the soak goes on measuring; the failed goal still fails the run."""
-    name = f'reset{len(sup.children)}'
-    sup.start(name, [sys.executable, '-c', RESET, machine])
+def call_service(sup: Supervisor, machine: str, service: str) -> str:
+    """Call a Trigger service of the graph from a client process of its own: /hw_sim/reset
+    for a faulted machine (e.g. a node starved past command_timeout on a loaded machine),
+    /trajectory/stop for a goal still running when its client timed out."""
+    name = f'call{len(sup.children)}'
+    sup.start(name, [sys.executable, '-c', CALL, machine, service])
     try:
         code = sup.wait(name, timeout=60)
     except Exception as exc:        # noqa: BLE001 - reported, the loop decides
