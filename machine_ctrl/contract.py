@@ -64,10 +64,6 @@ STEP_QOS = Qos(depth=200)
 # References are streamed ahead in chunks; a node that joins late still gets the last
 # chunks (transient local), so no step's reference depends on discovery timing.
 REFERENCE_QOS = Qos(depth=50, transient_local=True)
-# The compensation node's output (/reference, when compensation runs): the same, with a
-# liveliness lease, so that the trajectory node learns within it that its reference no
-# longer reaches the servos (README "Faults"). Readers that ask for no lease match it alike.
-COMPENSATED_REFERENCE_QOS = Qos(depth=50, transient_local=True, liveliness_lease=LIVELINESS_LEASE)
 # Goals, overrides and the like from other programs.
 COMMAND_QOS = Qos(depth=10)
 # A status whose last value a late joiner must see (the trajectory status).
@@ -185,6 +181,9 @@ CONTOUR_ORIENTATION_MAGNITUDE = Topic('contour_error/orientation_magnitude', 'st
 GOAL_STATUS = Topic('trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', GOAL_STATUS_QOS,
                     'latched: every goal of the session with its id (UUID) and state: accepted, executing, '
                     'succeeded, canceled, aborted (the reason on /diagnostics)')
+COMPENSATION_READY = Topic('compensation/ready', 'std_msgs/msg/Bool', READY_QOS,
+                           'latched: true while the compensation node runs; with a liveliness lease, so the '
+                           'trajectory node learns that its reference no longer reaches the servos (README "Faults")')
 READY = Topic('ready', 'std_msgs/msg/Bool', READY_QOS,
               'latched: true once every node of the graph has its first state (the graph steps)')
 ROBOT_DESCRIPTION = Topic('robot_description', 'std_msgs/msg/String', LATCHED_QOS,
@@ -220,7 +219,7 @@ PER_STEP_TOPICS = (JOINT_STATES, SERVO_COMMANDS, DUAL_STAGE_OFFSETS, CLOCK, TRUE
 TOPICS = (CLOCK, JOINT_STATES, SERVO_COMMANDS, REFERENCE, TRAJECTORY_REFERENCE, DUAL_STAGE_OFFSETS,
           TRUE_JOINT_STATES, TRUE_TOOL_POSE, DIAGNOSTICS, PATH, JOINT_GOAL, FEED_OVERRIDE, TRAJECTORY_STATUS,
           CONTOUR_TOOL_TIP, CONTOUR_TOOL_TIP_MAGNITUDE, CONTOUR_ORIENTATION, CONTOUR_ORIENTATION_MAGNITUDE,
-          RECORDER_PROGRESS, GOAL_STATUS, READY, ROBOT_DESCRIPTION)
+          RECORDER_PROGRESS, GOAL_STATUS, READY, ROBOT_DESCRIPTION, COMPENSATION_READY)
 SERVICES = (HOLD, RESUME, STOP, CANCEL, HOME, RESET, DUAL_STAGE_ENABLE, COMPENSATION_ENABLE)
 
 

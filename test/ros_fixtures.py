@@ -125,10 +125,10 @@ class ProgressReporter:
     def __init__(self, node, clock):
         from builtin_interfaces.msg import Time
 
-        from machine_ctrl.ros import messages as ros_io
+        from machine_ctrl.ros.node_common import qos
         self.clock, self.time_type, self.reported = clock, Time, -1
         self.publisher = node.create_publisher(Time, contract.RECORDER_PROGRESS.name,
-                                               ros_io.qos(contract.PROGRESS_QOS))
+                                               qos(contract.PROGRESS_QOS))
 
     def report(self, step: int) -> None:
         """Every stream is held up to `step` (called from the reader's callbacks)."""

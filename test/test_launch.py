@@ -144,8 +144,10 @@ def send_goal_and_follow(env, namespace: str, launch: Launch, goal: str, subscri
         while not following.wait(1.0):
             if done.done():
                 done.result()                    # fails with the launch output
-        ros2(env, 'topic', 'pub', '--once', '-w', str(subscribers), f'{namespace}/trajectory/joint_goal',
-             'trajectory_msgs/msg/JointTrajectory', goal)
+        # --keep-alive: the publisher stays until the reliable delivery is through (its default
+        # 0.1 s can end it first on a loaded machine: the goal never arrives)
+        ros2(env, 'topic', 'pub', '--once', '-w', str(subscribers), '--keep-alive', '5',
+             f'{namespace}/trajectory/joint_goal', 'trajectory_msgs/msg/JointTrajectory', goal)
         done.result()
     return seen
 

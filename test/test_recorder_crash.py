@@ -184,60 +184,88 @@ def test_a_bag_that_cannot_be_written_stops_the_recording_not_the_node(ros_super
         assert sum(info.count for info in recovered.topics.values()) == int(values['messages_in_bag'])
 
 
-def test_a_graph_held_for_a_recorder_runs_on_when_its_recording_stops(ros_env, tmp_path, micromill):
-    """hw_sim with recorder_window holds the lock-step graph for the recorder; the recorder's
-    bag hits a file size limit early in the run; hw_sim must not wait for it forever."""
+def run_held_graph(supervisor, micromill, window: int, target: int, at=None):
+    """The default graph in this process with hw_sim holding for the recorder
+    (`recorder_window`), spun until hw_sim reaches step `target` (`at(hw_sim)` is called
+    once the recorder has reported, e.g. to stop it); returns (hw_sim's gate, the progress
+    steps seen, hw_sim's final step)."""
     import rclpy
     from rclpy.task import Future
 
-    from machine_ctrl.app.processes import Supervisor
     from machine_ctrl.ros.graph import create_nodes, default_graph
     from machine_ctrl.ros.node_common import DefaultExecutor, wall_timer
+    rclpy.init()
+    nodes, executor = [], None
+    try:
+        nodes = create_nodes(default_graph(micromill, hw_sim={'recorder_window': window}))
+        executor = DefaultExecutor()
+        for node in nodes:
+            executor.add_node(node)
+        hw_sim = nodes[0]
+        # the EventsExecutor returns from a busy spin only when a future completes: a
+        # wall timer of hw_sim's completes it at the target step
+        reached, reported = Future(), []
+
+        def watch():
+            if hw_sim.session.gate.recorded is not None:      # the recorder's newest progress
+                reported.append(hw_sim.session.gate.recorded)
+                if at is not None and len(reported) == 1:
+                    at(hw_sim)
+            if hw_sim.session.step >= target and not reached.done():
+                reached.set_result(True)
+        timer = wall_timer(hw_sim, 0.05, watch)
+        deadline = time.monotonic() + 300
+        while not reached.done():
+            assert time.monotonic() < deadline, f'hw_sim reached step {hw_sim.session.step} only'
+            supervisor.check()
+            executor.spin_until_future_complete(reached, timeout_sec=0.2)
+        timer.cancel()
+        assert hw_sim.sim.fault is None
+        print(f'recorder progress seen up to step {max(reported, default=None)}, hw_sim at {hw_sim.session.step}, '
+              f'holds {hw_sim.session.gate.hold_count}, recorders lost {hw_sim.session.gate.lost}')
+        return hw_sim.session.gate, reported, hw_sim.session.step
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_a_graph_held_for_a_recorder_runs_on_when_its_recording_stops(ros_env, tmp_path, micromill):
+    """hw_sim with recorder_window holds the lock-step graph for the recorder; the recorder's
+    bag hits a file size limit early in the run; hw_sim must not wait for it forever."""
+    from machine_ctrl.app.processes import Supervisor
     window, target = 100, 15_000
     bag = tmp_path / 'bag'
     with Supervisor(ros_env, log_dir=tmp_path / 'logs', stop_timeout=10.0) as supervisor:
         supervisor.start('recorder', recorder_argv(bag, micromill.yaml_path, file_size_limit=150_000))
         supervisor.wait_for_line('recorder', 'recording to', timeout=60)
-        rclpy.init()
-        nodes, executor = [], None
-        try:
-            nodes = create_nodes(default_graph(micromill, hw_sim={'recorder_window': window}))
-            executor = DefaultExecutor()
-            for node in nodes:
-                executor.add_node(node)
-            hw_sim = nodes[0]
-            # the EventsExecutor returns from a busy spin only when a future completes: a
-            # wall timer of hw_sim's completes it at the target step
-            reached, reported = Future(), []
-
-            def watch():
-                if hw_sim.session.gate.recorded is not None:      # the recorder's newest progress
-                    reported.append(hw_sim.session.gate.recorded)
-                if hw_sim.session.step >= target and not reached.done():
-                    reached.set_result(True)
-            timer = wall_timer(hw_sim, 0.05, watch)
-            deadline = time.monotonic() + 300
-            while not reached.done():
-                assert time.monotonic() < deadline, f'hw_sim reached step {hw_sim.session.step} only'
-                supervisor.check()
-                executor.spin_until_future_complete(reached, timeout_sec=0.2)
-            timer.cancel()
-            assert hw_sim.sim.fault is None
-            # flow control was on (the recorder reported), and hw_sim ran past its window
-            assert reported and max(reported) + window < target
-            recorded = hw_sim.session.gate.recorded
-            print(f'recorder progress seen up to step {max(reported)}, hw_sim at {hw_sim.session.step}, '
-                  f'holds {hw_sim.recorder_holds}')
-        finally:
-            if executor is not None:
-                executor.shutdown()
-            for node in nodes:
-                node.destroy_node()
-            rclpy.try_shutdown()
+        gate, reported, _ = run_held_graph(supervisor, micromill, window, target)
+        # flow control was on (the recorder reported), and hw_sim ran past its window
+        assert reported and max(reported) + window < target
         supervisor.wait_for_line('recorder', 'recording stopped: ', timeout=10)
         assert supervisor['recorder'].running()
         supervisor.stop('recorder')
         assert supervisor['recorder'].returncode == 1
-    assert recorded is None                               # it left the graph: no more holding
+    assert gate.recorded is None                          # it left the graph: no more holding
     output = '\n'.join(supervisor['recorder'].tail(40))
     assert 'File too large (EFBIG)' in output
+
+
+def test_a_stopped_recorder_is_lost_by_its_liveliness_and_hw_sim_runs_on(ros_env, tmp_path, micromill):
+    """README "Faults": a recorder that stops (SIGSTOP: hung, not gone from the graph) stops
+    asserting its liveliness; hw_sim releases its hold within the lease (5 s) instead of
+    waiting for it for ever, counts it as lost, and the graph runs on past its window."""
+    from machine_ctrl.app.processes import Supervisor
+    window, target = 100, 8_000
+    with Supervisor(ros_env, log_dir=tmp_path / 'logs', stop_timeout=10.0) as supervisor:
+        supervisor.start('recorder', recorder_argv(tmp_path / 'bag', micromill.yaml_path))
+        supervisor.wait_for_line('recorder', 'recording to', timeout=60)
+        try:
+            gate, reported, step = run_held_graph(
+                supervisor, micromill, window, target,
+                at=lambda _hw_sim: supervisor['recorder'].signal_group(signal.SIGSTOP))
+        finally:
+            supervisor['recorder'].signal_group(signal.SIGCONT)
+        assert gate.lost >= 1 and max(reported) + window < step

@@ -332,7 +332,9 @@ def test_a_joint_goal_from_ros2_topic_pub_goes_accepted_executing_succeeded(micr
     stamp = Time(sec=int(time.time()), nanosec=4242)
     goal = (f'{{header: {{stamp: {{sec: {stamp.sec}, nanosec: {stamp.nanosec}}}}}, joint_names: [x_c, y_c], '
             f'points: [{{positions: [0.002, 0.001]}}]}}')
-    result = subprocess.run([ros2, 'topic', 'pub', '--once', '-w', '1', '--max-wait-time-secs', '60',
+    # --keep-alive: the publisher stays until the reliable delivery is through (its default
+    # 0.1 s can end it first on a loaded machine: the goal never arrives)
+    result = subprocess.run([ros2, 'topic', 'pub', '--once', '-w', '1', '--max-wait-time-secs', '60', '--keep-alive', '5',
                              contract.JOINT_GOAL.full(), 'trajectory_msgs/msg/JointTrajectory', goal],
                             env=ros_env, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr

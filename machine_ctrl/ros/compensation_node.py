@@ -17,6 +17,7 @@ from __future__ import annotations
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory
 
@@ -44,9 +45,12 @@ class CompensationNode(Node):
         self.stream = CompensationStream(compensator, self.machine.control_period, enabled)
         self.clock = ros_io.StepClock.of(self.machine)
         self.rejections = rejections(self)
-        # with a liveliness lease: the trajectory node learns that its reference no longer
-        # reaches the servos when this node is gone (README "Faults")
-        self.pub = self.create_publisher(JointTrajectory, output_topic, qos(contract.COMPENSATED_REFERENCE_QOS))
+        self.pub = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
+        # latched, with a liveliness lease: the trajectory node learns that its reference no
+        # longer reaches the servos when this node is gone (README "Faults")
+        self.pub_ready = self.create_publisher(Bool, contract.COMPENSATION_READY.name,
+                                               qos(contract.COMPENSATION_READY.qos))
+        self.pub_ready.publish(Bool(data=True))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
         subscribe_reference(self, input_topic, self.clock, self.machine.axis_names, self.on_chunk,

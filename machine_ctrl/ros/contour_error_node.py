@@ -77,7 +77,8 @@ class ContourErrorNode(Node):
         self.invalid = InvalidSteps()
         logger = self.get_logger()
         waiting = int(math.ceil(MAX_SHIFT / self.machine.control_period)) + 2
-        self.pending = PendingStates(waiting, logger.warning, logger.info)
+        self.pending = PendingStates(waiting, logger.warning, logger.info,
+                                     lambda reason: self.rejections.add('state', reason))
         self.rejections = rejections(self)
         self.frame = self.machine.workpiece_frame
         self.pubs = [self.create_publisher(kind, topic, ros_io.STEP_QOS) for kind, topic in (
@@ -109,12 +110,7 @@ class ContourErrorNode(Node):
         except ros_io.InvalidMessage as exc:
             self.rejections.add('state', str(exc))
             return
-        try:
-            taken = self.pending.add(step, q)
-        except ros_io.InvalidMessage as exc:
-            self.rejections.add('state', str(exc))
-            return
-        if taken:
+        if self.pending.add(step, q):
             self.process()
 
     def process(self) -> None:
@@ -179,8 +175,8 @@ class PendingStates:
     """The states waiting for their reference rows, in step order, and what became of those
     that never got one (module docstring). ROS-free: `warn`/`info` take one line each."""
 
-    def __init__(self, history: int, warn, info):
-        self.history, self.warn, self.info = history, warn, info
+    def __init__(self, history: int, warn, info, refuse=lambda reason: None):
+        self.history, self.warn, self.info, self.refuse = history, warn, info, refuse
         self.queue: deque = deque()
         self.last_step = -1                  # newest state taken
         self.estimated_step = -1             # newest state handed out for estimation
@@ -209,24 +205,30 @@ class PendingStates:
             self.first_reference = first_step
 
     def add(self, step: int, q) -> bool:
-        """A state; False for one already taken (hw_sim's re-sends). No reference for
-        `history` steps: the oldest waiting state is given up. A state more than one step
-        ahead of the newest is refused (InvalidMessage) until it is confirmed — it comes
-        again, or the state of its next step follows (states lost on the way: a real gap) —
-        so a stray state stamped in the future cannot make the node ignore every real state
-        as older (README "A well-formed state stamped more than one step ahead is refused
-        unless it comes again"). The first state is taken wherever it is (a node started
-        while the graph runs)."""
+        """A state; False for one already taken (hw_sim's re-sends) or held back. No reference
+        for `history` steps: the oldest waiting state is given up. A state more than one step
+        ahead of the newest is held back until it is confirmed — the state of its next step
+        follows (states lost on the way, e.g. a queue overrun under load: a real gap, taken
+        without a word) or it comes again — and refused (`refuse`, with the reason) when a
+        state that is not its successor comes instead: so a stray state stamped in the future
+        cannot make the node ignore every real state as older (README "A well-formed state
+        stamped more than one step ahead is refused unless it comes again"). The first state
+        is taken wherever it is (a node started while the graph runs)."""
         if step <= self.last_step:
             return False
-        if self.last_step >= 0 and step > self.last_step + 1:
-            candidate = self.skip_candidate
-            if candidate is not None and step == candidate[0] + 1:
+        candidate = self.skip_candidate
+        if candidate is not None and step in (candidate[0], candidate[0] + 1):
+            if step != candidate[0]:
                 self._take(*candidate)            # confirmed by its successor: a real gap
-            elif candidate is None or step != candidate[0]:
-                self.skip_candidate = (step, q)
-                raise ros_io.InvalidMessage(f"state of step {step} skips ahead of step {self.last_step + 1} "
-                                     '(taken only if it comes again or its next step follows)')
+            self._take(step, q)
+            return True
+        if candidate is not None:                 # not confirmed: it was stray
+            self.skip_candidate = None
+            self.refuse(f'state of step {candidate[0]} skips ahead of step {self.last_step + 1} '
+                        f'(not followed by step {candidate[0] + 1}, nor sent again)')
+        if self.last_step >= 0 and step > self.last_step + 1:
+            self.skip_candidate = (step, q)
+            return False
         self._take(step, q)
         return True
 

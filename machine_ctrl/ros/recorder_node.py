@@ -62,7 +62,7 @@ from machine_ctrl.recording.bag import BagError, qos_profile
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.recording.msgdefs import DefinitionNotFound, split_type
-from machine_ctrl.ros.node_common import DefaultExecutor, wall_timer
+from machine_ctrl.ros.node_common import DefaultExecutor, qos, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters
 
 DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
@@ -71,7 +71,7 @@ FLUSH_CHECK = 0.1      # s (wall) between checks whether the open chunk is due (
 STATUS_PERIOD = 1.0    # s (wall) between /diagnostics once the recording has stopped
 # the latest progress only matters; transient local so that an hw_sim that starts later
 # learns at once that a recorder is there and how far it is
-PROGRESS_QOS = ros_io.qos(contract.PROGRESS_QOS)
+PROGRESS_QOS = qos(contract.PROGRESS_QOS)    # with its liveliness lease: hw_sim learns a stop
 
 
 def message_class(type_name: str):

@@ -146,11 +146,11 @@ class TrajectoryNode(Node):
         # hw_sim's liveliness (the lease of its latched `ready`): lost is a fault (README "Faults")
         self.machine_lost_at: float | None = None
         watch_liveliness(self, Bool, contract.READY.name, contract.READY.qos, self.on_machine_alive)
-        # with compensation, its liveliness (the lease of its /reference): lost, the reference no
-        # longer reaches the servos (README "Faults")
+        # with compensation, its liveliness (the lease of its latched `ready`): lost, the
+        # reference no longer reaches the servos (README "Faults")
         self.chain_lost_at: float | None = None
         if output_topic == contract.TRAJECTORY_REFERENCE.name:
-            watch_liveliness(self, JointTrajectory, contract.REFERENCE.name, contract.COMPENSATED_REFERENCE_QOS,
+            watch_liveliness(self, Bool, contract.COMPENSATION_READY.name, contract.COMPENSATION_READY.qos,
                              self.on_chain_alive)
         self.create_service(Trigger, contract.HOLD.name, self.on_hold)
         self.create_service(Trigger, contract.RESUME.name, self.on_resume)
