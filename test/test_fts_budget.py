@@ -222,3 +222,20 @@ def test_table_and_plots(result, tmp_path):
     for p in paths:
         with open(p, 'rb') as fh:
             assert fh.read(8) == b'\x89PNG\r\n\x1a\n'
+
+
+def test_the_command_prints_the_figures_and_writes_the_plots(tmp_path):
+    """`machine-ctrl experiment fts-budget --json --plots DIR`: the CLI wiring."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+    exe = str(Path(sys.executable).parent / 'machine-ctrl')
+    result = subprocess.run([exe, 'experiment', 'fts-budget', '--json', '--plots', str(tmp_path)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data['status'] == 'ok' and data['calibration']['parameter'] == 'S_capa'
+    seeds = {row['name']: row['seed'] for row in data['rows']}
+    assert seeds['following RMS @468 Hz [calibration]'] == 0.83 and seeds['real RMS @468 Hz'] == 0.23
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['fts_budget_psd_cas.png', 'fts_budget_sweep.png']

@@ -258,3 +258,21 @@ def test_failures_are_reported_not_raised():
     assert res['status'] == 'failed'
     assert 'forgetting' in res['reason']
     assert 'failed' in midrange.format_table(res)
+
+
+def test_the_command_prints_the_rows_beside_the_seed():
+    """`machine-ctrl experiment midrange --json`: the CLI wiring (Table 3.1's values written here)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+    exe = str(Path(sys.executable).parent / 'machine-ctrl')
+    result = subprocess.run([exe, 'experiment', 'midrange', '--json'], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data['status'] == 'ok'
+    assert [(row['seed']['mvpc_aw'], row['seed']['mvpc']) for row in data['rows']] == [
+        (1.525, 1.525), (1.458, 1.555), (1.380, 1.474)]
+    for row in data['rows']:
+        for ctrl in ('mvpc_aw', 'mvpc'):
+            assert row['ours_over_seed'][ctrl] == row['ratio'][ctrl] / row['seed'][ctrl]

@@ -1,6 +1,8 @@
 """``machine-ctrl experiment NAME ...``: the experiments on the simulated machine (offline
 runner, machine_ctrl.experiments and compensation/), one subcommand each; progress on stderr.
 
+* ``midrange [--json]`` (Sörnmo Table 3.1) and ``fts-budget [--json] [--plots DIR]`` (Ding
+  section 5.7): machine_ctrl.experiments.midrange / fts_budget, seed | ours | ratio.
 * ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR]``: thesis section 6.3 /
   Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}, "measured":
   {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "encoder_count_um": ...,
@@ -63,6 +65,15 @@ def register(subparsers) -> None:
     contour.add_argument('--quiet', action='store_true', help='no progress on stderr')
     contour.add_argument('--no-helix', action='store_true', help='skip the micromill helix run')
     contour.set_defaults(run=cmd_contour, usage_parser=contour)
+    midrange = names.add_parser('midrange', help='Sörnmo Table 3.1: adaptive mid-ranging (AIMC) vs MVPC, '
+                                'the simulation rows with their spread')
+    midrange.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    midrange.set_defaults(run=cmd_seed_table, module='midrange')
+    fts = names.add_parser('fts-budget', help="Ding section 5.7: the fast tool servo's error budget "
+                           '(following vs real positioning error)')
+    fts.add_argument('--json', action='store_true', help='one JSON object on stdout (the spectra: --plots)')
+    fts.add_argument('--plots', metavar='DIR', help='write the PSD/CAS and bandwidth-sweep PNGs')
+    fts.set_defaults(run=cmd_seed_table, module='fts_budget')
     errors.register_experiment(names)
 
 
@@ -196,4 +207,39 @@ def cmd_contour(args) -> int:
         for path in contour.plots(series, args.plots):
             progress(f'wrote {path}')
     print(json.dumps(contour._jsonable(summary)) if args.json else contour.table(summary))
+    return 0
+
+
+def _scalars(value):
+    """A result as JSON data: numbers, text, lists and mappings (dataclasses as their fields);
+    arrays (spectra) left out."""
+    import dataclasses
+
+    import numpy as np
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return _scalars(dataclasses.asdict(value))
+    if isinstance(value, dict):
+        return {str(k): _scalars(v) for k, v in value.items() if not isinstance(v, np.ndarray)}
+    if isinstance(value, (list, tuple)):
+        return [_scalars(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def cmd_seed_table(args) -> int:
+    """midrange (machine_ctrl.experiments.midrange.table_3_1) and fts-budget
+    (machine_ctrl.experiments.fts_budget.reproduce): the table seed | ours | ratio, or --json;
+    exit 1 when the experiment reports a failure (its reason on stderr)."""
+    import importlib
+    module = importlib.import_module(f'machine_ctrl.experiments.{args.module}')
+    result = module.table_3_1() if args.module == 'midrange' else module.reproduce()
+    if args.json:
+        print(json.dumps(_scalars(result)))
+    else:
+        print(module.format_table(result))
+    for path in (module.plots(result, args.plots) if getattr(args, 'plots', None) else []):
+        print(f'wrote {path}', file=sys.stderr)
+    if result['status'] != 'ok':
+        return error(f'experiment {args.name}', result['reason'])
     return 0
