@@ -17,8 +17,8 @@ Arguments (``name:=value``):
 * ``robot_state_publisher`` — ``true`` starts robot_state_publisher (TF for RViz) when it is
   installed (ROS from apt; not on PyPI); default false.
 * ``respawn`` — ``true`` (default): a controller node that dies (servo, dual_stage, trajectory,
-  compensation, contour_error) is started again after ``RESPAWN_DELAY`` s, at most
-  ``RESPAWN_MAX`` times. hw_sim (the machine: its state would be lost) and the recorder (its
+  compensation, contour_error; an exit status other than 0) is started again after
+  ``RESPAWN_DELAY`` s, at most ``RESPAWN_MAX`` times; a node that exits 0 was asked to stop. hw_sim (the machine: its state would be lost) and the recorder (its
   bag directory is not empty any more) are not respawned. A dead servo or dual_stage node
   faults hw_sim (its commands stop); once the respawned node answers the held step,
   ``hw_sim/reset`` continues, and nothing moves again without a new goal.
@@ -83,15 +83,37 @@ def _nodes(context):
     extra = [value['params_file']] if value['params_file'] else []
     # the graph's values as our own parameters file (strings quoted: rcl reads a bare y as true)
     respawn = _flag('respawn', value['respawn'])
-    actions = [Node(package='machine_ctrl', executable=_executable(spec), name=spec.name,
-                    namespace=spec.namespace or None, parameters=[str(write_params_file([spec], None, spec.name)), *extra],
-                    remappings=[contract.CLOCK_REMAP], output='screen', emulate_tty=True,
-                    respawn=respawn and spec.name not in NOT_RESPAWNED, respawn_delay=RESPAWN_DELAY,
-                    respawn_max_retries=RESPAWN_MAX)
-               for spec in specs]
+    actions = []
+    for spec in specs:
+        params = [str(write_params_file([spec], None, spec.name)), *extra]
+
+        def make(spec=spec, params=params):
+            return Node(package='machine_ctrl', executable=_executable(spec), name=spec.name,
+                        namespace=spec.namespace or None, parameters=params,
+                        remappings=[contract.CLOCK_REMAP], output='screen', emulate_tty=True)
+        actions += _respawned(make, RESPAWN_MAX) if respawn and spec.name not in NOT_RESPAWNED else [make()]
     if _flag('robot_state_publisher', value['robot_state_publisher']):
         actions.append(_robot_state_publisher(machine, namespace))
     return actions
+
+
+def _respawned(make, retries: int) -> list:
+    """The node `make()` makes, and a handler that starts a new one `RESPAWN_DELAY` s after
+    it died, at most `retries` more times. Died = an exit status other than 0: every node
+    exits 0 when asked to stop (Ctrl-C, SIGTERM), so a terminal's Ctrl-C — which reaches the
+    nodes at the same time as launch, and they may end before launch has begun its shutdown
+    — never starts a node again (launch's own `respawn` would, and the node started after
+    the shutdown was never stopped: `ros2 launch` hung)."""
+    from launch.actions import RegisterEventHandler, TimerAction
+    from launch.event_handlers import OnProcessExit
+
+    node = make()
+
+    def on_exit(event, context):
+        if event.returncode == 0 or context.is_shutdown or retries <= 0:
+            return None
+        return [TimerAction(period=RESPAWN_DELAY, actions=_respawned(make, retries - 1))]
+    return [node, RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit))]
 
 
 def _robot_state_publisher(machine, namespace: str):

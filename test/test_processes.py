@@ -3,7 +3,6 @@ and, above all, to leave nothing running afterwards."""
 import os
 import signal
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -78,9 +77,9 @@ def test_sigint_is_enough_for_a_well_behaved_child(sup):
     sup.start('sleeper', py(SLEEPER))
     sup.wait_for_line('sleeper', 'ready', timeout=10)
     assert sup.alive() == ['sleeper']
-    started = time.monotonic()
-    assert sup.stop('sleeper', timeout=5) == -signal.SIGINT
-    assert time.monotonic() - started < 4        # did not wait for the SIGTERM step
+    # killed by SIGINT itself, not by the SIGTERM that follows `timeout` s later (a generous
+    # timeout: on a loaded machine a signalled child may take seconds to be scheduled)
+    assert sup.stop('sleeper', timeout=30) == -signal.SIGINT
     sup.check()
     assert 'ready' in (sup.log_dir / 'sleeper.log').read_text()
 
@@ -90,7 +89,7 @@ def test_a_child_ignoring_sigint_gets_sigterm_then_sigkill(sup):
     sup.start('no_int_no_term', py(IGNORES_SIGINT_AND_SIGTERM))
     for name in ('no_int', 'no_int_no_term'):
         sup.wait_for_line(name, 'ready', timeout=10)
-    codes = sup.stop_all(timeout=0.3)
+    codes = sup.stop_all(timeout=3.0)     # per step; the child that ignores both takes 2 x 3 s
     assert codes == {'no_int_no_term': -signal.SIGKILL, 'no_int': -signal.SIGTERM}
     assert sup.alive() == []
 
