@@ -180,7 +180,7 @@ class Supervisor:
             try:
                 process = subprocess.Popen(list(argv), env=env, cwd=cwd, stdin=subprocess.DEVNULL,
                                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                           process_group=0)
+                                           process_group=0, preexec_fn=_default_stop_signals)
             except BaseException:
                 if log is not None:
                     log.close()
@@ -318,6 +318,15 @@ def _group_alive(pgid: int) -> bool:
     if not os.path.isdir('/proc/self'):
         return True
     return any(True for _ in _live_group_members(pgid))
+
+
+def _default_stop_signals() -> None:
+    """In a child, between fork and exec: SIGINT and SIGTERM as the OS gives them. An ignored
+    signal stays ignored across exec, and a supervisor's own process may ignore them for a
+    while (node_common.spin from its end on, bringup while it closes the bag): its children
+    must still stop when they are asked to."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def proc_stats():
