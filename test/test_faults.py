@@ -9,6 +9,7 @@ contour_error); a killed node is started again by the test, and the tests that k
 come last. Every wait is on a condition (a goal state, a fault, a process exit, a line);
 GUARD only bounds a failure.
 """
+import contextlib
 import signal
 import sys
 from pathlib import Path
@@ -64,28 +65,43 @@ class Client(MachineClient):
         return self.goal(stamp)
 
 
-@pytest.fixture(scope='module')
-def graph(micromill, ros_env, tmp_path_factory):
-    with Supervisor(ros_env, log_dir=tmp_path_factory.mktemp('logs'), stop_timeout=3.0) as supervisor:
-        supervisor.start_nodes(specs(micromill).values())
+@contextlib.contextmanager
+def running_graph(node_specs, ros_env, log_dir):
+    """Every node of `node_specs` (name -> NodeSpec) in its own process, stopped on leaving."""
+    with Supervisor(ros_env, log_dir=log_dir, stop_timeout=3.0) as supervisor:
+        supervisor.start_nodes(node_specs.values())
         yield supervisor
 
 
-@pytest.fixture(scope='module')
-def client(micromill, graph, ros_env):
+@contextlib.contextmanager
+def graph_client(machine, graph, node_specs, ros_env, name):
+    """The test's Client, once the graph is ready, idle, and every node of `node_specs`
+    reports on /diagnostics."""
     import rclpy
     with private_context(ros_env) as context:
-        node = rclpy.create_node('faults_client', context=context)
-        c = Client(node, micromill)
+        node = rclpy.create_node(name, context=context)
+        c = Client(node, machine)
         try:
             c.wait_ready(GUARD, graph.check)
             c.wait(lambda: c.status().get('state') == 'idle' and c.truth is not None
-                   and c.trajectory_alive and all(n in c.diagnostics for n in specs(micromill)),
+                   and c.trajectory_alive and all(n in c.diagnostics for n in node_specs),
                    'the graph running', GUARD, graph.check)
             yield c
         finally:
             c.close()
             node.destroy_node()
+
+
+@pytest.fixture(scope='module')
+def graph(micromill, ros_env, tmp_path_factory):
+    with running_graph(specs(micromill), ros_env, tmp_path_factory.mktemp('logs')) as supervisor:
+        yield supervisor
+
+
+@pytest.fixture(scope='module')
+def client(micromill, graph, ros_env):
+    with graph_client(micromill, graph, specs(micromill), ros_env, 'faults_client') as c:
+        yield c
 
 
 def kill(graph, name):

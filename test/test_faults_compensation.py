@@ -7,10 +7,8 @@ import signal
 
 import pytest
 
-from machine_ctrl.app.processes import Supervisor
 from machine_ctrl.ros.graph import default_graph
-from ros_fixtures import private_context
-from test_faults import GUARD, TERMINAL, Client, slow_goal
+from test_faults import GUARD, TERMINAL, graph_client, running_graph, slow_goal
 
 
 def specs(machine):
@@ -20,25 +18,14 @@ def specs(machine):
 
 @pytest.fixture(scope='module')
 def graph(micromill, ros_env, tmp_path_factory):
-    with Supervisor(ros_env, log_dir=tmp_path_factory.mktemp('logs'), stop_timeout=3.0) as supervisor:
-        supervisor.start_nodes(specs(micromill).values())
+    with running_graph(specs(micromill), ros_env, tmp_path_factory.mktemp('logs')) as supervisor:
         yield supervisor
 
 
 @pytest.fixture(scope='module')
 def client(micromill, graph, ros_env):
-    import rclpy
-    with private_context(ros_env) as context:
-        node = rclpy.create_node('faults_compensation_client', context=context)
-        c = Client(node, micromill)
-        try:
-            c.wait_ready(GUARD, graph.check)
-            c.wait(lambda: c.status().get('state') == 'idle' and c.truth is not None
-                   and all(n in c.diagnostics for n in specs(micromill)), 'the graph running', GUARD, graph.check)
-            yield c
-        finally:
-            c.close()
-            node.destroy_node()
+    with graph_client(micromill, graph, specs(micromill), ros_env, 'faults_compensation_client') as c:
+        yield c
 
 
 def test_a_killed_compensation_aborts_the_goal_naming_it_the_servos_hold_and_goals_wait_for_it(

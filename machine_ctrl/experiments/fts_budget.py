@@ -462,18 +462,27 @@ def heavy_plant(plant: FtsPlant = FtsPlant()) -> FtsPlant:
     return replace(plant, added_mass=HEAVY_ADDED_MASS)
 
 
+def _setting(plant: FtsPlant, bandwidth_hz: float, dist: Disturbances, label: str):
+    """(gains, budget, None) of the setting with that bandwidth, or (None, None, the failed
+    result naming `label`)."""
+    g = gains_for_bandwidth(plant, bandwidth_hz)
+    if g['status'] != 'ok':
+        return None, None, {'status': 'failed', 'reason': f'{label} setting: {g["reason"]}'}
+    b = error_budget(plant, g['pid'], dist)
+    if b['status'] != 'ok':
+        return None, None, {'status': 'failed', 'reason': f'{label} budget: {b["reason"]}'}
+    return g, b, None
+
+
 def calibrate(plant: FtsPlant, dist: Disturbances = Disturbances(),
               target_nm: float = THESIS[CALIBRATION], bandwidth_hz: float = 468.0) -> dict:
     """Solve S_capa so that the following error RMS at `bandwidth_hz` is `target_nm`.
     The loop shape at a given bandwidth does not depend on S_capa (K_g S_capa is what sets it),
     every volt-valued noise scales as 1/S_capa and the current noise not at all, so
     fol^2 = A / S^2 + B in closed form."""
-    g = gains_for_bandwidth(plant, bandwidth_hz)
-    if g['status'] != 'ok':
-        return {'status': 'failed', 'reason': f'calibration setting: {g["reason"]}'}
-    b = error_budget(plant, g['pid'], dist)
-    if b['status'] != 'ok':
-        return {'status': 'failed', 'reason': f'calibration budget: {b["reason"]}'}
+    g, b, failure = _setting(plant, bandwidth_hz, dist, 'calibration')
+    if failure:
+        return failure
     volt = sum(b['following'][s]['rms'] ** 2 for s in SOURCES if s != 'current' and (s != 'ground' or dist.ground_in_volts))
     rest = b['following']['total']['rms'] ** 2 - volt
     target = target_nm * 1e-9
@@ -580,12 +589,9 @@ def reproduce(plant: FtsPlant = FtsPlant(), dist: Disturbances = Disturbances(),
     light = replace(plant, sensitivity=sens)
     settings = {}
     for bw in THESIS['bandwidths_hz']:
-        g = gains_for_bandwidth(heavy, bw)
-        if g['status'] != 'ok':
-            return {'status': 'failed', 'reason': f'{bw:g} Hz setting: {g["reason"]}'}
-        b = error_budget(heavy, g['pid'], dist)
-        if b['status'] != 'ok':
-            return {'status': 'failed', 'reason': f'{bw:g} Hz budget: {b["reason"]}'}
+        g, b, failure = _setting(heavy, bw, dist, f'{bw:g} Hz')
+        if failure:
+            return failure
         settings[bw] = {'gains': g, 'budget': b}
     b468 = settings[468.0]['budget']
     pv = expected_peak_to_valley(heavy, settings[468.0]['gains']['pid'], dist, THESIS['record_samples'])
