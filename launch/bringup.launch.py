@@ -79,7 +79,7 @@ def _nodes(context):
     if record is not None:
         from machine_ctrl.app.cli.common import fresh_directory
         fresh_directory(record)
-        specs.append(recorder_spec(machine, record, namespace=namespace))
+        specs.append(recorder_spec(machine, record, specs, namespace=namespace))
     extra = [value['params_file']] if value['params_file'] else []
     # the graph's values as our own parameters file (strings quoted: rcl reads a bare y as true)
     respawn = _flag('respawn', value['respawn'])

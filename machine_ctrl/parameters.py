@@ -374,7 +374,14 @@ RECORDER = NodeParameters('recorder_node', (
     ParameterSpec('discovery_period', DOUBLE, 0.2, 's', 'wall time between topic discoveries',
                   low=0.0, low_open=True),
     ParameterSpec('duration', DOUBLE, 0.0, 's', 'wall time to record (0: until stopped)', low=0.0),
-))
+    ParameterSpec('start_streams', INTEGER, 0, description=f'subscribe {contract.JOINT_STATES.name} only once this '
+                  'many answer streams (each publisher of ' + ' and '.join(t.name for t in contract.STEP_ANSWERS) +
+                  ') have sent: hw_sim, holding step 0 for this recorder (min_subscribers), then starts with '
+                  'every answer reaching the bag (0: subscribe at once)', low=0),
+), checks=(Check('start_streams', ('start_streams', 'topics'),
+                 lambda values: (f'needs every topic recorded (topics empty), got {values["start_streams"]}'
+                                 if values['start_streams'] and any(values['topics']) else None),
+                 '0 unless topics is empty'),))
 
 REPLAY = NodeParameters('replay_node', (
     ParameterSpec('bag', STRING, '', description='bag directory or .mcap file', required=True),

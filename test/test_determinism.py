@@ -193,7 +193,9 @@ def assert_per_step_topics_equal(a: Recorded, b: Recorded, steps: int):
                               ('/reference', a.reference, b.reference, steps)):
         keys = sorted(key for key in x if (key[0] if isinstance(key, tuple) else key) < upto)
         assert keys, topic
-        assert keys == sorted(key for key in y if (key[0] if isinstance(key, tuple) else key) < upto), topic
+        other = sorted(key for key in y if (key[0] if isinstance(key, tuple) else key) < upto)
+        assert keys == other, (f'{topic}: only in the first run {sorted(set(keys) - set(other))[:10]}, '
+                               f'only in the second {sorted(set(other) - set(keys))[:10]}')
         different = [key for key in keys if x[key] != y[key]]     # tuples of floats: exact
         assert not different, f'{topic}: {len(different)} of {len(keys)} differ, first {different[0]}'
 

@@ -222,6 +222,8 @@ START_REFUSALS = [
     ('contour_error_node', {'estimator': 'fancy'},
      "parameter estimator: must be basic, shifted or compensated, got 'fancy'"),
     ('recorder_node', {'output': 'x', 'duration': -1.0}, 'parameter duration: must be >= 0 s, got -1.0'),
+    ('recorder_node', {'output': 'x', 'start_streams': 2, 'topics': ['/joint_states']},
+     'parameter start_streams: needs every topic recorded (topics empty), got 2'),
     ('replay_node', {'bag': 'x', 'rate': 0.0}, 'parameter rate: must be > 0, got 0.0'),
 ]
 

@@ -416,3 +416,43 @@ def test_replay_into_a_fresh_recording_gives_the_same_analysis(live, micromill, 
     with Bag(copy) as replayed_bag:
         clocks = [clock_ns(m.data) for m in replayed_bag.messages(['/clock'])]
     assert len(clocks) > 100 and all(b > a for a, b in zip(clocks, clocks[1:]))      # monotonic
+
+
+def test_a_recorder_with_start_streams_subscribes_the_states_once_every_answer_stream_sent(
+        ros_supervisor, ros_node, tmp_path):
+    """start_streams 2 (bringup's value for two step nodes): /joint_states stays without the
+    recorder's reader while the recorder's discovery has seen it, until both /servo_commands
+    streams have sent; both answers are in the bag."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from machine_ctrl.recording.bag import Bag
+    bag = tmp_path / 'bag'
+    ros_supervisor.start('recorder', [sys.executable, '-m', 'machine_ctrl.ros.recorder_node', '--ros-args',
+                                      '-p', f'output:={bag}', '-p', 'start_streams:=2'])
+    ros_supervisor.wait_for_line('recorder', 'recording to', timeout=60)
+    node = ros_node('answers')
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+    states = node.create_publisher(JointState, '/joint_states', qos)
+    commands = node.create_publisher(JointState, '/servo_commands', qos)
+    probe = node.create_publisher(String, '/probe', qos)        # made last: once the recorder
+    ros_supervisor.wait_for_line('recorder', 'subscribed /probe', timeout=60)   # has it, it knew /joint_states
+    deadline = time.monotonic() + 60
+    while commands.get_subscription_count() < 1:               # the recorder's reader (made at its start)
+        assert time.monotonic() < deadline, 'the recorder did not subscribe /servo_commands'
+        time.sleep(0.05)
+    assert states.get_subscription_count() == 0, 'the recorder subscribed /joint_states before the answers'
+    for names in (['x_c', 'y_c', 'z_c'], ['x_f', 'y_f']):
+        msg = JointState(name=names, position=[0.0] * len(names))
+        msg.header.stamp.nanosec = 100_000
+        commands.publish(msg)
+    ros_supervisor.wait_for_line('recorder', '2 answer streams have sent: subscribing /joint_states', timeout=60)
+    while states.get_subscription_count() < 1:
+        assert time.monotonic() < deadline, 'the recorder did not subscribe /joint_states'
+        time.sleep(0.05)
+    node.destroy_publisher(probe)
+    assert ros_supervisor.stop('recorder') == 0, ros_supervisor['recorder'].tail(20)
+    with Bag(bag) as read:
+        counts = {name: info.count for name, info in read.topics.items()}
+    assert counts.get('/servo_commands') == 2, counts

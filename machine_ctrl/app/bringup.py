@@ -43,6 +43,9 @@ RECORDER_STOP_TIMEOUT = 60.0   # s the recorder may take to drain and close befo
 # node classes that keep a /joint_states subscription (the trajectory node drops its own
 # after the first state): hw_sim's min_subscribers counts them plus the recorder
 JOINT_STATE_READERS = {'ServoNode', 'DualStageNode', 'ContourErrorNode'}
+# node classes that answer every state on a topic of contract.STEP_ANSWERS: the recorder
+# waits for a message of each before it subscribes /joint_states (its start_streams)
+STEP_ANSWERERS = {'ServoNode', 'DualStageNode'}
 RECORDER_WINDOW = 100          # steps hw_sim may run ahead of the recorder (README: recommended)
 
 # (topic or service, type, what) of the command API, as printed by bringup
@@ -73,9 +76,11 @@ def single_process_argv(specs: list[NodeSpec], directory) -> list[str]:
     return [sys.executable, '-m', 'machine_ctrl.ros.graph', '--specs', str(path)]
 
 
-def recorder_spec(machine: MachineConfig, output: str, namespace: str = '') -> NodeSpec:
+def recorder_spec(machine: MachineConfig, output: str, graph: list[NodeSpec], namespace: str = '') -> NodeSpec:
+    """The recorder of `graph`: it waits for the first answer of each of its step nodes."""
     return NodeSpec('recorder', 'machine_ctrl.ros.recorder_node', 'RecorderNode',
-                    {'output': str(output), 'machine': str(machine.yaml_path)}, namespace=namespace)
+                    {'output': str(output), 'machine': str(machine.yaml_path),
+                     'start_streams': sum(spec.cls in STEP_ANSWERERS for spec in graph)}, namespace=namespace)
 
 
 class RecordingLost(RuntimeError):
@@ -113,7 +118,7 @@ class Bringup:
 
     def start(self) -> None:
         if self.record is not None:      # parameter files beside the logs
-            self.recorder.start('recorder', recorder_spec(self.machine, self.record, self.namespace).argv(self.log_dir))
+            self.recorder.start('recorder', recorder_spec(self.machine, self.record, self.specs, self.namespace).argv(self.log_dir))
         if self.single_process:
             self.graph.start('graph', single_process_argv(self.specs, self.log_dir))
             return

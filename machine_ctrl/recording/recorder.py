@@ -249,6 +249,10 @@ class Progress:
                     if s.grid and period and now - s.seen < self.silence]
         return min([state.newest, *complete])
 
+    def streams_on(self, topics) -> int:
+        """How many streams of `topics` have been written."""
+        return sum(topic in topics for topic, _ in self.streams)
+
     def take(self, now: float) -> int | None:
         """The stamp to publish now, or None if it went out already."""
         self._since_sent = 0

@@ -6,7 +6,8 @@ Parameters: ``output`` (bag directory, must not exist or be empty), ``topics`` (
 node's namespace; empty: every topic of the node's namespace but ``/rosout`` and
 ``/parameter_events``), ``machine`` (name or YAML path, stored in the bag's
 custom_data for ``machine-ctrl analyze``), ``discovery_period`` (s, wall), ``duration``
-(s, wall; 0: until stopped).
+(s, wall; 0: until stopped), ``start_streams`` (bringup's recorder: /joint_states is
+subscribed only once that many step nodes have answered, :meth:`RecorderNode.start_states`).
 
 Progress: when it records /joint_states, the node publishes on /recorder/progress
 (builtin_interfaces/Time, reliable, transient local, depth 1) a stamp up to which every
@@ -121,6 +122,11 @@ class RecorderNode(Node):
         self.pub_diag = None
         self.torn_down = False
         self.excluded = recorder.default_excluded(namespace)
+        self.states_topic = contract.JOINT_STATES.full(namespace)
+        self.answer_topics = frozenset(topic.full(namespace) for topic in contract.STEP_ANSWERS)
+        # /joint_states deferred until this many answer streams have sent (0: not deferred;
+        # only while recording every topic: parameters.RECORDER's check)
+        self.start_streams = values.start_streams
         if self.wanted is None or contract.JOINT_STATES.full(namespace) in self.wanted:
             self.pub_progress = self.create_publisher(Time, contract.RECORDER_PROGRESS.name, PROGRESS_QOS)
             self.publish_progress()                  # 0: a recorder is here, nothing written yet
@@ -201,7 +207,8 @@ class RecorderNode(Node):
         if self.recording.stopped is not None:
             return
         available = {name: list(types) for name, types in self.get_topic_names_and_types()}
-        chosen = recorder.to_subscribe(available, self.wanted, self.excluded, self.subscribed, self.get_namespace())
+        done = {**self.subscribed, self.states_topic: None} if self.start_streams else self.subscribed
+        chosen = recorder.to_subscribe(available, self.wanted, self.excluded, done, self.get_namespace())
         for topic, type_name in chosen.items():
             offers = [offered_profile(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
             if offers:                        # wait for a publisher: its QoS decides ours
@@ -213,12 +220,29 @@ class RecorderNode(Node):
         only until this node's /joint_states reader is matched, and a per-step topic found a
         discovery round later would lose its first steps (seen: /servo_commands of steps
         0-398 with every node in one process). Such a topic joins the bag with its first
-        message (the QoS its publishers offer then), so a topic nobody publishes is not in it."""
+        message (the QoS its publishers offer then), so a topic nobody publishes is not in it.
+        With `start_streams`, /joint_states waits for :meth:`start_states`."""
         for topic in contract.PER_STEP_TOPICS:
             name = topic.full(namespace)
             if (self.wanted is None and name not in self.excluded or name in (self.wanted or {})) \
-                    and self.subscribed.get(name) is None:
+                    and self.subscribed.get(name) is None and not (name == self.states_topic and self.start_streams):
                 self.subscribe(name, topic.type, None)
+
+    def start_states(self) -> None:
+        """Subscribe /joint_states once `start_streams` answer streams have sent. A DDS writer
+        sends a volatile reader only what it publishes after it has matched that reader, and
+        each pair of nodes matches in its own time: a step node could answer steps before it
+        matched this node and those answers would be lost (seen on a loaded machine:
+        /servo_commands of the first steps missing from a bag). A message received proves
+        the match; hw_sim, which holds step 0 until this node's /joint_states reader is
+        there (min_subscribers), re-sends state 0 meanwhile and the nodes answer it again.
+        This node's earlier readers of hw_sim's own topics are matched by then, since the
+        readers of one participant are announced to another in the order they were made."""
+        if self.recording.progress.streams_on(self.answer_topics) < self.start_streams:
+            return
+        self.get_logger().info(f'{self.start_streams} answer streams have sent: subscribing {self.states_topic}')
+        self.start_streams = 0
+        self.subscribe(self.states_topic, contract.JOINT_STATES.type, None)
 
     def subscribe(self, topic: str, type_name: str, offers: list[dict] | None) -> None:
         """Subscribe `topic`; `offers` None: the bag learns the topic (with its publishers'
@@ -253,6 +277,8 @@ class RecorderNode(Node):
                 return
             if due and self.pub_progress is not None:
                 self.publish_progress()
+            if self.start_streams and topic in self.answer_topics:
+                self.start_states()
 
         self.subscribed[topic] = self.create_subscription(cls, topic, on_message, qos, raw=True)
         self.get_logger().info(f'subscribed {topic} ({type_name})')
