@@ -10,11 +10,9 @@ import json
 import numpy as np
 import pytest
 
-from hw_sim.offline import run
 from machine_ctrl.app.cli import experiment as cli
 from machine_ctrl.experiments import tracking
 from machine_ctrl.experiments.tracking import STAT_KEYS
-from machine_ctrl.model.reference import Reference
 
 SIDE = 0.020        # m, trajectory.contours.square's side (assumed there: Table 6.2 does not state it)
 MODES = {'smc': False, 'dsfd': True}
@@ -26,10 +24,13 @@ def square(micromill):
     records = {}
     result = tracking.contouring(micromill, 'square',
                                  on_run=lambda label, reference, record: records.__setitem__(label, (reference, record)))
+    assert tuple(records) == tracking.RUN_LABELS
     reference = records['smc'][0]
-    hold = Reference.hold(micromill.axis_names, micromill.control_period, reference.position[0], len(reference))
-    rest = {mode: run(micromill, hold, dual_stage=dual) for mode, dual in MODES.items()}
-    return result, {mode: records[mode][1] for mode in MODES}, rest, reference
+    hold = records['smc_at_rest'][0]               # the twins hold the square's start point as long
+    assert np.array_equal(hold.position, np.broadcast_to(reference.position[0], reference.position.shape))
+    assert records['dsfd_at_rest'][0] is hold and records['dsfd'][0] is reference
+    return result, {mode: records[mode][1] for mode in MODES}, {mode: records[f'{mode}_at_rest'][1] for mode in MODES}, \
+        reference
 
 
 def _square_distance(x, y, h=SIDE / 2):

@@ -93,6 +93,9 @@ def noise_floor(stats: dict[str, float], rest: dict[str, float], count_um: float
     return [k for k in STAT_KEYS if stats[k] <= rest[k] + (count_um if k.startswith('max_') else 0.0)]
 
 
+RUN_LABELS = ('smc', 'smc_at_rest', 'dsfd', 'dsfd_at_rest')     # contouring's runs, in order
+
+
 def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | None = None,
                on_run=None) -> dict:
     """For kind 'circle' or 'square': {'smc': stats, 'dsfd': stats} (encoder-measured, um, as
@@ -101,26 +104,26 @@ def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | No
     for as long, same mode and noise), 'noise_floor' {'smc': [keys], 'dsfd': [keys]} (the
     statistics no larger than their at-rest value, see noise_floor: not results),
     'encoder_count_um' and 'steps'. `on_run(label, reference, record)` is called after each
-    contouring run ('smc', then 'dsfd'; not the at-rest runs), e.g. to write it as a bag
-    (``machine-ctrl experiment circle|square --record DIR`` does)."""
+    run: 'smc', 'smc_at_rest', 'dsfd', 'dsfd_at_rest' (:data:`RUN_LABELS`), e.g. to write it
+    as a bag (``machine-ctrl experiment circle|square --record DIR`` does)."""
     reference, contour = getattr(contours, kind)(machine)
     steps = len(reference) if steps is None else steps
     rest_reference = at_rest(reference)
     count_um = encoder_count(machine) * 1e6
     result = {'true': {}, 'at_rest': {}, 'noise_floor': {}, 'encoder_count_um': count_um, 'steps': steps}
     for label, dual in (('smc', False), ('dsfd', True)):
-        for ref, name, out in ((reference, label, result), (rest_reference, f'{label} at rest', None)):
+        for ref, name, twin in ((reference, label, False), (rest_reference, f'{label} at rest', True)):
             report = None if progress is None else (lambda k, n, name=name: progress(f'{kind} {name}', k, n))
             record = run(machine, ref, dual_stage=dual, steps=steps, progress=report)
             if record.fault:
                 raise RuntimeError(f'{kind} {name}: the simulated machine faulted: {record.fault}')
-            if out is not None:
+            if twin:
+                result['at_rest'][label] = contour_statistics(record, rest_reference, contour)
+            else:
                 result[label] = contour_statistics(record, reference, contour)
                 result['true'][label] = contour_statistics(record, reference, contour, source='true')
-                if on_run is not None:
-                    on_run(label, reference, record)
-            else:
-                result['at_rest'][label] = contour_statistics(record, rest_reference, contour)
+            if on_run is not None:
+                on_run(name.replace(' ', '_'), ref, record)
         result['noise_floor'][label] = noise_floor(result[label], result['at_rest'][label], count_um)
     return result
 

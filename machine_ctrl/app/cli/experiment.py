@@ -12,8 +12,8 @@ runner, machine_ctrl.experiments and compensation/), one subcommand each; progre
   "floor"; "measured" has every encoder figure, "true" the same against the simulator's
   true positions; frf prints ``{"bandwidth_hz": {"x_c": ..., "x_f": ..., "x_dual": ...,
   ...}, "frequencies_hz": [...], "gain": {...}}``. circle/square ``--record DIR`` also
-  write each run as a bag, DIR/smc and DIR/dsfd (machine_ctrl.ros.run_bag, called here: the
-  experiments layer is ROS-free).
+  write each run as a bag, DIR/smc and DIR/dsfd, and their at-rest twins DIR/smc_at_rest and
+  DIR/dsfd_at_rest (machine_ctrl.ros.run_bag, called here: the experiments layer is ROS-free).
 * ``contour [--json] [--plots DIR] [--quiet] [--no-helix]``: Sencer Figs. 9-10
   (machine_ctrl.experiments.contour).
 * ``geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis Tables 6.3/6.4, registered
@@ -162,7 +162,7 @@ def _print_frf(machine: str, result: dict) -> None:
 
 def contouring(machine, kind: str, progress=None, steps: int | None = None, record_dir=None) -> dict:
     """machine_ctrl.experiments.tracking.contouring; with `record_dir`, each run is also
-    written as a bag, <record_dir>/smc and <record_dir>/dsfd, right after it ran."""
+    written as a bag, <record_dir>/<label> (tracking.RUN_LABELS), right after it ran."""
     from machine_ctrl.experiments import tracking
     def write_bag(label, reference, record):
         from machine_ctrl.ros.run_bag import write_run_bag     # imports rclpy: only when recording
@@ -178,7 +178,8 @@ def cmd_experiment(args) -> int:
         try:
             if args.name == 'frf':
                 raise ValueError('--record is for circle and square')
-            for label in ('smc', 'dsfd'):
+            from machine_ctrl.experiments.tracking import RUN_LABELS
+            for label in RUN_LABELS:
                 fresh_directory(os.path.join(args.record, label))
         except ValueError as exc:
             return error('experiment', exc)
