@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from machine_ctrl.app.processes import default_stop_signals
 from machine_ctrl.recording.bag import Bag
 
 BIN = Path(sys.executable).parent
@@ -55,9 +56,11 @@ class Launch:
     def __init__(self, env, log: Path, *args: str):
         self.log = log
         self.handle = open(log, 'wb')
+        # with the signals at their defaults, as from a terminal, whatever this process ignores
         self.process = subprocess.Popen([str(ROS2), 'launch', 'machine_ctrl', 'bringup.launch.py', *args],
                                         env=env, stdout=self.handle, stderr=subprocess.STDOUT,
-                                        stdin=subprocess.DEVNULL, start_new_session=True)
+                                        stdin=subprocess.DEVNULL, start_new_session=True,
+                                        preexec_fn=default_stop_signals)
 
     def text(self) -> str:
         return self.log.read_text(errors='replace')

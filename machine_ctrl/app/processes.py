@@ -180,7 +180,7 @@ class Supervisor:
             try:
                 process = subprocess.Popen(list(argv), env=env, cwd=cwd, stdin=subprocess.DEVNULL,
                                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                           process_group=0, preexec_fn=_default_stop_signals)
+                                           process_group=0, preexec_fn=default_stop_signals)
             except BaseException:
                 if log is not None:
                     log.close()
@@ -320,11 +320,13 @@ def _group_alive(pgid: int) -> bool:
     return any(True for _ in _live_group_members(pgid))
 
 
-def _default_stop_signals() -> None:
+def default_stop_signals() -> None:
     """In a child, between fork and exec: SIGINT and SIGTERM as the OS gives them. An ignored
     signal stays ignored across exec, and a supervisor's own process may ignore them for a
     while (node_common.spin from its end on, bringup while it closes the bag): its children
-    must still stop when they are asked to."""
+    must still stop when they are asked to (and a shell's background job, `cmd &`, starts
+    with SIGINT ignored: Python then installs no handler, and a `ros2 launch` child never
+    hears its Ctrl-C)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 

@@ -3,6 +3,7 @@ to the per-step states and the reference chunks (decoded by machine_ctrl.recordi
 one or several nodes (one process per node, or all in one) with clean shutdown."""
 from __future__ import annotations
 
+import faulthandler
 import signal
 import sys
 import time
@@ -48,6 +49,10 @@ def wall_timer(node: Node, period: float, callback):
 # gives; one return per 0.1 s costs nothing measurable beside the per-step callbacks.
 SIGNAL_POLL = 0.1          # s (wall)
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# assumed: a node's shutdown (executor, nodes, context, interpreter exit) takes well under 1 s
+# idle and a few s on a loaded 2-core machine; 8 s stays below launch's escalation to
+# SIGKILL (sigterm_timeout + sigkill_timeout, 5 s each), so a hang leaves its stacks in the log.
+SHUTDOWN_LIMIT = 8.0       # s (wall)
 
 
 _early_signals: list[int] = []     # SIGINT / SIGTERM received before spin() began
@@ -67,7 +72,8 @@ def spin(nodes, executor=None) -> None:
     """Spin until SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down, a supervisor) or the
     context's shutdown, then shut down cleanly: further signals ignored (for the rest of the
     process: spin is the end of a node process), executor shut down, nodes destroyed,
-    context shut down — no traceback, and the caller exits 0.
+    context shut down — no traceback, and the caller exits 0. A shutdown that takes longer
+    than :data:`SHUTDOWN_LIMIT` dumps every thread's stack on stderr and exits 1.
 
     Not executor.spin(): with rclpy 7.1's EventsExecutor, spinning without a timeout never
     fires timers nor callbacks for other processes' messages. spin_until_future_complete on
@@ -103,6 +109,9 @@ def spin(nodes, executor=None) -> None:
         # while the interpreter exits: ignored from here to the end of the process.
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
+        # a shutdown that hangs (seen once: hw_sim under `ros2 launch` on a loaded machine, not
+        # yet explained) prints every thread's stack on stderr and ends the process, exit 1
+        faulthandler.dump_traceback_later(SHUTDOWN_LIMIT, exit=True)
         executor.shutdown()
         for node in nodes:
             node.destroy_node()
