@@ -127,7 +127,7 @@ class RecorderNode(Node):
         # /joint_states deferred until this many answer streams have sent (0: not deferred;
         # only while recording every topic: parameters.RECORDER's check)
         self.start_streams = values.start_streams
-        if self.wanted is None or contract.JOINT_STATES.full(namespace) in self.wanted:
+        if self.wanted is None or self.states_topic in self.wanted:
             self.pub_progress = self.create_publisher(Time, contract.RECORDER_PROGRESS.name, PROGRESS_QOS)
             self.publish_progress()                  # 0: a recorder is here, nothing written yet
             self.progress_timer = wall_timer(self, recorder.PROGRESS_PERIOD, self.publish_progress)
