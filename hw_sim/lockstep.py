@@ -74,11 +74,15 @@ class LockStep:
         self.step = step
 
 
+NOTHING_RECORDED = -1      # the step a recorder reports before it has written any state
+
+
 @dataclass
 class RecorderGate:
     """Flow control for a recorder (lock-step only): with ``window`` W > 0 steps, hw_sim does
     not advance from step k to k+1 while k - r > W, r = the step of the newest state the
-    recorder reports written. Holding only delays a lock-step run, it never changes it.
+    recorder reports written (:data:`NOTHING_RECORDED` before its first: then the session also
+    holds step 0). Holding only delays a lock-step run, it never changes it.
     ``recorded`` is None until a recorder reports (then nothing is held) and again once it
     has left the graph. The holds are counted and timed (wall s) for the diagnostics."""
     window: int = 0

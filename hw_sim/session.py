@@ -14,7 +14,8 @@ Modes:
   holds the machine at step 0 until that many state subscribers are matched (then step 0
   is sent once more and the run begins). `recorder_window` W > 0 (steps) is flow control
   for a recorder (:class:`hw_sim.lockstep.RecorderGate`): once a recorder reports progress,
-  the session does not advance from step k while k minus the reported step exceeds W; a
+  the session does not advance from step k while k minus the reported step exceeds W, nor
+  from step 0 while the recorder reports that it has written no state yet (step -1); a
   recorder that leaves the graph releases the hold. Holding delays a run, it never changes
   it.
 * paced (:class:`PacedSession`): one step per timer tick (period = control period /
@@ -47,7 +48,7 @@ import math
 from typing import NamedTuple, Protocol
 
 from machine_ctrl.model.numeric import all_finite
-from hw_sim.lockstep import LockStep, RecorderGate
+from hw_sim.lockstep import NOTHING_RECORDED, LockStep, RecorderGate
 from hw_sim.simulator import MachineSimulator
 from machine_ctrl.contract import StepClock
 from machine_ctrl.model.errors import InvalidMessage
@@ -219,8 +220,9 @@ class LockStepSession(Session):
         """The recorder has written every state up to the one stamped (sec, nanosec)."""
         try:
             step = self.clock.step_at(sec, nanosec)
-            if not 0 <= step <= self.lockstep.step:
-                raise ValueError(f'progress for step {step}, but the published steps are 0..{self.lockstep.step}')
+            if not NOTHING_RECORDED <= step <= self.lockstep.step:
+                raise ValueError(f'progress for step {step}, but the published steps are 0..{self.lockstep.step} '
+                                 f'({NOTHING_RECORDED}: none yet)')
         except ValueError as exc:
             self.gate.refuse(str(exc))
             self.io.refuse_progress(str(exc))
@@ -269,6 +271,8 @@ class LockStepSession(Session):
         if self.lockstep.step == 0 and not self._start_announced:
             if self.io.state_subscribers() < self.min_subscribers:
                 return                           # hold at step 0 until e.g. a recorder is matched
+            if self.gate.recorded == NOTHING_RECORDED:
+                return                           # ... and until a recorder that is there has state 0
             self._start_announced = True
             self._send(now, resend=True)         # step 0 again, now that every subscriber is there
         if self.holding_for_recorder(now):

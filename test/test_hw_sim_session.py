@@ -327,7 +327,7 @@ def test_a_recorder_that_leaves_releases_the_hold(make):
 
 @pytest.mark.parametrize('sec, nanosec, reason', [
     (0, 1, 'stamp 1 ns is not on the 100000 ns control grid'),
-    (0, 500 * PERIOD_NS, 'progress for step 500, but the published steps are 0..7'),
+    (0, 500 * PERIOD_NS, 'progress for step 500, but the published steps are 0..7 (-1: none yet)'),
     (0, 1_500_000_000, 'stamp nanosec 1500000000 is not in [0, 1e9)'),
 ])
 def test_bad_progress_is_refused_and_changes_nothing(make, sec, nanosec, reason):
@@ -450,3 +450,18 @@ def test_finite_commands_whose_sum_leaves_the_float_range_are_not_taken_for_non_
     assert io.take() == [('refused', 'command for step 5 while at step 0')] and s.sim.fault is None
     command(s, 0, ('x_c', 'y_c'), [1e308, math.nan])
     assert io.take()[0] == ('fault', 'non-finite command for y_c')
+
+
+def test_a_recorder_that_has_written_nothing_holds_step_0_until_it_has_state_0(make):
+    """A recorder reports the stamp of step -1 at start: hw_sim, its subscribers all there,
+    stays at step 0 (re-sending it) until the recorder reports state 0 written."""
+    s, io = make(min_subscribers=1, recorder_window=3)
+    io.take()
+    io.subscribers = 1
+    s.on_progress(-1, 999_900_000, 0.0)          # step -1: a recorder is here, nothing written
+    command(s, 0)
+    assert s.step == 0
+    s.on_timer(0.5)                               # re-sent while held
+    assert s.step == 0 and ('state', 0) in io.take()
+    s.on_progress(0, 0, 0.6)                      # state 0 is in the bag
+    assert s.step == 1

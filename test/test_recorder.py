@@ -79,8 +79,9 @@ def test_joint_names_tell_publishers_apart_whatever_the_values():
 
 
 def test_progress_goes_out_at_start_every_nth_state_and_on_the_timer_when_newer():
-    progress = recorder.Progress(every=3)
-    assert progress.take(0.0) == 0                      # start: nothing written yet
+    assert recorder.Progress(every=3).take(0.0) is None             # no period known: nothing to say yet
+    progress = recorder.Progress(every=3, period_ns=PERIOD)
+    assert progress.take(0.0) == -PERIOD                # start: step -1, nothing written yet
     assert progress.take(0.0) is None
     assert [progress.written('/joint_states', True, state(k), 0.0) for k in range(1, 4)] == [False, False, True]
     assert progress.take(0.0) == 3 * PERIOD

@@ -13,7 +13,7 @@ bag they go to. :mod:`machine_ctrl.ros.recorder_node` wires it to the ROS graph.
   per reader whatever the depth, so that buffer is finite: see "Progress".
 * Progress (flow control): a stamp up to which every per-step stream has been written
   (:class:`Progress`), published on ``/recorder/progress`` (builtin_interfaces/Time) at
-  start (0: nothing yet), after every ``PROGRESS_EVERY``-th state and whenever newer on a
+  start (the stamp of step -1: nothing yet), after every ``PROGRESS_EVERY``-th state and whenever newer on a
   short timer. hw_sim with ``recorder_window`` > 0 holds the lock-step graph while it is
   too far ahead of it.
 * Loss check: with the machine known, /joint_states (one per control step) and /clock (on a
@@ -212,10 +212,14 @@ class Progress:
     the minimum over the streams of (newest stamp + its grid - one state period): a
     decimated stream (/clock) is complete until its next message is due. A stream
     constrains P once its grid is known and until it has been silent for ``silence`` s (its
-    publisher left). P never exceeds the newest /joint_states stamp; 0 before the first.
-    Due after every ``every``-th /joint_states message; :meth:`take` also serves a timer."""
+    publisher left). P never exceeds the newest /joint_states stamp; before the first it is
+    minus one control period (``period_ns``: the stamp of step -1, nothing written; None
+    without a known period). Due after every ``every``-th /joint_states message; :meth:`take`
+    also serves a timer."""
 
-    def __init__(self, topics=None, every: int = None, silence: float = None, namespace: str = ''):
+    def __init__(self, topics=None, every: int = None, silence: float = None, namespace: str = '',
+                 period_ns: int | None = None):
+        self.nothing = None if period_ns is None else -period_ns
         self.states_topic = contract.JOINT_STATES.full(namespace)
         self.topics = frozenset(progress_stream_topics(namespace) if topics is None else topics) | {self.states_topic}
         self.every = PROGRESS_EVERY if every is None else every
@@ -239,10 +243,10 @@ class Progress:
             self._since_sent += topic == self.states_topic
         return self._since_sent >= self.every
 
-    def value(self, now: float) -> int:
+    def value(self, now: float) -> int | None:
         states = [s for (topic, _), s in self.streams.items() if topic == self.states_topic]
         if not states:
-            return 0
+            return self.nothing
         state = max(states, key=lambda s: s.seen)
         period = state.grid
         complete = [s.newest + s.grid - period for s in self.streams.values()
@@ -257,7 +261,7 @@ class Progress:
         """The stamp to publish now, or None if it went out already."""
         self._since_sent = 0
         value = self.value(now)
-        if self.sent == value:
+        if value is None or self.sent == value:
             return None
         self.sent = value
         return value
@@ -320,7 +324,7 @@ class Recording:
         self.writer = BagWriter(directory, custom_data=self.custom_data)
         self.loss_check = LossCheck(period_ns, namespace)
         self.gaps = self.loss_check.gaps
-        self.progress = Progress(namespace=namespace)
+        self.progress = Progress(namespace=namespace, period_ns=period_ns)
         self.stopped: str | None = None
 
     def add_topic(self, name: str, type_name: str, offers) -> None:

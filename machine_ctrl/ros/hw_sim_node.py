@@ -30,8 +30,9 @@ session says:
   /joint_states subscribers are matched (a recorder that must see every step).
   `recorder_window` W > 0 (steps) is flow control for a recorder that reports on
   /recorder/progress (builtin_interfaces/Time: stamp of the newest state it has written):
-  hw_sim does not advance from step k while k minus that step exceeds W; a recorder that
-  leaves the graph releases the hold. Holding delays a run, it never changes it.
+  hw_sim does not advance from step k while k minus that step exceeds W, nor from step 0
+  while the recorder reports step -1 (none written yet); a recorder that leaves the graph
+  releases the hold. Holding delays a run, it never changes it.
 * paced: steps on the wall clock at `real_time_factor`, applying the latest command of
   each axis (zero-order hold) and counting missed deadlines — the contract a driver for
   real hardware implements.

@@ -11,8 +11,8 @@ subscribed only once that many step nodes have answered, :meth:`RecorderNode.sta
 
 Progress: when it records /joint_states, the node publishes on /recorder/progress
 (builtin_interfaces/Time, reliable, transient local, depth 1) a stamp up to which every
-per-step publisher's messages are written (:class:`machine_ctrl.recording.recorder.Progress`; 0 at
-start), after every ``recorder.PROGRESS_EVERY``-th state and every
+per-step publisher's messages are written (:class:`machine_ctrl.recording.recorder.Progress`; at
+start the stamp of step -1, nothing written, when the machine is known), after every ``recorder.PROGRESS_EVERY``-th state and every
 ``recorder.PROGRESS_PERIOD`` s when newer. hw_sim's ``recorder_window`` uses it to hold the
 lock-step graph so no publisher gets further ahead of this node than DDS keeps. Time is the
 standard type of a point in ROS time and exactly what is reported (a stamp of the graph's
@@ -129,7 +129,7 @@ class RecorderNode(Node):
         self.start_streams = values.start_streams
         if self.wanted is None or self.states_topic in self.wanted:
             self.pub_progress = self.create_publisher(Time, contract.RECORDER_PROGRESS.name, PROGRESS_QOS)
-            self.publish_progress()                  # 0: a recorder is here, nothing written yet
+            self.publish_progress()                  # step -1: a recorder is here, nothing written yet
             self.progress_timer = wall_timer(self, recorder.PROGRESS_PERIOD, self.publish_progress)
         for topic, type_name in (self.wanted or {}).items():
             if type_name is not None:
