@@ -49,6 +49,11 @@ class _Actuator:
         """The command the amplifier actually produces: saturated, then quantized."""
         return quantize(min(self.limit, max(-self.limit, u)), self.resolution)
 
+    @property
+    def sensed(self) -> float:
+        """What the position sensor sees (before its noise and quantization)."""
+        return self.position
+
 
 class FrictionAxis(_Actuator):
     def __init__(self, axis: AxisConfig, period: float, substeps: int, rng: random.Random,
@@ -146,24 +151,18 @@ class LinearAxis(_Actuator):
         return applied
 
 
-def make_plant(axis: AxisConfig, period: float, substeps: int, rng: random.Random, position: float = 0.0):
-    if axis.plant is None:
-        raise ValueError(f'axis {axis.name}: no plant section in the machine config')
-    if axis.plant.friction is not None:
-        return FrictionAxis(axis, period, substeps, rng, position)
-    return LinearAxis(axis, period, rng, position)
-
-
 class Sensor:
-    """Measured position = quantize(true + noise); velocity = backward difference / period."""
+    """Measured position = quantize(sensed + noise); velocity = backward difference / period.
+    `sensed` is the plant's sensor output: its true position unless the plant models the
+    sensor's dynamics (hw_sim/flexure.py)."""
 
     def __init__(self, resolution: float, noise: float, period: float, rng: random.Random,
                  position: float = 0.0):
         self.resolution, self.noise, self.period, self.rng = resolution, noise, period, rng
         self.last = quantize(position, resolution)
 
-    def measure(self, true_position: float) -> tuple[float, float]:
-        noisy = true_position + (self.rng.gauss(0.0, self.noise) if self.noise > 0.0 else 0.0)
+    def measure(self, sensed: float) -> tuple[float, float]:
+        noisy = sensed + (self.rng.gauss(0.0, self.noise) if self.noise > 0.0 else 0.0)
         position = quantize(noisy, self.resolution)
         velocity = (position - self.last) / self.period
         self.last = position

@@ -15,9 +15,21 @@ from dataclasses import dataclass
 
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
-from hw_sim.plant import Sensor, make_plant
-from machine_ctrl.model.config import MachineConfig
+from hw_sim.flexure import FlexureAxis
+from hw_sim.plant import FrictionAxis, LinearAxis, Sensor
+from machine_ctrl.model.config import AxisConfig, MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
+
+
+def make_plant(axis: AxisConfig, period: float, substeps: int, rng: random.Random, position: float = 0.0):
+    """The plant model of `axis`: a voice-coil flexure stage, a friction axis, or linear."""
+    if axis.plant is None:
+        raise ValueError(f'axis {axis.name}: no plant section in the machine config')
+    if axis.drive.type == 'voice_coil':
+        return FlexureAxis(axis, period, rng, position)
+    if axis.plant.friction is not None:
+        return FrictionAxis(axis, period, substeps, rng, position)
+    return LinearAxis(axis, period, rng, position)
 
 
 @dataclass(frozen=True)
@@ -53,7 +65,7 @@ class MachineSimulator:
         self._measure()
 
     def _measure(self) -> None:
-        readings = [s.measure(p.position) for s, p in zip(self.sensors, self.plants)]
+        readings = [s.measure(p.sensed) for s, p in zip(self.sensors, self.plants)]
         self.measurement = Measurement(tuple(r[0] for r in readings), tuple(r[1] for r in readings),
                                        self.applied)
 

@@ -17,6 +17,11 @@ def trt():
 
 
 @pytest.fixture(scope='session')
+def fts_lathe():
+    return load_machine('fts_lathe')
+
+
+@pytest.fixture(scope='session')
 def micromill_kin(micromill):
     return Kinematics.from_config(micromill)
 

@@ -19,8 +19,17 @@ from machine_ctrl.model.errors import ConfigError
 
 MACHINES = Path(__file__).resolve().parents[1] / 'config' / 'machines'
 
-# axis of the micromill whose machine config carries each law's gains
-AXIS_FOR_LAW = {'sliding_mode': 'x_c', 'ppi': 'x_c', 'lead_lag': 'x_f'}
+# the machine (a conftest fixture) and axis whose config carries each law's gains
+AXIS_FOR_LAW = {'sliding_mode': ('micromill', 'x_c'), 'ppi': ('micromill', 'x_c'),
+                'lead_lag': ('micromill', 'x_f'), 'pid': ('fts_lathe', 'w')}
+
+
+@pytest.fixture
+def law_axis(request):
+    """(axis, period) of the law named by the test's `name` parameter."""
+    machine_fixture, axis = AXIS_FOR_LAW[request.getfixturevalue('name')]
+    machine = request.getfixturevalue(machine_fixture)
+    return machine.axis(axis), machine.control_period
 
 
 def inputs(steps=3000, period=1e-4):
@@ -39,16 +48,16 @@ def run(block, rows):
 
 
 def test_the_registry_names_exactly_the_laws_of_the_config_schema():
-    assert set(LAWS) == set(CONTROL_LAWS) == {'sliding_mode', 'ppi', 'lead_lag'}
+    assert set(LAWS) == set(CONTROL_LAWS) == {'sliding_mode', 'ppi', 'lead_lag', 'pid'}
     hints = typing.get_type_hints(ControlConfig)
     for name, entry in LAWS.items():
         assert entry.gains in typing.get_args(hints[name]), name     # ControlConfig.<name>: Gains | None
 
 
 @pytest.mark.parametrize('name', sorted(LAWS))
-def test_each_law_implements_the_protocol_and_declares_its_gains(micromill, name):
+def test_each_law_implements_the_protocol_and_declares_its_gains(law_axis, name):
     entry = LAWS[name]
-    law = make_law(micromill.axis(AXIS_FOR_LAW[name]), micromill.control_period, name)
+    law = make_law(*law_axis, name)
     assert isinstance(law, entry.law) and isinstance(law, ControlLaw)
     declared = [p.name for p in entry.law.parameters]
     assert declared == [f.name for f in dataclasses.fields(entry.gains)]
@@ -57,14 +66,13 @@ def test_each_law_implements_the_protocol_and_declares_its_gains(micromill, name
 
 
 @pytest.mark.parametrize('name', sorted(LAWS))
-def test_reset_reproduces_the_first_run_bit_for_bit(micromill, name):
-    axis = micromill.axis(AXIS_FOR_LAW[name])
-    law = make_law(axis, micromill.control_period, name)
+def test_reset_reproduces_the_first_run_bit_for_bit(law_axis, name):
+    law = make_law(*law_axis, name)
     rows = inputs()
     first = run(law, rows)
     law.reset()
     assert run(law, rows) == first
-    assert run(make_law(axis, micromill.control_period, name), rows) == first    # = a fresh law
+    assert run(make_law(*law_axis, name), rows) == first    # = a fresh law
 
 
 def test_reset_of_servos_with_friction_feedforward_and_of_the_coupling(micromill):
@@ -91,8 +99,8 @@ def test_reset_of_servos_with_friction_feedforward_and_of_the_coupling(micromill
 
 def test_an_unknown_law_name_is_refused_with_one_line(micromill):
     with pytest.raises(ValueError) as info:
-        ServoGroup(micromill, ['x_c'], laws={'x_c': 'pid'})
-    assert str(info.value) == "axis x_c: unknown control law 'pid' (known: lead_lag, ppi, sliding_mode)"
+        ServoGroup(micromill, ['x_c'], laws={'x_c': 'h2'})
+    assert str(info.value) == "axis x_c: unknown control law 'h2' (known: lead_lag, pid, ppi, sliding_mode)"
 
 
 def test_a_law_without_gains_or_an_axis_without_control_is_refused(micromill):
@@ -107,10 +115,10 @@ def test_an_unknown_law_in_the_yaml_is_a_config_error(tmp_path):
     shutil.copy(MACHINES / 'trt_5axis.urdf', tmp_path)
     text = (MACHINES / 'trt_5axis.yaml').read_text()
     assert 'law: sliding_mode' in text
-    (tmp_path / 'm.yaml').write_text(text.replace('law: sliding_mode', 'law: pid', 1))
+    (tmp_path / 'm.yaml').write_text(text.replace('law: sliding_mode', 'law: h2', 1))
     with pytest.raises(ConfigError) as info:
         load_machine(tmp_path / 'm.yaml')
-    expected = "axes.x.control.law: must be one of lead_lag, ppi, sliding_mode, got 'pid'"
+    expected = "axes.x.control.law: must be one of lead_lag, pid, ppi, sliding_mode, got 'h2'"
     assert str(info.value).endswith(expected)
 
 
@@ -146,7 +154,8 @@ def test_the_servo_picks_laws_through_the_registry_alone(micromill, monkeypatch)
 
 LIVE = {'sliding_mode': ['bandwidth', 'gain', 'adaptation'],
         'ppi': ['position_gain', 'velocity_gain', 'velocity_integral_gain'],
-        'lead_lag': []}
+        'lead_lag': [],
+        'pid': ['proportional', 'integral', 'derivative']}
 
 
 @pytest.mark.parametrize('name', sorted(LAWS))

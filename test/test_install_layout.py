@@ -82,7 +82,7 @@ def installed_files(top):
 def test_ament_index_marker_and_share(prefix):
     assert (prefix / 'share/ament_index/resource_index/packages/machine_ctrl').is_file()
     assert (prefix / 'share/machine_ctrl/package.xml').is_file()
-    for name in ('micromill_9axis', 'trt_5axis'):
+    for name in ('micromill_9axis', 'trt_5axis', 'fts_lathe'):
         assert (prefix / f'share/machine_ctrl/config/machines/{name}.yaml').is_file()
         assert (prefix / f'share/machine_ctrl/config/machines/{name}.urdf').is_file()
     config = sorted(str(p.relative_to(ROOT)) for p in (ROOT / 'config').rglob('*') if p.is_file())

@@ -122,7 +122,10 @@ def client(micromill, graph, ros_env):
         c = Client(node, micromill)
         try:
             c.wait_ready(60, graph.check)                      # hw_sim: the graph has stepped
-            assert c.status().get('streamed_to_step', '') not in ('', None)   # so the trajectory node streams
+            # the trajectory node streams from the step it sees; its status may come later than hw_sim's
+            # readiness (a race that failed once under load with an immediate assert)
+            c.wait(lambda: c.status().get('streamed_to_step', '') not in ('', None),
+                   'the trajectory node to stream', 60, graph.check)
             yield c
         finally:
             c.close()

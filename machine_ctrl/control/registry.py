@@ -13,9 +13,10 @@ from dataclasses import dataclass
 
 from machine_ctrl.control.law import ControlLaw
 from machine_ctrl.control.lead_lag import LeadLagController
+from machine_ctrl.control.pid import PIDController
 from machine_ctrl.control.ppi import PPIController
 from machine_ctrl.control.sliding_mode import SlidingModeController
-from machine_ctrl.model.config import AxisConfig, LeadLagGains, PPIGains, SlidingModeGains
+from machine_ctrl.model.config import AxisConfig, LeadLagGains, PIDGains, PPIGains, SlidingModeGains
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,7 @@ LAWS: dict[str, LawEntry] = {
     'sliding_mode': LawEntry(SlidingModeController, SlidingModeGains, friction_feedforward=True),
     'ppi': LawEntry(PPIController, PPIGains, friction_feedforward=True),
     'lead_lag': LawEntry(LeadLagController, LeadLagGains),
+    'pid': LawEntry(PIDController, PIDGains),
 }
 
 

@@ -31,6 +31,7 @@ DRIVE_TYPES = {
     'linear_motor': 'V (amplifier input: force = amplifier_gain * force_constant * u)',
     'maglev': 'amplifier command (force/torque = amplifier_gain * u on the levitated table)',
     'servo_voltage': 'V (drive identified normalized to its input: u = mass*acc + damping*vel)',
+    'voice_coil': 'V (DAC volts into the current loop plant.current_loop: force = force_constant * current)',
 }
 
 
@@ -88,6 +89,29 @@ class ModeConfig:
 
 
 @dataclass(frozen=True)
+class FlexureConfig:
+    """A flexure-guided stage with a second mass hung on it (Ding thesis Fig. 5-4, Eqs. 5-4..5-7
+    with k1 rigid): the drive's mass on the flexure (stiffness to the frame, the drive's damping
+    as its damping), the secondary mass coupled to it by a spring and a damper."""
+    stiffness: float = _positive()             # k2, N/m, flexure to the frame
+    secondary_mass: float = _positive()        # m4, kg
+    secondary_stiffness: float = _positive()   # k4, N/m
+    secondary_damping: float = _nonnegative()  # c4, N*s/m
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """A seeded stationary (or integrated) noise given by its one-sided amplitude spectrum
+    |W(j w)| = density |(s + corner)/s| |peak(s)| (Ding thesis Eqs. 6-6..6-8 have this form):
+    `density` per sqrt(Hz) of the signal's unit, `corner` (rad/s, 0: white) the corner of
+    an integrator that makes the low frequencies grow as 1/f, `peak` a resonance (the Eq. 4-76
+    form, zeta_num/zeta_den the gain at omega)."""
+    density: float = _positive()
+    corner: float = _nonnegative(default=0.0)
+    peak: NotchConfig | None = None
+
+
+@dataclass(frozen=True)
 class PlantConfig:
     """What hw_sim simulates beyond the drive (rigid body, gain, saturation, quantization)."""
     friction: FrictionConfig | None = None    # linear motors
@@ -96,6 +120,13 @@ class PlantConfig:
     sensor_noise: float = _nonnegative(default=0.0)   # m or rad, std of additive noise
     force_noise: float = _nonnegative(default=0.0)    # N or N*m, std of a white actuator
                                                       # force disturbance held over each period
+    # flexure stages (voice_coil drives):
+    flexure: FlexureConfig | None = None
+    current_loop: ModeConfig | None = None    # closed current loop, DC gain amplifier_gain A/V
+    loop_delay: float = _nonnegative(default=0.0)     # s, sensor sample -> command applied (< period)
+    sensor_bandwidth: ModeConfig | None = None   # 2nd-order low-pass of the position sensor
+    sensor_noise_density: NoiseConfig | None = None   # m/sqrt(Hz) at the sensor, before its low-pass
+    current_noise: NoiseConfig | None = None  # A/sqrt(Hz) added to the current
 
 
 @dataclass(frozen=True)
@@ -143,6 +174,17 @@ class LeadLagGains:
     notches: tuple[NotchConfig, ...] = ()
 
 
+@dataclass(frozen=True)
+class PIDGains:
+    """Ding thesis Fig. 5-11 / Eq. (7-8): parallel PID with a filtered derivative acting on the
+    sensor's volts, K_p + K_i/s + K_d s/(T_f s + 1), e_v = sensitivity (x_r - x)."""
+    proportional: float = _nonnegative()     # K_p, V/V
+    integral: float = _nonnegative()         # K_i, V/(V*s)
+    derivative: float = _nonnegative()       # K_d, V*s/V
+    derivative_filter: float = _positive()   # T_f, s
+    sensitivity: float = _positive()         # S, V/m (V/rad): sensor volts per unit of error
+
+
 def _law_gains():
     """A gains section of ControlConfig whose field name is a control law's name."""
     return field(default=None, metadata={'law': True})
@@ -159,6 +201,7 @@ class ControlConfig:
                                                              # laws registered with it (sliding_mode, ppi)
     ppi: PPIGains | None = _law_gains()
     lead_lag: LeadLagGains | None = _law_gains()
+    pid: PIDGains | None = _law_gains()
 
     @property
     def gains(self):
@@ -408,6 +451,10 @@ def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
     if missing:
         axes_section.fail(f'URDF joint(s) without an axis entry: {", ".join(missing)}')
 
+    for axis in axes:
+        problem = _plant_problem(axis, control_period)
+        if problem:
+            axes_section.fail(problem, f'{axis.name}.plant')
     home = tuple(0.0 for _ in axes)
     if 'home' in top.data:
         home_section = top.section('home')
@@ -423,6 +470,29 @@ def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
             raise ConfigError(f'{path}: home.{axis.name}: {value:g} is outside the stroke {axis.stroke}')
     return MachineConfig(name, description, path, urdf_path, control_period, workpiece_frame,
                          tool_frame, tuple(axes), home, dual_stage, simulation)
+
+
+FLEXURE_ONLY = ('flexure', 'current_loop', 'sensor_bandwidth', 'sensor_noise_density', 'current_noise')
+
+
+def _plant_problem(axis: AxisConfig, period: float) -> str:
+    """Why the plant section cannot be simulated with this drive and period, or ''."""
+    plant = axis.plant
+    if plant is None:
+        return ''
+    if axis.drive.type == 'voice_coil':
+        missing = [k for k in ('flexure', 'current_loop') if getattr(plant, k) is None]
+        if missing:
+            return f'a voice_coil drive needs {" and ".join(missing)}'
+        if plant.friction or plant.resonance or plant.force_noise:
+            return 'friction, resonance and force_noise are not modelled for a voice_coil drive'
+        if plant.loop_delay >= period:
+            return f'loop_delay {plant.loop_delay:g} s must be shorter than the control period {period:g} s'
+        return ''
+    extra = [k for k in FLEXURE_ONLY if getattr(plant, k) is not None]
+    if extra or plant.loop_delay:
+        return f'{", ".join(extra or ["loop_delay"])}: only for voice_coil drives'
+    return ''
 
 
 def _dual_stage(top: _Section, axes: list[AxisConfig]) -> tuple[DualStagePair, ...]:
