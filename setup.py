@@ -72,7 +72,7 @@ REQUIRES = [
     'PyYAML>=6.0,<7',  # import yaml
 ]
 EXTRAS = {
-    'test': ['pytest>=9.2', 'pytest-xdist>=3.8,<4', 'rosbags>=0.11.9,<0.12',  # rosbags: an independent bag reader for the tests
+    'test': ['pytest>=9.2', 'rosbags>=0.11.9,<0.12',  # rosbags: an independent bag reader for the tests
              'hypothesis>=6.170,<7'],  # test/test_fuzz_graph.py: property-based fuzzing of the graph
     'bench': ['toppra>=0.6.10,<0.7'],  # bench/feed_vs_toppra.py
 }
