@@ -10,7 +10,6 @@ offline rate at its 10 kHz period (steps per second).
 """
 from __future__ import annotations
 
-import math
 import sys
 import time
 
@@ -19,19 +18,7 @@ import numpy as np
 from hw_sim import offline
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.reference import Reference
-
-
-def sine_on(machine, axis: str, amplitude: float, frequency: float, seconds: float) -> Reference:
-    """Every axis at home, `axis` x = A sin(2 pi f t) (with its velocity and acceleration)."""
-    n, t = int(round(seconds / machine.control_period)), None
-    t = np.arange(n) * machine.control_period
-    position = np.tile(np.asarray(machine.home, float), (n, 1))
-    velocity, acceleration = np.zeros_like(position), np.zeros_like(position)
-    j, w = machine.axis_names.index(axis), 2.0 * math.pi * frequency
-    position[:, j] += amplitude * np.sin(w * t)
-    velocity[:, j] = amplitude * w * np.cos(w * t)
-    acceleration[:, j] = -amplitude * w * w * np.sin(w * t)
-    return Reference(machine.axis_names, machine.control_period, position, velocity, acceleration)
+from trajectory.freeform import axis_sine
 
 
 def timed_run(machine, reference) -> tuple[float, offline.RunRecord]:
@@ -45,7 +32,7 @@ def main(argv=None) -> int:
     mill = load_machine('micromill_9axis')
     base_wall, _ = timed_run(mill, Reference.hold(mill.axis_names, mill.control_period, mill.home, 20000))
     lathe = load_machine('fts_lathe')
-    reference = sine_on(lathe, 'w', 5e-6, 20.0, seconds)
+    reference = axis_sine(lathe, 'w', 5e-6, 20.0, seconds)
     wall, record = timed_run(lathe, reference)
     w = lathe.axis_names.index('w')
     settled = slice(len(reference) // 2, None)     # past the start transient (the sine starts at full speed)

@@ -26,7 +26,7 @@ from machine_ctrl.control.registry import make_law
 from machine_ctrl.experiments import fts_budget
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
-from machine_ctrl.model.reference import Reference
+from trajectory.freeform import axis_sine
 
 MACHINES = Path(__file__).resolve().parents[1] / 'config' / 'machines'
 M12, K2, C2, M4, K4, C4 = 0.074, 21965.0, 2.28, 0.008, 56285.0, 6.18    # Ding Table 5-2
@@ -172,14 +172,9 @@ def test_a_20_hz_motion_is_followed_as_the_closed_loop_predicts_and_within_the_s
     for 20 Hz motions; the issue's tolerance 30 %). The error's 20 Hz amplitude must be
     |S(j 2 pi 20)| 5 um, S = 1/(1+L) of the budget's loop."""
     period, f, amplitude = fts_lathe.control_period, 20.0, 5e-6
-    n = int(round(3 / f / period))
-    t = np.arange(n) * period
-    position = np.zeros((n, 4))
-    velocity, acceleration = np.zeros_like(position), np.zeros_like(position)
+    record = offline.run(fts_lathe, axis_sine(fts_lathe, 'w', amplitude, f, 3 / f))
+    t = np.arange(len(record.reference)) * period
     w = 2 * math.pi * f
-    position[:, 3], velocity[:, 3] = amplitude * np.sin(w * t), amplitude * w * np.cos(w * t)
-    acceleration[:, 3] = -amplitude * w * w * np.sin(w * t)
-    record = offline.run(fts_lathe, Reference(fts_lathe.axis_names, period, position, velocity, acceleration))
     assert record.fault is None
     error = record.reference[:, 3] - record.measured[:, 3]
     tail = t >= 1 / f

@@ -1,8 +1,9 @@
 """``machine-ctrl experiment NAME ...``: the experiments on the simulated machine (offline
 runner, machine_ctrl.experiments and compensation/), one subcommand each; progress on stderr.
 
-* ``midrange [--json]`` (Sörnmo Table 3.1) and ``fts-budget [--json] [--plots DIR]`` (Ding
-  section 5.7): machine_ctrl.experiments.midrange / fts_budget, seed | ours | ratio.
+* ``midrange [--json]`` (Sörnmo Table 3.1), ``fts-budget [--json] [--plots DIR]`` (Ding
+  section 5.7) and ``fts-freeform [--json]`` (Ding Ch. 8 on fts_lathe):
+  machine_ctrl.experiments.midrange / fts_budget / fts_freeform, seed | ours | ratio.
 * ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR]``: thesis section 6.3 /
   Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}, "measured":
   {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "encoder_count_um": ...,
@@ -68,12 +69,16 @@ def register(subparsers) -> None:
     midrange = names.add_parser('midrange', help='Sörnmo Table 3.1: adaptive mid-ranging (AIMC) vs MVPC, '
                                 'the simulation rows with their spread')
     midrange.add_argument('--json', action='store_true', help='one JSON object on stdout')
-    midrange.set_defaults(run=cmd_seed_table, module='midrange')
+    midrange.set_defaults(run=cmd_seed_table, module='midrange', entry='table_3_1')
     fts = names.add_parser('fts-budget', help="Ding section 5.7: the fast tool servo's error budget "
                            '(following vs real positioning error)')
     fts.add_argument('--json', action='store_true', help='one JSON object on stdout (the spectra: --plots)')
     fts.add_argument('--plots', metavar='DIR', help='write the PSD/CAS and bandwidth-sweep PNGs')
-    fts.set_defaults(run=cmd_seed_table, module='fts_budget')
+    fts.set_defaults(run=cmd_seed_table, module='fts_budget', entry='reproduce')
+    freeform = names.add_parser('fts-freeform', help="Ding Ch. 8: spindle-slaved freeform cuts on fts_lathe "
+                                '(grid, lenslet, beam integrator), offline at 199.6 kHz')
+    freeform.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    freeform.set_defaults(run=cmd_seed_table, module='fts_freeform', entry='reproduce')
     errors.register_experiment(names)
 
 
@@ -229,12 +234,12 @@ def _scalars(value):
 
 
 def cmd_seed_table(args) -> int:
-    """midrange (machine_ctrl.experiments.midrange.table_3_1) and fts-budget
-    (machine_ctrl.experiments.fts_budget.reproduce): the table seed | ours | ratio, or --json;
-    exit 1 when the experiment reports a failure (its reason on stderr)."""
+    """midrange (machine_ctrl.experiments.midrange.table_3_1), fts-budget and fts-freeform
+    (their reproduce()): the table seed | ours | ratio, or --json; exit 1 when the experiment
+    reports a failure (its reason on stderr)."""
     import importlib
     module = importlib.import_module(f'machine_ctrl.experiments.{args.module}')
-    result = module.table_3_1() if args.module == 'midrange' else module.reproduce()
+    result = getattr(module, args.entry)()
     if args.json:
         print(json.dumps(_scalars(result)))
     else:
