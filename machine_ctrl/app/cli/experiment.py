@@ -2,8 +2,9 @@
 runner, machine_ctrl.experiments and compensation/), one subcommand each; progress on stderr.
 
 * ``midrange [--json]`` (Sörnmo Table 3.1), ``fts-budget [--json] [--plots DIR]`` (Ding
-  section 5.7) and ``fts-freeform [--json]`` (Ding Ch. 8 on fts_lathe):
-  machine_ctrl.experiments.midrange / fts_budget / fts_freeform, seed | ours | ratio.
+  section 5.7), ``fts-freeform [--json]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
+  [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / fts_budget /
+  fts_freeform / fts_identify, seed | ours | ratio.
 * ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR]``: thesis section 6.3 /
   Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}, "measured":
   {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "encoder_count_um": ...,
@@ -79,6 +80,10 @@ def register(subparsers) -> None:
                                 '(grid, lenslet, beam integrator), offline at 199.6 kHz')
     freeform.add_argument('--json', action='store_true', help='one JSON object on stdout')
     freeform.set_defaults(run=cmd_seed_table, module='fts_freeform', entry='reproduce')
+    identify = names.add_parser('fts-identify', help="Ding section 5.5: Table 5-2 from a stepped-sine FRF of "
+                                "fts_lathe's W stage by a grey-box fit")
+    identify.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    identify.set_defaults(run=cmd_seed_table, module='fts_identify', entry='reproduce')
     errors.register_experiment(names)
 
 
@@ -234,8 +239,8 @@ def _scalars(value):
 
 
 def cmd_seed_table(args) -> int:
-    """midrange (machine_ctrl.experiments.midrange.table_3_1), fts-budget and fts-freeform
-    (their reproduce()): the table seed | ours | ratio, or --json; exit 1 when the experiment
+    """midrange (machine_ctrl.experiments.midrange.table_3_1), fts-budget, fts-freeform and
+    fts-identify (their reproduce()): the table seed | ours | ratio, or --json; exit 1 when the experiment
     reports a failure (its reason on stderr)."""
     import importlib
     module = importlib.import_module(f'machine_ctrl.experiments.{args.module}')
