@@ -43,10 +43,11 @@ def test_frf_bandwidths(micromill):
 
 
 def test_experiment_command_json_is_one_object():
-    """The CLI wiring, on the shorter of the contours (the square, ~20 s for both modes and
-    their at-rest runs)."""
+    """The CLI wiring, on the first 3000 steps of the square (both modes and their at-rest
+    runs; the whole square runs in test_square_artefact.py)."""
     exe = str(Path(sys.executable).parent / 'machine-ctrl')
-    result = subprocess.run([exe, 'experiment', 'square', '--json'], capture_output=True, text=True, timeout=300)
+    result = subprocess.run([exe, 'experiment', 'square', '--json', '--steps', '3000'], capture_output=True, text=True,
+                            timeout=300)
     assert result.returncode == 0, result.stderr
     data = json.loads(result.stdout)
     assert set(data) == {'smc', 'dsfd', 'measured', 'true', 'at_rest', 'noise_floor', 'encoder_count_um', 'steps',
@@ -57,3 +58,16 @@ def test_experiment_command_json_is_one_object():
             expected = None if key in data['noise_floor'][mode] else data['measured'][mode][key]
             assert data[mode][key] == expected, (mode, key)
     assert 'square smc' in result.stderr and 'square smc at rest' in result.stderr   # progress goes to stderr
+    assert data['steps'] == 3000
+
+
+def test_steps_must_be_a_whole_number_and_only_for_the_contours(capsys):
+    from machine_ctrl.app import cli
+    for bad in ('0', '-5', '2.5', 'many'):
+        with pytest.raises(SystemExit) as info:
+            cli.build_parser().parse_args(['experiment', 'square', '--steps', bad])
+        assert info.value.code == 2
+        assert f"argument --steps: must be a whole number > 0, got '{bad}'" in capsys.readouterr().err
+    exe = str(Path(sys.executable).parent / 'machine-ctrl')
+    result = subprocess.run([exe, 'experiment', 'frf', '--steps', '10'], capture_output=True, text=True, timeout=120)
+    assert result.returncode != 0 and '--steps is for circle and square' in result.stderr

@@ -5,7 +5,7 @@ runner, machine_ctrl.experiments and compensation/), one subcommand each; progre
   section 5.7), ``fts-freeform [--json]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
   [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / fts_budget /
   fts_freeform / fts_identify, seed | ours | ratio.
-* ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR]``: thesis section 6.3 /
+* ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR] [--steps N]``: thesis section 6.3 /
   Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}, "measured":
   {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "encoder_count_um": ...,
   "steps": ..., "notes": [...]}``; "smc"/"dsfd" hold mean_x_tracking, mean_y_tracking,
@@ -16,6 +16,7 @@ runner, machine_ctrl.experiments and compensation/), one subcommand each; progre
   ...}, "frequencies_hz": [...], "gain": {...}}``. circle/square ``--record DIR`` also
   write each run as a bag, DIR/smc and DIR/dsfd, and their at-rest twins DIR/smc_at_rest and
   DIR/dsfd_at_rest (machine_ctrl.ros.run_bag, called here: the experiments layer is ROS-free).
+  circle/square ``--steps N``: only the first N control steps of each run (a quick look).
 * ``contour [--json] [--plots DIR] [--quiet] [--no-helix]``: Sencer Figs. 9-10
   (machine_ctrl.experiments.contour).
 * ``geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis Tables 6.3/6.4, registered
@@ -45,6 +46,16 @@ CONTOUR_DESCRIPTION = ('Sencer Figs. 9-10 on the simulated machines: the Frenet-
                        'estimates')
 
 
+def _whole_number(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f'must be a whole number > 0, got {text!r}')
+    return value
+
+
 def register(subparsers) -> None:
     experiment = subparsers.add_parser('experiment', help='thesis experiments on the simulated machine',
                                        description='experiments on the simulated machine (offline runner)')
@@ -59,6 +70,10 @@ def register(subparsers) -> None:
         parser.add_argument('--record', metavar='DIR',
                             help=('also write each run as a bag, DIR/smc and DIR/dsfd' if name != 'frf'
                                   else argparse.SUPPRESS))     # frf: refused with one line, as before
+        parser.add_argument('--steps', type=_whole_number, metavar='N',
+                            help=('run only the first N control steps of the contour (and of its at-rest '
+                                  'twins): a quick look; the table then describes that part only'
+                                  if name != 'frf' else argparse.SUPPRESS))
         parser.set_defaults(run=cmd_experiment)
     contour = names.add_parser('contour', help='Sencer Figs. 9-10: contour-error estimates vs true errors',
                                description=CONTOUR_DESCRIPTION)
@@ -193,6 +208,8 @@ def cmd_experiment(args) -> int:
                 fresh_directory(os.path.join(args.record, label))
         except ValueError as exc:
             return error('experiment', exc)
+    if args.name == 'frf' and args.steps is not None:
+        return error('experiment', '--steps is for circle and square')
     if args.name == 'frf':
         from machine_ctrl.experiments import tracking
         result = tracking.frf(machine, progress=progress)
@@ -202,7 +219,7 @@ def cmd_experiment(args) -> int:
         else:
             _print_frf(machine.name, result)
         return 0
-    result = contouring(machine, args.name, progress=progress, record_dir=args.record)
+    result = contouring(machine, args.name, progress=progress, steps=args.steps, record_dir=args.record)
     if args.json:
         print(json.dumps(contouring_json(result)))
     else:
