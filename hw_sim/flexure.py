@@ -81,17 +81,17 @@ class FlexureAxis(_Actuator):
         bu = np.zeros((6, 1))
         bu[5, 0] = drive.amplifier_gain * wi * wi
         # white inputs: w[0] current noise, w[1] sensor electronics noise
-        sources = [plant.current_noise, plant.sensor_noise_density]
+        sources = [plant.current_noise, plant.sensor_noise_density]    # the sensor's: white (config check)
         self._densities = [0.0 if s is None else s.density for s in sources]
-        filters = [noise_filter(s) if s is not None else None for s in sources]
-        n_cur = 0 if filters[0] is None else filters[0][0].shape[0]
+        current = None if plant.current_noise is None else noise_filter(plant.current_noise)
+        n_cur = 0 if current is None else current[0].shape[0]
         sensor = plant.sensor_bandwidth
         n_sen = 0 if sensor is None else 2
         n = 6 + n_cur + n_sen
         big_a, big_bu, big_bw = np.zeros((n, n)), np.zeros((n, 1)), np.zeros((n, 2))
         big_a[:6, :6], big_bu[:6] = a, bu
-        if filters[0] is not None:                 # dI = C_i z_i + D_i w0 enters as K_T dI / m12
-            fa, fb, fc, fd = filters[0]
+        if current is not None:                    # dI = C_i z_i + D_i w0 enters as K_T dI / m12
+            fa, fb, fc, fd = current
             big_a[6:6 + n_cur, 6:6 + n_cur] = fa
             big_bw[6:6 + n_cur, 0] = fb[:, 0]
             big_a[1, 6:6 + n_cur] = kt / m12 * fc[0]
@@ -103,7 +103,7 @@ class FlexureAxis(_Actuator):
             big_a[j + 1, j] = -wc * wc
             big_a[j + 1, j + 1] = -2.0 * zc * wc
             big_a[j + 1, 0] = wc * wc
-            big_bw[j + 1, 1] = wc * wc            # n_s white (a sensor noise filter beyond white: not needed yet)
+            big_bw[j + 1, 1] = wc * wc            # n_s, white
             self._sensor_index = j
         delay = plant.loop_delay
         phi, gamma_new = _held_input(big_a, big_bu, period - delay)

@@ -192,6 +192,8 @@ def test_a_20_hz_motion_is_followed_as_the_closed_loop_predicts_and_within_the_s
      'axes.w.plant: friction, resonance and force_noise are not modelled for a voice_coil drive'),
     (('    plant: {}                  # assumed: air bearing', '    plant: {loop_delay: 1.0e-6}  #'),
      'axes.c.plant: loop_delay: only for voice_coil drives'),
+    (('sensor_noise_density: {density: 5.888e-12}', 'sensor_noise_density: {density: 5.888e-12, corner: 10.0}'),
+     'axes.w.plant: sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak)'),
 ])
 def test_a_plant_the_simulator_cannot_build_is_refused_at_load(tmp_path, edit, problem):
     shutil.copy(MACHINES / 'fts_lathe.urdf', tmp_path)

@@ -486,6 +486,9 @@ def _plant_problem(axis: AxisConfig, period: float) -> str:
             return f'a voice_coil drive needs {" and ".join(missing)}'
         if plant.friction or plant.resonance or plant.force_noise:
             return 'friction, resonance and force_noise are not modelled for a voice_coil drive'
+        white = plant.sensor_noise_density
+        if white is not None and (white.corner or white.peak is not None):
+            return 'sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak)'
         if plant.loop_delay >= period:
             return f'loop_delay {plant.loop_delay:g} s must be shorter than the control period {period:g} s'
         return ''
