@@ -58,6 +58,17 @@ def step_response(a, b, c, times):
     return np.array([0.0 if t <= 0 else (c @ inv @ (expm(a * t) - np.eye(len(a))) @ b).item() for t in times])
 
 
+def test_the_budget_reads_the_machines_loop_as_the_thesis_states_it(fts_lathe):
+    """fts_budget's own Table 5-2 / Ch. 7 values (typed there from the seed, S_capa calibrated)
+    and the machine's YAML read through loop_of_axis agree (the YAML's rad/s and period to 1e-6)."""
+    plant, pid = fts_budget.loop_of_axis(fts_lathe.axis('w'), fts_lathe.control_period)
+    assert pid == fts_budget.Pid()
+    assert dataclasses.astuple(plant) == pytest.approx(dataclasses.astuple(fts_budget.FtsPlant(sensitivity=S_CAPA)),
+                                                       rel=1e-6)
+    with pytest.raises(ValueError, match='needs a voice_coil drive'):
+        fts_budget.loop_of_axis(fts_lathe.axis('x'), fts_lathe.control_period)
+
+
 def test_the_machine_has_w_on_z_as_a_dual_stage_at_the_pid_rate(fts_lathe):
     assert fts_lathe.axis_names == ('c', 'x', 'z', 'w')
     assert fts_lathe.control_period == pytest.approx(1 / 199.6e3, rel=1e-12)
@@ -158,7 +169,7 @@ def test_noise_in_the_closed_loop_gives_the_error_budget_of_section_5_7(fts_lath
     for the same plant, gains and disturbances: following and real error RMS within 10 %."""
     measured, true = at_rest(fts_lathe, 0.2)
     settled = slice(len(measured) // 4, None)
-    budget = fts_budget.error_budget(fts_budget.FtsPlant(sensitivity=S_CAPA), fts_budget.Pid())
+    budget = fts_budget.error_budget(*fts_budget.loop_of_axis(fts_lathe.axis('w'), fts_lathe.control_period))
     assert budget['status'] == 'ok', budget['reason']
     predicted_following = budget['following']['total']['rms']
     predicted_real = budget['real']['total']['rms']
@@ -180,7 +191,7 @@ def test_a_20_hz_motion_is_followed_as_the_closed_loop_predicts_and_within_the_s
     tail = t >= 1 / f
     basis = np.column_stack([np.sin(w * t), np.cos(w * t), np.ones_like(t)])[tail]
     a, b, _ = np.linalg.lstsq(basis, error[tail], rcond=None)[0]
-    s = fts_budget.responses(fts_budget.FtsPlant(sensitivity=S_CAPA), fts_budget.Pid(), np.array([f]))['S'][0]
+    s = fts_budget.responses(*fts_budget.loop_of_axis(fts_lathe.axis('w'), period), np.array([f]))['S'][0]
     assert math.hypot(a, b) == pytest.approx(abs(s) * amplitude, rel=0.05)
     assert np.abs(error[tail]).max() < 25e-9 * 1.3
 

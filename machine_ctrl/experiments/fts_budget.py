@@ -135,6 +135,23 @@ class Disturbances:
         return (self.adc_range_v / 2 ** self.adc_bits) ** 2 / (12.0 * nyquist_hz)
 
 
+def loop_of_axis(axis, period: float) -> tuple[FtsPlant, Pid]:
+    """The budget's plant and PID for a voice-coil axis of a machine config (fts_lathe's W),
+    so that an analysis of the machine follows its YAML; ValueError when the axis is not one."""
+    plant, drive = axis.plant, axis.drive
+    if drive.type != 'voice_coil' or axis.control is None or axis.control.pid is None:
+        raise ValueError(f'axis {axis.name}: needs a voice_coil drive with pid gains for the FTS loop')
+    flex, current, sensor, gains = plant.flexure, plant.current_loop, plant.sensor_bandwidth, axis.control.pid
+    return (FtsPlant(m12=drive.mass, k2=flex.stiffness, c2=drive.damping, m4=flex.secondary_mass,
+                     k4=flex.secondary_stiffness, c4=flex.secondary_damping, force_constant=drive.force_constant,
+                     current_bandwidth_hz=current.omega / TWO_PI, current_zeta=current.zeta,
+                     current_gain=drive.amplifier_gain,
+                     sensor_bandwidth_hz=FtsPlant.sensor_bandwidth_hz if sensor is None else sensor.omega / TWO_PI,
+                     sensor_zeta=FtsPlant.sensor_zeta if sensor is None else sensor.zeta,
+                     sensitivity=gains.sensitivity, loop_delay_s=plant.loop_delay, servo_rate_hz=1.0 / period),
+            Pid(gains.proportional, gains.integral, gains.derivative, gains.derivative_filter))
+
+
 THESIS = {   # seed 003 values reproduced by `reproduce()`
     'following_rms_468_nm': 0.83,      # section 5.7.3, Fig. 5-16 (the calibration figure)
     'real_rms_468_nm': 0.23,           # section 5.7.3

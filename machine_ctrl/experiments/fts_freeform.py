@@ -70,10 +70,8 @@ def _amplitude(signal_: np.ndarray, period: float, frequency: float, start: int)
 def _loop(machine: MachineConfig, frequency: float, heavy: bool = False) -> dict:
     """|T| and |S| of the budget's continuous loop at `frequency` for the machine's W gains
     (`heavy`: with the 0.175 kg moving mass of section 5.7.3)."""
-    gains = machine.axis('w').control.pid
-    plant = fts_budget.FtsPlant(sensitivity=gains.sensitivity)
+    plant, pid = fts_budget.loop_of_axis(machine.axis('w'), machine.control_period)
     plant = fts_budget.heavy_plant(plant) if heavy else plant
-    pid = fts_budget.Pid(gains.proportional, gains.integral, gains.derivative, gains.derivative_filter)
     r = fts_budget.responses(plant, pid, np.array([frequency]))
     return {'T': float(abs(r['T'][0])), 'S': float(abs(r['S'][0]))}
 
