@@ -59,66 +59,65 @@ def _held_input(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.
     return d[:n, :n], d[:n, n:]
 
 
+def continuous_model(axis: AxisConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, int | None]:
+    """(A, B_u, B_w, sensor index) of the module doc's system: states [x1, v1, x4, v4, i, di],
+    then the current-noise filter's, then the sensor's [y, y'] (index of y, or None without a
+    sensor low-pass); inputs u (DAC volts) and w = [current noise, sensor noise] (unit white)."""
+    drive, plant = axis.drive, axis.plant
+    flex, loop = plant.flexure, plant.current_loop
+    m12, c2, k2 = drive.mass, drive.damping, flex.stiffness
+    m4, k4, c4 = flex.secondary_mass, flex.secondary_stiffness, flex.secondary_damping
+    kt, wi, zi = drive.force_constant, loop.omega, loop.zeta
+    current = None if plant.current_noise is None else noise_filter(plant.current_noise)
+    n_cur = 0 if current is None else current[0].shape[0]
+    sensor = plant.sensor_bandwidth
+    n = 6 + n_cur + (0 if sensor is None else 2)
+    a, b_u, b_w = np.zeros((n, n)), np.zeros((n, 1)), np.zeros((n, 2))
+    a[0, 1] = 1.0                              # mechanics, Eqs. (5-4)..(5-7) with k1 rigid
+    a[1, :6] = [-(k2 + k4) / m12, -(c2 + c4) / m12, k4 / m12, c4 / m12, kt / m12, 0.0]
+    a[2, 3] = 1.0
+    a[3, :4] = [k4 / m4, c4 / m4, -k4 / m4, -c4 / m4]
+    a[4, 5] = 1.0                              # current loop, Eq. (5-9)
+    a[5, 4:6] = [-wi * wi, -2.0 * zi * wi]
+    b_u[5, 0] = drive.amplifier_gain * wi * wi
+    if current is not None:                    # dI = C_i z_i + D_i w0 enters as K_T dI / m12
+        fa, fb, fc, fd = current
+        a[6:6 + n_cur, 6:6 + n_cur] = fa
+        b_w[6:6 + n_cur, 0] = fb[:, 0]
+        a[1, 6:6 + n_cur] = kt / m12 * fc[0]
+        b_w[1, 0] = kt / m12 * fd[0, 0]
+    if sensor is None:
+        return a, b_u, b_w, None
+    j, wc, zc = 6 + n_cur, sensor.omega, sensor.zeta      # y'' = wc^2 (x1 + n_s - y) - 2 zeta wc y'
+    a[j, j + 1] = 1.0
+    a[j + 1, [0, j, j + 1]] = [wc * wc, -wc * wc, -2.0 * zc * wc]
+    b_w[j + 1, 1] = wc * wc                    # n_s, white (config check)
+    return a, b_u, b_w, j
+
+
 class FlexureAxis(_Actuator):
     """The stage of the module doc; `position` is the true tool position x1, `sensed` the
     sensor's output y (before its per-sample noise and quantization)."""
 
     def __init__(self, axis: AxisConfig, period: float, rng: random.Random, position: float = 0.0):
         super().__init__(axis, rng)
-        drive, plant = axis.drive, axis.plant
-        flex, loop = plant.flexure, plant.current_loop
-        m12, c2, k2 = drive.mass, drive.damping, flex.stiffness
-        m4, k4, c4 = flex.secondary_mass, flex.secondary_stiffness, flex.secondary_damping
-        kt, wi, zi = drive.force_constant, loop.omega, loop.zeta
-        # mechanics + current loop: [x1, v1, x4, v4, i, di]
-        a = np.zeros((6, 6))
-        a[0, 1] = 1.0
-        a[1, :] = [-(k2 + k4) / m12, -(c2 + c4) / m12, k4 / m12, c4 / m12, kt / m12, 0.0]
-        a[2, 3] = 1.0
-        a[3, :4] = [k4 / m4, c4 / m4, -k4 / m4, -c4 / m4]
-        a[4, 5] = 1.0
-        a[5, 4:] = [-wi * wi, -2.0 * zi * wi]
-        bu = np.zeros((6, 1))
-        bu[5, 0] = drive.amplifier_gain * wi * wi
-        # white inputs: w[0] current noise, w[1] sensor electronics noise
-        sources = [plant.current_noise, plant.sensor_noise_density]    # the sensor's: white (config check)
-        self._densities = [0.0 if s is None else s.density for s in sources]
-        current = None if plant.current_noise is None else noise_filter(plant.current_noise)
-        n_cur = 0 if current is None else current[0].shape[0]
-        sensor = plant.sensor_bandwidth
-        n_sen = 0 if sensor is None else 2
-        n = 6 + n_cur + n_sen
-        big_a, big_bu, big_bw = np.zeros((n, n)), np.zeros((n, 1)), np.zeros((n, 2))
-        big_a[:6, :6], big_bu[:6] = a, bu
-        if current is not None:                    # dI = C_i z_i + D_i w0 enters as K_T dI / m12
-            fa, fb, fc, fd = current
-            big_a[6:6 + n_cur, 6:6 + n_cur] = fa
-            big_bw[6:6 + n_cur, 0] = fb[:, 0]
-            big_a[1, 6:6 + n_cur] = kt / m12 * fc[0]
-            big_bw[1, 0] = kt / m12 * fd[0, 0]
-        self._sensor_index = None
-        if sensor is not None:                     # y'' = wc^2 (x1 + n_s - y) - 2 zeta wc y'
-            j, wc, zc = 6 + n_cur, sensor.omega, sensor.zeta
-            big_a[j, j + 1] = 1.0
-            big_a[j + 1, j] = -wc * wc
-            big_a[j + 1, j + 1] = -2.0 * zc * wc
-            big_a[j + 1, 0] = wc * wc
-            big_bw[j + 1, 1] = wc * wc            # n_s, white
-            self._sensor_index = j
-        delay = plant.loop_delay
-        phi, gamma_new = _held_input(big_a, big_bu, period - delay)
-        _, gamma_d = _held_input(big_a, big_bu, delay)
-        full, gamma_w = _held_input(big_a, big_bw, period)
-        # one matrix for one product per step: state' = M [state, u_{k-1}, u_k, w0, w1]
+        plant = axis.plant
+        a, b_u, b_w, self._sensor_index = continuous_model(axis)
+        delay, n = plant.loop_delay, len(a)
+        phi, gamma_new = _held_input(a, b_u, period - delay)
+        _, gamma_old = _held_input(a, b_u, delay)
+        full, gamma_w = _held_input(a, b_w, period)
+        # one matrix, one product per step: state' = M [state, u_{k-1}, u_k, w0, w1]
         self._n = n
-        self._m = np.hstack([full, (phi @ gamma_d), gamma_new, gamma_w])
-        self._sigma = [d * math.sqrt(0.5 / period) for d in self._densities]
+        self._m = np.hstack([full, phi @ gamma_old, gamma_new, gamma_w])
+        densities = [0.0 if s is None else s.density for s in (plant.current_noise, plant.sensor_noise_density)]
+        self._sigma = [d * math.sqrt(0.5 / period) for d in densities]
         self._v = np.zeros(n + 4)                  # at rest at `position`, the flexure held by the coil
         self._v[[0, 2]] = position
-        self._v[4] = k2 * position / kt
+        self._v[4] = plant.flexure.stiffness * position / axis.drive.force_constant
         if self._sensor_index is not None:
             self._v[self._sensor_index] = position
-        self._v[n] = self._v[4] / drive.amplifier_gain     # the command holding it
+        self._v[n] = self._v[4] / axis.drive.amplifier_gain     # the command holding it
 
     @property
     def position(self) -> float:
