@@ -34,14 +34,17 @@ def test_the_spindle_turns_the_slide_feeds_and_w_follows_the_surface_under_the_t
     assert result.ok, result.reason
     ref = result.reference
     c, x, z, w = (fts_lathe.axis_names.index(a) for a in 'cxzw')
-    quarter = int(round(0.25 / fts_lathe.control_period))       # a quarter turn: the tool at y = r
-    assert ref.position[quarter, c] == pytest.approx(math.pi / 2, rel=1e-12)
-    r = 10e-3 - 5e-6 / 4
+    dt = fts_lathe.control_period
+    quarter = int(round(0.25 / dt))                            # about a quarter turn: the tool near y = r
+    t = quarter * dt
+    theta, r = 60 * RPM * t, 10e-3 - 5e-6 * t                  # 1 rev/s, 5 um per rev
+    assert ref.position[quarter, c] == pytest.approx(theta, rel=1e-12)
     assert ref.position[quarter, x] == pytest.approx(r, rel=1e-12)
-    assert ref.position[quarter, w] == pytest.approx(5e-6 * math.sin(2 * math.pi * r / 1e-3), abs=1e-15)
-    assert ref.position[-1, x] == pytest.approx(10e-3 - 5e-6, rel=1e-12)     # one revolution, one feed
+    height = (5e-6 * math.sin(2 * math.pi * r * math.cos(theta) / 1e-3)           # Table 8-5's grid, written out
+              + 5e-6 * math.sin(2 * math.pi * r * math.sin(theta) / 1e-3))
+    assert ref.position[quarter, w] == pytest.approx(height, abs=1e-15)
+    assert ref.position[-1, x] == pytest.approx(10e-3 - 5e-6 * (len(ref) - 1) * dt, rel=1e-12)   # ~ one rev, one feed
     assert np.all(ref.position[:, z] == 0.0)
-    dt = fts_lathe.control_period       # W's velocity is the derivative of its position
     assert ref.velocity[quarter, w] == pytest.approx((ref.position[quarter + 1, w] - ref.position[quarter - 1, w])
                                                      / (2 * dt), rel=1e-9)
 

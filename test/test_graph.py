@@ -76,7 +76,7 @@ def offline(micromill):
     return run(micromill, reference, steps=STEPS)
 
 
-def record_graph(micromill, ros_node, ros_supervisor, single_process):
+def record_graph(micromill, ros_node, ros_supervisor, single_process, contour='circle'):
     recorder = StateRecorder(ros_node('recorder'), micromill)
     window = ProgressReporter.WINDOW
     try:
@@ -88,8 +88,8 @@ def record_graph(micromill, ros_node, ros_supervisor, single_process):
                                            str(micromill.yaml_path), '--hw-sim', 'min_subscribers=4',
                                            '--hw-sim', f'recorder_window={window}'])
         else:
-            ros_supervisor.start_nodes(default_graph(micromill, hw_sim={'min_subscribers': 4,
-                                                                        'recorder_window': window}))
+            ros_supervisor.start_nodes(default_graph(micromill, contour, hw_sim={'min_subscribers': 4,
+                                                                                 'recorder_window': window}))
         recorder.wait_for(STEPS, timeout=120, supervisor=ros_supervisor)
     finally:
         ros_supervisor.stop_all()
@@ -111,6 +111,18 @@ def test_multi_process_graph_equals_offline_runner(micromill, offline, ros_node,
 
 def test_single_process_graph_equals_offline_runner(micromill, offline, ros_node, ros_supervisor):
     assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=True), offline)
+
+
+def test_the_fts_lathe_graph_at_199_6_khz_equals_the_offline_runner(fts_lathe, ros_node, ros_supervisor):
+    """Ding's lathe (issue [3/8]) as a process per node at its 5010 ns period, holding home
+    with every noise source on (seeded): the same states as the offline runner, bit for bit."""
+    from machine_ctrl.model.reference import Reference
+    held = run(fts_lathe, Reference.hold(fts_lathe.axis_names, fts_lathe.control_period, fts_lathe.home, 1),
+               steps=STEPS)
+    graph = record_graph(fts_lathe, ros_node, ros_supervisor, single_process=False, contour='hold')
+    assert all(np.array_equal(a, b) for a, b in zip(graph, (held.measured, held.measured_velocity, held.effort)))
+    w = fts_lathe.axis_names.index('w')
+    assert np.ptp(graph[0][:, w]) > 1e-9 and np.ptp(graph[2][:, w]) > 0      # the noise moved W, the PID answered
 
 
 def test_dual_stage_switches_off_and_on_at_runtime(micromill, ros_node, ros_supervisor):

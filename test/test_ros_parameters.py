@@ -11,6 +11,7 @@ Real node processes over real DDS, in this session's ROS domain, discovery on lo
 happened. Every wait is on a condition (a printed line, a status showing a value); the
 timeouts only bound a wait that would otherwise hang."""
 import importlib.util
+import shutil
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -297,10 +298,17 @@ def test_a_dump_starts_a_fresh_node_with_the_same_values(ros_env, tmp_path):
 def test_bad_values_at_start_end_the_node_with_one_line(ros_env, tmp_path):
     """The same table refuses start-up values (`--ros-args -p`): exit 2, one FATAL line."""
     base = [sys.executable, '-m', 'machine_ctrl.ros.servo_node', '--ros-args', '-p', 'machine:=trt_5axis']
+    machines = Path(__file__).resolve().parents[1] / 'config' / 'machines'
+    shutil.copy(machines / 'trt_5axis.urdf', tmp_path)        # a period the step clock cannot stamp
+    (tmp_path / 'odd.yaml').write_text((machines / 'trt_5axis.yaml').read_text().replace(
+        'control_period: 1.0e-3 ', 'control_period: 1.0000005e-3 ', 1))
     cases = [(['-p', 'axes:=[x, q]'], "parameter axes: must name controlled axes of trt_5axis (x, y, z, a, c), "
               "each once; unknown 'q'"),
              (['-p', 'use_sim_time:=false'], f'parameter use_sim_time: {parameters.SIM_TIME_REASON}, got false'),
-             (['-p', 'gains.c.adaptation:=-3.0'], 'parameter gains.c.adaptation: must be >= 0 V/m (V/rad), got -3.0')]
+             (['-p', 'gains.c.adaptation:=-3.0'], 'parameter gains.c.adaptation: must be >= 0 V/m (V/rad), got -3.0'),
+             (['-p', f'machine:={tmp_path / "odd.yaml"}'],
+              'control_period: control period 0.0010000005 s is not a whole number of nanoseconds '
+              '(a graph stamps every step in integer ns)')]
 
     def run(extra):
         return subprocess.run(base + extra, env=ros_env, capture_output=True, text=True, timeout=READY)

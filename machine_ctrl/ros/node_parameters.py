@@ -192,14 +192,19 @@ def declare_parameters(node: Node, table, defaults: dict | None = None, names=No
 
 
 def machine_parameter(node: Node) -> MachineConfig:
-    """The `machine` parameter (name or YAML path), loaded; a bad config ends the node with
-    one line on the log."""
+    """The `machine` parameter (name or YAML path), loaded; a bad config, or a control period
+    the graph's step clock cannot stamp (not a whole number of ns), ends the node with one
+    line on the log."""
     name = declare_parameters(node, (parameters.MACHINE,)).machine
     try:
-        return load_machine(name)
+        machine = load_machine(name)
+        contract.StepClock.of(machine)
+        return machine
     except ConfigError as exc:
         node.get_logger().fatal(str(exc))
-        raise SystemExit(2) from None
+    except ValueError as exc:
+        node.get_logger().fatal(f'{machine.yaml_path}: control_period: {exc} (a graph stamps every step in integer ns)')
+    raise SystemExit(2)
 
 
 # --- the servo's live law gains ---------------------------------------------------------------
