@@ -46,6 +46,22 @@ CONTOUR_DESCRIPTION = ('Sencer Figs. 9-10 on the simulated machines: the Frenet-
                        'estimates')
 
 
+# the seed-table experiments: subcommand, module of machine_ctrl.experiments, its entry point,
+# help, and the help of --plots DIR where the module writes plots (module.plots)
+SEED_TABLES = (
+    ('midrange', 'midrange', 'table_3_1',
+     'Sörnmo Table 3.1: adaptive mid-ranging (AIMC) vs MVPC, the simulation rows with their spread', None),
+    ('fts-budget', 'fts_budget', 'reproduce',
+     "Ding section 5.7: the fast tool servo's error budget (following vs real positioning error)",
+     'write the PSD/CAS and bandwidth-sweep PNGs (the spectra are not in --json)'),
+    ('fts-freeform', 'fts_freeform', 'reproduce',
+     'Ding Ch. 8: spindle-slaved freeform cuts on fts_lathe (grid, lenslet, beam integrator), offline at 199.6 kHz',
+     None),
+    ('fts-identify', 'fts_identify', 'reproduce',
+     "Ding section 5.5: Table 5-2 from a stepped-sine FRF of fts_lathe's W stage by a grey-box fit", None),
+)
+
+
 def _whole_number(text: str) -> int:
     try:
         value = int(text)
@@ -82,23 +98,12 @@ def register(subparsers) -> None:
     contour.add_argument('--quiet', action='store_true', help='no progress on stderr')
     contour.add_argument('--no-helix', action='store_true', help='skip the micromill helix run')
     contour.set_defaults(run=cmd_contour, usage_parser=contour)
-    midrange = names.add_parser('midrange', help='Sörnmo Table 3.1: adaptive mid-ranging (AIMC) vs MVPC, '
-                                'the simulation rows with their spread')
-    midrange.add_argument('--json', action='store_true', help='one JSON object on stdout')
-    midrange.set_defaults(run=cmd_seed_table, module='midrange', entry='table_3_1')
-    fts = names.add_parser('fts-budget', help="Ding section 5.7: the fast tool servo's error budget "
-                           '(following vs real positioning error)')
-    fts.add_argument('--json', action='store_true', help='one JSON object on stdout (the spectra: --plots)')
-    fts.add_argument('--plots', metavar='DIR', help='write the PSD/CAS and bandwidth-sweep PNGs')
-    fts.set_defaults(run=cmd_seed_table, module='fts_budget', entry='reproduce')
-    freeform = names.add_parser('fts-freeform', help="Ding Ch. 8: spindle-slaved freeform cuts on fts_lathe "
-                                '(grid, lenslet, beam integrator), offline at 199.6 kHz')
-    freeform.add_argument('--json', action='store_true', help='one JSON object on stdout')
-    freeform.set_defaults(run=cmd_seed_table, module='fts_freeform', entry='reproduce')
-    identify = names.add_parser('fts-identify', help="Ding section 5.5: Table 5-2 from a stepped-sine FRF of "
-                                "fts_lathe's W stage by a grey-box fit")
-    identify.add_argument('--json', action='store_true', help='one JSON object on stdout')
-    identify.set_defaults(run=cmd_seed_table, module='fts_identify', entry='reproduce')
+    for name, module, entry, help_text, plots in SEED_TABLES:
+        parser = names.add_parser(name, help=help_text)
+        parser.add_argument('--json', action='store_true', help='one JSON object on stdout')
+        if plots:
+            parser.add_argument('--plots', metavar='DIR', help=plots)
+        parser.set_defaults(run=cmd_seed_table, module=module, entry=entry)
     errors.register_experiment(names)
 
 
