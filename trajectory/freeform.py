@@ -40,7 +40,8 @@ import numpy as np
 
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.reference import Reference
-from trajectory.axis_limits import TOLERANCE, amount, outside_stroke
+from trajectory.axis_limits import TOLERANCE, amount
+from trajectory.moves import stroke_violation
 
 
 @dataclass(frozen=True)
@@ -222,12 +223,9 @@ def freeform_reference(machine: MachineConfig, surface, turning: Turning, spindl
     reference = Reference(names, period, position, velocity, acceleration)
     peaks = {names[i]: (float(np.abs(velocity[:, i]).max()), float(np.abs(acceleration[:, i]).max()))
              for i in (ic, ir, iw)}
-    for i in (ir, iw):
-        axis, column = machine.axes[i], position[:, i]
-        k = int(np.argmax(np.abs(column - np.clip(column, *(axis.stroke or (-np.inf, np.inf))))))
-        problem = outside_stroke(axis, column[k], 'reaches', f' at t = {time[k]:.6g} s')
-        if problem:
-            return FreeformResult(FreeformStatus.OUT_OF_STROKE, problem, None, peaks)
+    problem = stroke_violation(machine, reference)
+    if problem:
+        return FreeformResult(FreeformStatus.OUT_OF_STROKE, problem, None, peaks)
     if check_limits:
         for i in (ic, ir, iw):
             axis = machine.axes[i]
