@@ -313,7 +313,8 @@ SERVO = NodeParameters('servo_node', (
                   'sliding_mode bandwidth, gain, adaptation (the command moves in proportion to the tracking error; '
                   'refused unless T (K_s/m_e + lambda) < 1); ppi position_gain, velocity_gain, velocity_integral_gain '
                   '(the integral is rescaled: bumpless); lead_lag none (its filter states belong to their coefficients); '
-                  'pid proportional, integral, derivative (the integrator holds K_i * integral: bumpless)',
+                  'pid proportional, integral, derivative (the integrator holds K_i * integral: bumpless); h2 none (each weight '
+                  'changes the whole design)',
                   default_text="the machine config's (axes.<axis>.control.<law>)",
                   constraint="as in the machine config: > 0 or >= 0; the law's conditions", live=True, template=True),
     ParameterSpec('wait_for_offsets', BOOL, None, description='fine axes of a dual-stage pair wait for '

@@ -12,11 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from machine_ctrl.control.law import ControlLaw
+from machine_ctrl.control.h2 import H2Controller
 from machine_ctrl.control.lead_lag import LeadLagController
 from machine_ctrl.control.pid import PIDController
 from machine_ctrl.control.ppi import PPIController
 from machine_ctrl.control.sliding_mode import SlidingModeController
-from machine_ctrl.model.config import AxisConfig, LeadLagGains, PIDGains, PPIGains, SlidingModeGains
+from machine_ctrl.model.config import AxisConfig, H2Gains, LeadLagGains, PIDGains, PPIGains, SlidingModeGains
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,7 @@ LAWS: dict[str, LawEntry] = {
     'ppi': LawEntry(PPIController, PPIGains, friction_feedforward=True),
     'lead_lag': LawEntry(LeadLagController, LeadLagGains),
     'pid': LawEntry(PIDController, PIDGains),
+    'h2': LawEntry(H2Controller, H2Gains),
 }
 
 

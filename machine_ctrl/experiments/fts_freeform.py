@@ -58,7 +58,7 @@ def _settled(record, column: int):
     return ref, record.measured[start:, column], record.true[start:, column], start
 
 
-def _amplitude(signal_: np.ndarray, period: float, frequency: float, start: int) -> float:
+def sine_amplitude(signal_: np.ndarray, period: float, frequency: float, start: int) -> float:
     """Amplitude of the `frequency` component (least squares with an offset)."""
     t = (start + np.arange(len(signal_))) * period
     w = 2 * math.pi * frequency
@@ -125,7 +125,7 @@ def reproduce(machine: MachineConfig | None = None) -> dict:
         # lenslet: 100 Hz, 5 um
         record = _run(machine, axis_sine(machine, 'w', 5e-6, 100.0, 0.1))
         ref, _, true, start = _settled(record, w)
-        ratio = _amplitude(true, period, 100.0, start) / _amplitude(ref, period, 100.0, start)
+        ratio = sine_amplitude(true, period, 100.0, start) / sine_amplitude(ref, period, 100.0, start)
         rows.append(_row('lenslet 100 Hz overshoot, tool / command', THESIS['lenslet_100hz_overshoot_db'],
                          20 * math.log10(ratio), 'dB', 20 * math.log10(_loop(machine, 100.0)['T']),
                          "Table 5-2's 0.074 kg with the Ch. 7 gains peaks less than the thesis's Ch. 8 loop; with "

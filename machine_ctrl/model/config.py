@@ -185,6 +185,22 @@ class PIDGains:
     sensitivity: float = _positive()         # S, V/m (V/rad): sensor volts per unit of error
 
 
+@dataclass(frozen=True)
+class H2Gains:
+    """Ding thesis section 6.3: the weights of the H2-optimal design (machine_ctrl/control/h2.py),
+    W_e = (s/M_s + w_b)/(s + w_b eps) on the tool position (Eq. 6-3) and
+    W_u = (s + w_bu/M_u)/(eps_u s + w_bu) on the command (Eq. 6-5); the disturbance weights
+    are the axis's plant noise models (Eqs. 6-6, 6-7)."""
+    bandwidth: float = _positive()           # w_b, rad/s, Eq. (6-3)
+    peak: float = _positive()                # M_s, Eqs. (6-3), (6-4)
+    epsilon: float = _positive()             # eps, Eq. (6-3)
+    control_weight: float = _positive()      # M_u, Eq. (6-5)
+    control_bandwidth: float = _positive()   # w_bu, rad/s, Eq. (6-5)
+    control_epsilon: float = _positive()     # eps_u, Eq. (6-5)
+    error_unit: float = _positive()          # m per unit of the weighted position error
+    noise_pole: float = _positive()          # rad/s: the 1/s of a noise filter becomes 1/(s + noise_pole)
+
+
 def _law_gains():
     """A gains section of ControlConfig whose field name is a control law's name."""
     return field(default=None, metadata={'law': True})
@@ -202,6 +218,7 @@ class ControlConfig:
     ppi: PPIGains | None = _law_gains()
     lead_lag: LeadLagGains | None = _law_gains()
     pid: PIDGains | None = _law_gains()
+    h2: H2Gains | None = _law_gains()
 
     @property
     def gains(self):

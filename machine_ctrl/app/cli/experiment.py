@@ -57,6 +57,9 @@ SEED_TABLES = (
     ('fts-freeform', 'fts_freeform', 'reproduce',
      'Ding Ch. 8: spindle-slaved freeform cuts on fts_lathe (grid, lenslet, beam integrator), offline at 199.6 kHz',
      None),
+    ('fts-h2', 'fts_h2', 'reproduce',
+     "Ding Ch. 6: the H2-optimal law against the PID on fts_lathe's W at 20 kHz, offline with all noise",
+     'write fts_h2.png: |y/r| of both laws and their following-error spectra (Fig. 6-12)'),
     ('fts-identify', 'fts_identify', 'reproduce',
      "Ding section 5.5: Table 5-2 from a stepped-sine FRF of fts_lathe's W stage by a grey-box fit", None),
 )
@@ -261,8 +264,8 @@ def _scalars(value):
 
 
 def cmd_seed_table(args) -> int:
-    """midrange (machine_ctrl.experiments.midrange.table_3_1), fts-budget, fts-freeform and
-    fts-identify (their reproduce()): the table seed | ours | ratio, or --json; exit 1 when the experiment
+    """midrange (machine_ctrl.experiments.midrange.table_3_1), fts-budget, fts-freeform, fts-h2
+    and fts-identify (their reproduce()): the table seed | ours | ratio, or --json; exit 1 when the experiment
     reports a failure (its reason on stderr)."""
     import importlib
     module = importlib.import_module(f'machine_ctrl.experiments.{args.module}')
