@@ -23,7 +23,7 @@ import random
 import numpy as np
 from scipy.linalg import expm
 
-from hw_sim.plant import _Actuator
+from hw_sim.plant import _Actuator, quantize
 from machine_ctrl.model.config import AxisConfig
 from machine_ctrl.model.flexure_model import continuous_model
 
@@ -39,22 +39,28 @@ def _held_input(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.
 
 class FlexureAxis(_Actuator):
     """The stage of the module doc; `position` is the true tool position x1, `sensed` the
-    sensor's output y (before its per-sample noise and quantization)."""
+    sensor's output y (before its per-sample noise and quantization), `acceleration_sensed`
+    the accelerometer's output a_y (m/s^2, before its ADC; None without one). `force` (N) is
+    the external force on the moving mass over the next period (the cutting force dF)."""
 
     def __init__(self, axis: AxisConfig, period: float, rng: random.Random, position: float = 0.0):
         super().__init__(axis, rng)
         plant = axis.plant
-        a, b_u, b_w, self._sensor_index = continuous_model(axis)
-        delay, n = plant.loop_delay, len(a)
-        phi, gamma_new = _held_input(a, b_u, period - delay)
-        _, gamma_old = _held_input(a, b_u, delay)
-        full, gamma_w = _held_input(a, b_w, period)
-        # one matrix, one product per step: state' = M [state, u_{k-1}, u_k, w0, w1]
+        model = continuous_model(axis)
+        a, n = model.a, model.a.shape[0]
+        self._sensor_index, self._accelerometer_index = model.sensor, model.accelerometer
+        phi, gamma_new = _held_input(a, model.b_u, period - plant.loop_delay)
+        _, gamma_old = _held_input(a, model.b_u, plant.loop_delay)
+        full, gamma_w = _held_input(a, np.hstack([model.b_w, model.b_f]), period)
+        # one matrix, one product per step: state' = M [state, u_{k-1}, u_k, w0, w1, w2, F]
         self._n = n
         self._m = np.hstack([full, phi @ gamma_old, gamma_new, gamma_w])
-        densities = [0.0 if s is None else s.density for s in (plant.current_noise, plant.sensor_noise_density)]
-        self._sigma = [d * math.sqrt(0.5 / period) for d in densities]
-        self._v = np.zeros(n + 4)                  # at rest at `position`, the flexure held by the coil
+        accel = plant.accelerometer
+        noises = (plant.current_noise, plant.sensor_noise_density, None if accel is None else accel.noise)
+        # (slot of w_j in v, sigma), drawn in this order; an absent noise's slot stays 0
+        self._noises = [(n + 2 + j, s.density * math.sqrt(0.5 / period)) for j, s in enumerate(noises) if s is not None]
+        self.force = 0.0
+        self._v = np.zeros(n + 6)                  # at rest at `position`, the flexure held by the coil
         self._v[[0, 2]] = position
         self._v[4] = plant.flexure.stiffness * position / axis.drive.force_constant
         if self._sensor_index is not None:
@@ -73,12 +79,32 @@ class FlexureAxis(_Actuator):
     def sensed(self) -> float:
         return float(self._v[0 if self._sensor_index is None else self._sensor_index])
 
+    @property
+    def acceleration_sensed(self) -> float | None:
+        return None if self._accelerometer_index is None else float(self._v[self._accelerometer_index])
+
     def step(self, u: float) -> float:
         applied = self.apply(u)
-        v, n, (s0, s1) = self._v, self._n, self._sigma
+        v, n = self._v, self._n
         v[n + 1] = applied
-        v[n + 2] = self.rng.gauss(0.0, s0) if s0 > 0.0 else 0.0
-        v[n + 3] = self.rng.gauss(0.0, s1) if s1 > 0.0 else 0.0
+        gauss = self.rng.gauss
+        for slot, sigma in self._noises:
+            v[slot] = gauss(0.0, sigma)
+        v[n + 5] = self.force
         v[:n] = self._m @ v
         v[n] = applied
         return applied
+
+
+class Accelerometer:
+    """The accelerometer's ADC channel (AccelerometerConfig): volts = sensitivity a_y + noise,
+    clipped to +-range, quantized; the reading in m/s^2 (volts / sensitivity)."""
+
+    def __init__(self, axis: AxisConfig, rng: random.Random):
+        config = axis.plant.accelerometer
+        self.sensitivity, self.range = config.sensitivity, config.range
+        self.resolution, self.noise, self.rng = config.resolution, config.sample_noise, rng
+
+    def measure(self, sensed: float) -> float:
+        volts = self.sensitivity * sensed + (self.rng.gauss(0.0, self.noise) if self.noise > 0.0 else 0.0)
+        return quantize(min(self.range, max(-self.range, volts)), self.resolution) / self.sensitivity

@@ -42,10 +42,12 @@ class RunRecord:
 
 def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         laws: dict[str, str] | None = None, feedforward: bool = True, steps: int | None = None,
-        progress=None, initial_position=None) -> RunRecord:
+        progress=None, initial_position=None, forces: dict[str, np.ndarray] | None = None) -> RunRecord:
     """Run `reference` for `steps` steps (default its length; past its end the last
     position is held) from `initial_position` (default where the reference starts; hw_sim
-    starts at its `initial_position` parameter, the machine's home by default)."""
+    starts at its `initial_position` parameter, the machine's home by default). `forces`:
+    per axis an external force (N) per step on its moving mass (MachineSimulator.set_force;
+    the last value holds past the array's end)."""
     steps = len(reference) if steps is None else steps
     start = reference.position[0] if initial_position is None else initial_position
     simulator = MachineSimulator(machine, initial_position=start)
@@ -56,12 +58,15 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     rec = {name: np.empty((steps, n))
            for name in ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')}
     offsets_log = np.zeros((steps, len(fine_index)))
+    forces = {axis: np.asarray(f, dtype=float) for axis, f in (forces or {}).items()}
     for k in range(steps):
+        for axis, f in forces.items():
+            simulator.set_force(axis, f[min(k, len(f) - 1)])
         measured = simulator.measurement
         ref_pos, ref_vel, ref_acc = reference.row(k)
         offsets = coupling.step(ref_pos, measured.position).offsets
         commands = servo.step(apply_offsets(ref_pos, fine_index, offsets), ref_vel, ref_acc,
-                                measured.position, measured.velocity)
+                                measured.position, measured.velocity, measured.acceleration)
         rec['reference'][k], rec['measured'][k] = ref_pos, measured.position
         rec['measured_velocity'][k], rec['effort'][k] = measured.velocity, measured.effort
         rec['true'][k], rec['commands'][k] = simulator.true_position, commands

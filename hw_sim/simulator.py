@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
-from hw_sim.flexure import FlexureAxis
+from hw_sim.flexure import Accelerometer, FlexureAxis
 from hw_sim.plant import FrictionAxis, LinearAxis, Sensor
 from machine_ctrl.model.config import AxisConfig, MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
@@ -37,6 +37,7 @@ class Measurement:
     position: tuple[float, ...]      # encoder / probe readings, axis order
     velocity: tuple[float, ...]      # differentiated readings
     effort: tuple[float, ...]        # commands applied during the previous period
+    acceleration: tuple[float, ...] = ()   # accelerometer readings, m/s^2 (0.0 on axes without one)
 
 
 class MachineSimulator:
@@ -59,6 +60,10 @@ class MachineSimulator:
         self.sensors = [Sensor(a.sensor_resolution, a.plant.sensor_noise, period,
                                random.Random(f'{seed}:{a.name}'), q0)
                         for a, q0 in zip(machine.axes, start)]
+        self.accelerometers = [Accelerometer(a, random.Random(f'{seed}:{a.name}:accelerometer'))
+                               if a.plant.accelerometer is not None else None for a in machine.axes]
+        self._with_accelerometer = any(self.accelerometers)
+        self._no_acceleration = (0.0,) * len(machine.axes)
         self.step_index = 0
         self.fault: str | None = None
         self.applied = (0.0,) * len(self.plants)
@@ -66,8 +71,20 @@ class MachineSimulator:
 
     def _measure(self) -> None:
         readings = [s.measure(p.sensed) for s, p in zip(self.sensors, self.plants)]
+        acceleration = self._no_acceleration if not self._with_accelerometer else \
+            tuple(0.0 if a is None else a.measure(p.acceleration_sensed) for a, p in zip(self.accelerometers, self.plants))
         self.measurement = Measurement(tuple(r[0] for r in readings), tuple(r[1] for r in readings),
-                                       self.applied)
+                                       self.applied, acceleration)
+
+    def set_force(self, axis: str, force: float) -> None:
+        """An external force (N) on `axis`'s moving mass from the next step on (the cutting
+        force of Ding Eq. 7-7); ValueError for an axis whose plant takes none, or a non-finite force."""
+        plant = self.plants[self.machine.axis_names.index(axis)]
+        if not hasattr(plant, 'force'):
+            raise ValueError(f'axis {axis}: its plant takes no external force (only voice_coil flexure stages)')
+        if not math.isfinite(force):
+            raise ValueError(f'axis {axis}: force must be finite, got {force!r}')
+        plant.force = float(force)
 
     @property
     def true_position(self) -> tuple[float, ...]:
@@ -99,7 +116,8 @@ class MachineSimulator:
             self._measure()
         else:
             held = self.measurement
-            self.measurement = Measurement(held.position, (0.0,) * len(held.position), self.applied)
+            zeros = (0.0,) * len(held.position)
+            self.measurement = Measurement(held.position, zeros, self.applied, zeros)
         return self.measurement
 
     def _check_strokes(self) -> None:

@@ -136,7 +136,7 @@ class PositionOnly:
     def reset(self):
         pass
 
-    def step(self, x_r, v_r, a_r, x, v):
+    def step(self, x_r, v_r, a_r, x, v, acc=0.0):
         return self.k_p * (x_r - x)
 
 

@@ -81,10 +81,10 @@ def measurement_noise_density(axis: AxisConfig, period: float) -> float:
 def augmented_plant(axis: AxisConfig, gains: H2Gains, period: float) -> GeneralizedPlant:
     """The generalized plant of the module doc; states [stage (flexure_model order), Pade delay,
     W_e, W_u], inputs w = [current noise, measurement noise], z = [W_e x1, W_u u]."""
-    a, b_u, b_w, sensor = continuous_model(axis)
-    n = a.shape[0]
-    n_noise = n - 6 - (0 if sensor is None else 2)        # the current-noise filter's states
-    a[6:6 + n_noise, 6:6 + n_noise] -= gains.noise_pole * np.eye(n_noise)
+    model = continuous_model(axis)
+    n, sensor, noise = model.core, model.sensor, model.current_noise     # the accelerometer is not used
+    a, b_u, b_w = model.a[:n, :n], model.b_u[:n], model.b_w[:n]
+    a[noise, noise] -= gains.noise_pole * np.eye(noise.stop - noise.start)
     tau = axis.plant.loop_delay + 0.5 * period
     delay, we, wu = n, n + 1, n + 2
     big = n + 3
@@ -192,7 +192,7 @@ class H2Controller:
     def reset(self) -> None:
         self.state = np.zeros(self._a.shape[0])
 
-    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float) -> float:
+    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float:
         y = x - x_r
         u = float(self._c @ self.state) + self._d * y
         self.state = self._a @ self.state + self._b * y

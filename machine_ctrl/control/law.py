@@ -4,11 +4,13 @@ logic apart from plumbing: no topics, no parameters server, no clock) and python
 
 A law controls one axis. Per control period the servo calls
 
-    u = law.step(x_r, v_r, a_r, x, v)
+    u = law.step(x_r, v_r, a_r, x, v, acc)
 
 with the reference (position, velocity, acceleration) and the measurement (position,
-velocity) of its axis as plain floats, in SI units, and gets the command in the drive's
-command unit. Plain floats on purpose: the step runs at 10 kHz for every axis in Python, and
+velocity, and the accelerometer's reading acc where the axis has one, else 0.0) of its axis
+as plain floats, in SI units, and gets the command in the drive's command unit. A law that
+uses acc says so with ``uses_acceleration = True`` (an attribute; absent means False), and
+refuses to be built for an axis without an accelerometer. Plain floats on purpose: the step runs at 10 kHz for every axis in Python, and
 packing reference and measurement into objects per call would cost more than most laws.
 
 ``reset()`` returns the law's state to where it was built (it keeps the gains in use; a
@@ -67,7 +69,7 @@ class ControlLaw(Protocol):
 
     def reset(self) -> None: ...
 
-    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float) -> float: ...
+    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float: ...
 
     def retune_problem(self, gains: Any) -> str | None: ...
 

@@ -59,7 +59,7 @@ class LeadLagController:
         for section in self.sections:
             section.reset()
 
-    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float) -> float:
+    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float:
         y = x_r - x
         for section in self.sections:
             y = section.step(y)

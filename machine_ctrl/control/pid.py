@@ -12,10 +12,22 @@ d_k = ((2 T_f - T) d_{k-1} + 2 K_d (e_k - e_{k-1})) / (2 T_f + T) (stable for an
 The integral is held as K_i times the integral, so that the integrator's output is the same
 before and after a change of K_i.
 
+With the cascade acceleration loop of Fig. 7-6 / Eq. (7-7) (acceleration_gain K_a > 0):
+
+    u = PID - K_a H_a(s) H_acc acc,   H_acc acc = accelerometer_sensitivity * acc
+
+acc the accelerometer's reading (m/s^2), H_a an optional first-order low-pass of corner
+acceleration_filter (rad/s; 0: H_a = 1), Tustin like the derivative filter. The law then
+needs an accelerometer on its axis (``plant.accelerometer``) and says so
+(``uses_acceleration``).
+
 Live gains: K_p, K_i and K_d may change between two steps. K_p and K_d move the command by
 an amount proportional to the present error (the derivative term's state is its output, so
 a new K_d scales only what follows); a new K_i acts on the future error only (bumpless).
-T_f and S are fixed: T_f is the derivative filter's pole, S the sensor's calibration.
+T_f and S are fixed: T_f is the derivative filter's pole, S the sensor's calibration; so
+are K_a, H_acc and H_a (section 7.4.1 changes K_a together with the PID gains, and the
+graph does not carry the accelerometer's reading: a running loop gains or loses its
+acceleration loop only as a new law).
 """
 from __future__ import annotations
 
@@ -33,10 +45,19 @@ class PIDController:
                   live='scales the derivative filter input from the next step, no jump in its state'),
         Parameter('derivative_filter', 's', 'T_f, derivative filter time constant, Eq. (7-8)'),
         Parameter('sensitivity', 'V/m (V/rad)', 'S, sensor volts per unit of position error'),
+        Parameter('acceleration_gain', 'V/V', 'K_a, acceleration loop gain, Eq. (7-7)'),
+        Parameter('accelerometer_sensitivity', 'V/(m/s^2)', 'H_acc at DC, accelerometer volts per m/s^2, Fig. 7-6'),
+        Parameter('acceleration_filter', 'rad/s', 'corner of the first-order H_a, Fig. 7-6 (0: H_a = 1)'),
     )
 
     @classmethod
     def from_axis(cls, gains: PIDGains, axis: AxisConfig, period: float) -> PIDController:
+        if gains.acceleration_gain > 0.0:
+            if axis.plant is None or axis.plant.accelerometer is None:
+                raise ValueError(f'axis {axis.name}: acceleration_gain > 0 needs an accelerometer on the axis '
+                                 '(plant.accelerometer in the machine config)')
+            if gains.accelerometer_sensitivity <= 0.0:
+                raise ValueError(f'axis {axis.name}: acceleration_gain > 0 needs accelerometer_sensitivity > 0')
         return cls(gains, period)
 
     def __init__(self, gains: PIDGains, period: float):
@@ -50,6 +71,11 @@ class PIDController:
         self._half_ki_t = 0.5 * gains.integral * self.period
         self._d_keep = (2.0 * tf - t) / (2.0 * tf + t)
         self._d_in = 2.0 * gains.derivative / (2.0 * tf + t)
+        self.uses_acceleration = gains.acceleration_gain > 0.0
+        self._ka_volts = gains.acceleration_gain * gains.accelerometer_sensitivity
+        wa = gains.acceleration_filter                 # H_a = wa / (s + wa), Tustin
+        self._a_keep = (2.0 - wa * t) / (2.0 + wa * t) if wa > 0.0 else 0.0
+        self._a_in = wa * t / (2.0 + wa * t) if wa > 0.0 else 0.0
 
     def retune_problem(self, gains: PIDGains) -> str | None:
         return gains_change_problem(self, gains)
@@ -63,11 +89,23 @@ class PIDController:
         self.integral_term = 0.0
         self.derivative_term = 0.0
         self.last_error = None
+        self.acceleration_term = 0.0                   # H_a of the last reading
+        self.last_acceleration = None
 
-    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float) -> float:
+    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float:
         e = self.gains.sensitivity * (x_r - x)
         last = e if self.last_error is None else self.last_error   # no derivative kick at the first step
         self.integral_term += self._half_ki_t * (e + last)
         self.derivative_term = self._d_keep * self.derivative_term + self._d_in * (e - last)
         self.last_error = e
-        return self.gains.proportional * e + self.integral_term + self.derivative_term
+        u = self.gains.proportional * e + self.integral_term + self.derivative_term
+        if not self.uses_acceleration:
+            return u
+        if self._a_in:                                 # H_a, from its first reading at rest (no step)
+            if self.last_acceleration is None:
+                self.acceleration_term = acc
+            else:
+                self.acceleration_term = self._a_keep * self.acceleration_term + self._a_in * (acc + self.last_acceleration)
+            self.last_acceleration = acc
+            acc = self.acceleration_term
+        return u - self._ka_volts * acc

@@ -57,7 +57,7 @@ class PPIController:
     def reset(self) -> None:
         self.integral = 0.0
 
-    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float) -> float:
+    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float:
         velocity_error = self.k_p * (x_r - x) - v
         self.integral += velocity_error * self.period
         return self.k_v * velocity_error + self.k_vi * self.integral

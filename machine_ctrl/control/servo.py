@@ -52,10 +52,10 @@ class AxisServo:
         if self.friction is not None:
             self.friction.reset()
 
-    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float) -> float:
+    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float:
         if not self.feedforward:
             v_r = a_r = 0.0
-        u = self.law.step(x_r, v_r, a_r, x, v)
+        u = self.law.step(x_r, v_r, a_r, x, v, acc)
         if self._friction_active is not None:
             u += self._friction_active.step(v_r)
         return u
@@ -94,11 +94,18 @@ class ServoGroup:
         for servo in self.servos:
             servo.reset()
 
-    def step(self, ref_pos, ref_vel, ref_acc, pos, vel) -> list[float]:
-        """One command per axis of the group; all arguments in group order."""
+    @property
+    def uses_acceleration(self) -> tuple[str, ...]:
+        """The axes whose law uses the accelerometer's reading."""
+        return tuple(s.name for s in self.servos if getattr(s.law, 'uses_acceleration', False))
+
+    def step(self, ref_pos, ref_vel, ref_acc, pos, vel, acc=None) -> list[float]:
+        """One command per axis of the group; all arguments in group order (`acc`: the
+        accelerometer readings, None: 0.0 for every axis)."""
         if self.feedforward_requested is not None and not any(ref_vel) and not any(ref_acc):
             for servo in self.servos:
                 servo.set_feedforward(self.feedforward_requested)
             self.feedforward, self.feedforward_requested = self.feedforward_requested, None
-        return [s.step(xr, vr, ar, x, v)
-                for s, xr, vr, ar, x, v in zip(self.servos, ref_pos, ref_vel, ref_acc, pos, vel)]
+        acc = acc or (0.0,) * len(self.servos)
+        return [s.step(xr, vr, ar, x, v, am)
+                for s, xr, vr, ar, x, v, am in zip(self.servos, ref_pos, ref_vel, ref_acc, pos, vel, acc)]

@@ -74,7 +74,7 @@ class SlidingModeController:
     def reset(self) -> None:
         self.d_hat = 0.0
 
-    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float) -> float:
+    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float:
         velocity_error = v_r - v
         sigma = velocity_error + self.lam * (x_r - x)
         u = self.m_e * (self.lam * velocity_error + a_r) + self.b_e * v + self.d_hat + self.k_s * sigma

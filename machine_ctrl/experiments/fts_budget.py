@@ -43,6 +43,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import optimize, signal
 
+from machine_ctrl.experiments.seed_rows import seed_row
+
 SEED = '003_edeaa855566124b7'
 TWO_PI = 2.0 * math.pi
 NM = 1e-9                     # m per nm (results are printed in nm)
@@ -583,18 +585,6 @@ def expected_peak_to_valley(plant: FtsPlant, pid: Pid, dist: Disturbances, sampl
 
 # ----------------------------------------------------------------------------- reproduction
 
-def _row(name, seed, ours, note_if_off='', unit='', tol=0.30):
-    if isinstance(seed, tuple):
-        lo, hi = seed
-        ratio = ours / (0.5 * (lo + hi))
-        off = not (lo * (1 - tol) <= ours <= hi * (1 + tol))
-    else:
-        ratio = ours / seed if seed else float('nan')
-        off = not (abs(ratio - 1) <= tol) if np.isfinite(ratio) else True
-    return {'name': name, 'seed': seed, 'ours': ours, 'ratio': ratio, 'unit': unit,
-            'note': note_if_off if off else '', 'off': bool(off)}
-
-
 def reproduce(plant: FtsPlant = FtsPlant(), dist: Disturbances = Disturbances(), sweep_points: int = 25) -> dict:
     """Every reproduced figure of seed 003 section 5.7 (seed, ours, ratio, note where > 30 % off)."""
     heavy = heavy_plant(plant)
@@ -623,39 +613,39 @@ def reproduce(plant: FtsPlant = FtsPlant(), dist: Disturbances = Disturbances(),
     res_1k = dist.sensor_v / sens * math.sqrt(enbw_1k)
     f_real, f_fol = b468['real']['total']['rms'] / NM, b468['following']['total']['rms'] / NM
     rows = [
-        _row('following RMS @468 Hz [calibration]', 0.83, f_fol, unit='nm'),
-        _row('real RMS @468 Hz', 0.23, f_real, unit='nm',
-             note_if_off='sensor-noise band (assumed 15 kHz) sets the following/real split'),
-        _row('following p-v @468 Hz (4096 samples)', 6.0, pv.get('following', float('nan')) / NM, unit='nm'),
-        _row('real p-v @468 Hz (6-10 x RMS)', (1.4, 2.3), pv.get('real', float('nan')) / NM, unit='nm',
-             note_if_off='the seed range is its rule of thumb 6-10 x 0.23 nm; our simulated 4096-sample records '
-                         'of a real error concentrated below ~1 kHz give %.1f x our RMS' % (
-                             pv.get('real', float('nan')) / max(b468['real']['total']['rms'], 1e-30))),
-        _row('optimum bandwidth 0.175 kg (min following)', 468.0, sweep_heavy.get('optimum_following_hz', float('nan')),
-             unit='Hz', note_if_off='the following-error minimum is very flat: past ~300 Hz the sensor '
-                                    'noise seen through |S| ~ 1 dominates; Eq. (6-7) current noise (A) is small'),
-        _row('optimum bandwidth 0.075 kg (min following)', 874.0, sweep_light.get('optimum_following_hz', float('nan')),
-             unit='Hz', note_if_off='a flat minimum of sensor noise seen through |S| ~ 1; the current noise that '
-                                    'would push it up is small (see the balance row), and Table 5-2 lacks the '
-                                    '1.6 kHz mode'),
-        _row('sensor = current balance 0.175 kg (real error)', 468.0, sweep_heavy.get('balance_hz', float('nan')),
-             unit='Hz', note_if_off='at 468 Hz the Eq. (6-7) current noise, read in amps (Eq. 7-13), gives %.1f x '
-                                    'less real-error RMS than the sensor noise: its level or unit, or the gain '
-                                    'scaling of Fig. 5-14 b), differs from what the text states' % (
-                                        b468['real']['sensor']['rms'] / b468['real']['current']['rms'])),
-        _row('highest stable bandwidth (0.175 kg)', 1600.0, limit.get('bandwidth_hz', float('nan')), unit='Hz',
-             note_if_off='the thesis loop goes unstable at the 1645 Hz resonance (section 6.3.2) that Table 5-2 '
-                         'does not contain; our Table 5-2 loop is limited only by the PID phase and the delay'),
-        _row('CPL190 resolution at 1 kHz (App. D.3)', 0.3, res_1k / NM, unit='nm',
-             note_if_off='W_s / S_capa = %.1f pm/sqrt(Hz); App. D.3 is a CPL190 on another probe/range in the '
-                         'spindle set-up (0.3 nm would be %.1f pm/sqrt(Hz))' % (dist.sensor_v / sens * 1e12,
-                                                                                0.3e-9 / math.sqrt(enbw_1k) * 1e12)),
-        _row('S_capa vs ADC span / 50 um range', 8.192 / 50e-6 / 1e6, sens / 1e6, unit='V/um',
-             note_if_off='the ADC scaling of the sensor is not stated (Appendix B); a CPL190 +-10 V over 50 um '
-                         'would be 0.4 V/um: ours lies between the two readings'),
+        seed_row('following RMS @468 Hz [calibration]', 0.83, f_fol, unit='nm'),
+        seed_row('real RMS @468 Hz', 0.23, f_real, unit='nm',
+                 note_if_off='sensor-noise band (assumed 15 kHz) sets the following/real split'),
+        seed_row('following p-v @468 Hz (4096 samples)', 6.0, pv.get('following', float('nan')) / NM, unit='nm'),
+        seed_row('real p-v @468 Hz (6-10 x RMS)', (1.4, 2.3), pv.get('real', float('nan')) / NM, unit='nm',
+                 note_if_off='the seed range is its rule of thumb 6-10 x 0.23 nm; our simulated 4096-sample records '
+                             'of a real error concentrated below ~1 kHz give %.1f x our RMS' % (
+                                 pv.get('real', float('nan')) / max(b468['real']['total']['rms'], 1e-30))),
+        seed_row('optimum bandwidth 0.175 kg (min following)', 468.0, sweep_heavy.get('optimum_following_hz', float('nan')),
+                 unit='Hz', note_if_off='the following-error minimum is very flat: past ~300 Hz the sensor '
+                                        'noise seen through |S| ~ 1 dominates; Eq. (6-7) current noise (A) is small'),
+        seed_row('optimum bandwidth 0.075 kg (min following)', 874.0, sweep_light.get('optimum_following_hz', float('nan')),
+                 unit='Hz', note_if_off='a flat minimum of sensor noise seen through |S| ~ 1; the current noise that '
+                                        'would push it up is small (see the balance row), and Table 5-2 lacks the '
+                                        '1.6 kHz mode'),
+        seed_row('sensor = current balance 0.175 kg (real error)', 468.0, sweep_heavy.get('balance_hz', float('nan')),
+                 unit='Hz', note_if_off='at 468 Hz the Eq. (6-7) current noise, read in amps (Eq. 7-13), gives %.1f x '
+                                        'less real-error RMS than the sensor noise: its level or unit, or the gain '
+                                        'scaling of Fig. 5-14 b), differs from what the text states' % (
+                                            b468['real']['sensor']['rms'] / b468['real']['current']['rms'])),
+        seed_row('highest stable bandwidth (0.175 kg)', 1600.0, limit.get('bandwidth_hz', float('nan')), unit='Hz',
+                 note_if_off='the thesis loop goes unstable at the 1645 Hz resonance (section 6.3.2) that Table 5-2 '
+                             'does not contain; our Table 5-2 loop is limited only by the PID phase and the delay'),
+        seed_row('CPL190 resolution at 1 kHz (App. D.3)', 0.3, res_1k / NM, unit='nm',
+                 note_if_off='W_s / S_capa = %.1f pm/sqrt(Hz); App. D.3 is a CPL190 on another probe/range in the '
+                             'spindle set-up (0.3 nm would be %.1f pm/sqrt(Hz))' % (dist.sensor_v / sens * 1e12,
+                                                                                    0.3e-9 / math.sqrt(enbw_1k) * 1e12)),
+        seed_row('S_capa vs ADC span / 50 um range', 8.192 / 50e-6 / 1e6, sens / 1e6, unit='V/um',
+                 note_if_off='the ADC scaling of the sensor is not stated (Appendix B); a CPL190 +-10 V over 50 um '
+                             'would be 0.4 V/um: ours lies between the two readings'),
     ]
     for bw in THESIS['bandwidths_hz']:
-        rows.append(_row(f'-3 dB bandwidth setting {bw:g} Hz', bw, settings[bw]['budget']['bandwidth_hz'], unit='Hz'))
+        rows.append(seed_row(f'-3 dB bandwidth setting {bw:g} Hz', bw, settings[bw]['budget']['bandwidth_hz'], unit='Hz'))
     ground_m = error_budget(replace(heavy), settings[468.0]['gains']['pid'], replace(dist, ground_in_volts=False))
     # sensitivity of the split to the assumed sensor bandwidth (not a calibration: reported only)
     split = {}

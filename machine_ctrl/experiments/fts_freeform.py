@@ -34,6 +34,7 @@ import numpy as np
 
 from hw_sim import offline
 from machine_ctrl.experiments import fts_budget
+from machine_ctrl.experiments.seed_rows import seed_row
 from machine_ctrl.model.config import MachineConfig, load_machine
 from trajectory.freeform import BeamIntegrator, SinusoidalGrid, Turning, axis_sine, freeform_reference
 
@@ -77,8 +78,8 @@ def _loop(machine: MachineConfig, frequency: float, heavy: bool = False) -> dict
 
 
 def _row(name, seed, ours, unit, predicted=None, note=''):
-    """fts_budget's row (ratio, > 30 % off with its note) plus the loop's prediction."""
-    return {**fts_budget._row(name, seed, ours, note, unit), 'predicted': predicted}
+    """A seed row (ratio, > 30 % off with its note) plus the loop's prediction."""
+    return {**seed_row(name, seed, ours, unit, note), 'predicted': predicted}
 
 
 def _reference(result):

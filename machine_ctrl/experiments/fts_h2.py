@@ -30,6 +30,7 @@ from hw_sim import offline
 from machine_ctrl.control.h2 import h2_design
 from machine_ctrl.experiments import fts_budget
 from machine_ctrl.experiments.fts_freeform import sine_amplitude
+from machine_ctrl.experiments.seed_rows import row_text, seed_row
 from machine_ctrl.model.config import MachineConfig, load_machine
 from machine_ctrl.model.reference import Reference
 from trajectory.freeform import axis_sine
@@ -139,10 +140,6 @@ def _pid_at(machine: MachineConfig, bandwidth_hz: float) -> tuple[MachineConfig,
                       derivative=g.kd), tuned['kg']
 
 
-def _row(name, seed, ours, unit, note=''):
-    return fts_budget._row(name, seed, ours, note, unit)
-
-
 def reproduce(machine: MachineConfig | None = None) -> dict:
     """Every figure of the module doc (seed, ours, ratio, a note where > 30 % off)."""
     machine = machine or load_machine(MACHINE)
@@ -163,18 +160,18 @@ def reproduce(machine: MachineConfig | None = None) -> dict:
                  '("caused troubles when the PID gains are further increased"); without it our PID at 1.5 kHz '
                  'keeps its phase margin and amplifies less noise')
     rows = [
-        _row('H2 bandwidth (-3 dB, y/r), simulated', THESIS['h2_bandwidth_hz'], h2_bw['bandwidth_hz'], 'Hz', balance),
-        _row('H2 following error RMS at rest', THESIS['h2_following_rms_nm'], h2_rest['following_rms'] / NM, 'nm'),
-        _row('H2 following error p-v (4096 samples)', THESIS['h2_following_pv_nm'], h2_rest['following_pv'] / NM,
+        seed_row('H2 bandwidth (-3 dB, y/r), simulated', THESIS['h2_bandwidth_hz'], h2_bw['bandwidth_hz'], 'Hz', balance),
+        seed_row('H2 following error RMS at rest', THESIS['h2_following_rms_nm'], h2_rest['following_rms'] / NM, 'nm'),
+        seed_row('H2 following error p-v (4096 samples)', THESIS['h2_following_pv_nm'], h2_rest['following_pv'] / NM,
              'nm'),
-        _row('H2 design crossover, W_u of Fig. 6-5', THESIS['h2_crossover_hz'], crossover['fig_6_5'], 'Hz', balance),
-        _row('PID bandwidth, K_g for 1.5 kHz, simulated', THESIS['pid_bandwidth_hz'], pids['thesis']['bandwidth_hz'],
+        seed_row('H2 design crossover, W_u of Fig. 6-5', THESIS['h2_crossover_hz'], crossover['fig_6_5'], 'Hz', balance),
+        seed_row('PID bandwidth, K_g for 1.5 kHz, simulated', THESIS['pid_bandwidth_hz'], pids['thesis']['bandwidth_hz'],
              'Hz', 'K_g is set on the continuous loop with the delay; the sampled loop at 20 kHz peaks higher'),
-        _row('PID (1.5 kHz) following error RMS', THESIS['pid_following_rms_nm'],
+        seed_row('PID (1.5 kHz) following error RMS', THESIS['pid_following_rms_nm'],
              pids['thesis']['following_rms'] / NM, 'nm', resonance),
-        _row('PID (1.5 kHz) following error p-v', THESIS['pid_following_pv_nm'], pids['thesis']['following_pv'] / NM,
+        seed_row('PID (1.5 kHz) following error p-v', THESIS['pid_following_pv_nm'], pids['thesis']['following_pv'] / NM,
              'nm', resonance),
-        _row('H2 / PID (1.5 kHz) following RMS', THESIS['h2_following_rms_nm'] / THESIS['pid_following_rms_nm'],
+        seed_row('H2 / PID (1.5 kHz) following RMS', THESIS['h2_following_rms_nm'] / THESIS['pid_following_rms_nm'],
              h2_rest['following_rms'] / pids['thesis']['following_rms'], '1', resonance),
     ]
     runs = {'h2': {'bandwidth': h2_bw, **h2_rest, 'crossover_hz': crossover},
@@ -187,9 +184,7 @@ def format_table(result: dict) -> str:
         return f'FTS H2 vs PID failed: {result.get("reason")}'
     lines = [f'Ding Ch. 6 H2-optimal vs PID (seed {SEED}) on {result["machine"]}, W alone at 20 kHz, noise on',
              f'{"figure":<44} {"seed":>8} {"ours":>9} {"ratio":>7}  unit']
-    for r in result['rows']:
-        lines.append(f'{r["name"]:<44} {r["seed"]:>8.4g} {r["ours"]:>9.4g} {r["ratio"]:>7.3f}  {r["unit"]}'
-                     + (f'  > 30 %: {r["note"]}' if r['off'] else ''))
+    lines += [row_text(r, 44) for r in result['rows']]
     runs = result['runs']
     h2, same = runs['h2'], runs['pid_same_bandwidth']
     lines.append(f'H2: real positioning error {h2["real_rms"] / NM:.3f} nm RMS; design crossover with the W_u of '

@@ -112,6 +112,20 @@ class NoiseConfig:
 
 
 @dataclass(frozen=True)
+class AccelerometerConfig:
+    """A piezo accelerometer on a flexure stage's moving mass, through its conditioning
+    low-pass into an ADC channel (Ding thesis section 7.5.1, Table 7-2): the reading in
+    volts is sensitivity (acceleration + noise) after the low-pass, plus the channel's
+    per-sample noise, clipped to +-range and quantized to resolution."""
+    sensitivity: float = _positive()           # V per m/s^2
+    bandwidth: ModeConfig                      # conditioning low-pass (2nd order)
+    range: float = _positive()                 # V, the ADC's input range +-range
+    resolution: float = _nonnegative(default=0.0)     # V, ADC step
+    sample_noise: float = _nonnegative(default=0.0)   # V, std per sample (ADC)
+    noise: NoiseConfig | None = None           # m/s^2 per sqrt(Hz), the sensor's own, before the low-pass
+
+
+@dataclass(frozen=True)
 class PlantConfig:
     """What hw_sim simulates beyond the drive (rigid body, gain, saturation, quantization)."""
     friction: FrictionConfig | None = None    # linear motors
@@ -127,6 +141,7 @@ class PlantConfig:
     sensor_bandwidth: ModeConfig | None = None   # 2nd-order low-pass of the position sensor
     sensor_noise_density: NoiseConfig | None = None   # m/sqrt(Hz) at the sensor, before its low-pass
     current_noise: NoiseConfig | None = None  # A/sqrt(Hz) added to the current
+    accelerometer: AccelerometerConfig | None = None  # on the moving mass (acceleration feedback)
 
 
 @dataclass(frozen=True)
@@ -177,12 +192,16 @@ class LeadLagGains:
 @dataclass(frozen=True)
 class PIDGains:
     """Ding thesis Fig. 5-11 / Eq. (7-8): parallel PID with a filtered derivative acting on the
-    sensor's volts, K_p + K_i/s + K_d s/(T_f s + 1), e_v = sensitivity (x_r - x)."""
+    sensor's volts, K_p + K_i/s + K_d s/(T_f s + 1), e_v = sensitivity (x_r - x); with the
+    cascade acceleration loop of Fig. 7-6 / Eq. (7-7) when acceleration_gain > 0."""
     proportional: float = _nonnegative()     # K_p, V/V
     integral: float = _nonnegative()         # K_i, V/(V*s)
     derivative: float = _nonnegative()       # K_d, V*s/V
     derivative_filter: float = _positive()   # T_f, s
     sensitivity: float = _positive()         # S, V/m (V/rad): sensor volts per unit of error
+    acceleration_gain: float = _nonnegative(default=0.0)   # K_a, V/V, Eq. (7-7) (0: no acceleration loop)
+    accelerometer_sensitivity: float = _nonnegative(default=0.0)   # H_acc at DC, V per m/s^2 (> 0 with K_a > 0)
+    acceleration_filter: float = _nonnegative(default=0.0)  # rad/s, corner of a first-order H_a (0: H_a = 1)
 
 
 @dataclass(frozen=True)
@@ -489,7 +508,7 @@ def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
                          tool_frame, tuple(axes), home, dual_stage, simulation)
 
 
-FLEXURE_ONLY = ('flexure', 'current_loop', 'sensor_bandwidth', 'sensor_noise_density', 'current_noise')
+FLEXURE_ONLY = ('flexure', 'current_loop', 'sensor_bandwidth', 'sensor_noise_density', 'current_noise', 'accelerometer')
 
 
 def _plant_problem(axis: AxisConfig, period: float) -> str:

@@ -8,12 +8,18 @@ machine_ctrl/control/h2.py, the controller's belief) both start from.
     m12 x1'' = F - k2 x1 - c2 x1' - k4 (x1 - x4) - c4 (x1' - x4')           (Eqs. 5-4..5-7, k1 rigid)
     m4  x4'' =      k4 (x1 - x4) + c4 (x1' - x4')
     y   = H_capa(s) (x1 + n_s)                                              (Eq. 5-8), sensor output
+    a_y = H_acc(s) (x1'' + n_a)                          (Fig. 7-6, Table 7-2), accelerometer output
 
-with the current noise dI the output of its shaping filter (Eq. 6-7 form, `current_noise`)
-and n_s the sensor's electronics noise (band-limited by the sensor itself, Eq. 6-6), each
-the response to unit white noise.
+with the current noise dI the output of its shaping filter (Eq. 6-7 form, `current_noise`),
+n_s the sensor's electronics noise (band-limited by the sensor itself, Eq. 6-6) and n_a the
+accelerometer's (through its conditioning low-pass, section 7.5.1), each the response to
+unit white noise; a force F on m12 (the cutting force dF of Eq. 7-7) enters as F / m12.
+Not modelled: the ground vibration (Eq. 6-8; 1e-4 of the error budget,
+machine_ctrl/experiments/fts_budget.py).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
@@ -36,37 +42,83 @@ def noise_filter(noise: NoiseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return tuple(np.atleast_2d(m) for m in signal.tf2ss(num, den))
 
 
-def continuous_model(axis: AxisConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, int | None]:
-    """(A, B_u, B_w, sensor index) of the module doc's system: states [x1, v1, x4, v4, i, di],
-    then the current-noise filter's, then the sensor's [y, y'] (index of y, or None without a
-    sensor low-pass); inputs u (DAC volts) and w = [current noise, sensor noise] (unit white)."""
+@dataclass(frozen=True)
+class FlexureModel:
+    """x' = a x + b_u u + b_w w + b_f F: u the DAC volts, w unit white noise [current, sensor,
+    accelerometer] (a column of zeros where the axis has no such noise), F a force on the
+    moving mass m12 (N; the cutting force dF of Eq. 7-7). States [x1, v1, x4, v4, i, di], the
+    current-noise filter's, the sensor's [y, y'], the accelerometer noise filter's, the
+    accelerometer's [a_y, a_y'] (the last four groups only when configured); `sensor` and
+    `accelerometer` index y and a_y (None without them); `current_noise` the current-noise
+    filter's states; `core` the number of states before the accelerometer's (nothing before
+    them depends on them)."""
+    a: np.ndarray
+    b_u: np.ndarray
+    b_w: np.ndarray
+    b_f: np.ndarray
+    sensor: int | None
+    accelerometer: int | None
+    current_noise: slice
+    core: int
+
+
+
+
+def _add_filter(a: np.ndarray, b_w: np.ndarray, column: int, noise: NoiseConfig | None, start: int):
+    """Place W(s) of `noise` at states start.. driven by w[column]; (C, D) of its output."""
+    if noise is None:
+        return np.zeros(0), 0.0
+    fa, fb, fc, fd = noise_filter(noise)
+    n = fa.shape[0]
+    a[start:start + n, start:start + n] = fa
+    b_w[start:start + n, column] = fb[:, 0]
+    return fc[0], fd[0, 0]
+
+
+def _filter_order(noise: NoiseConfig | None) -> int:
+    return 0 if noise is None else noise_filter(noise)[0].shape[0]
+
+
+def continuous_model(axis: AxisConfig) -> FlexureModel:
+    """The module doc's system for `axis` (a voice_coil drive with its flexure and current loop)."""
     drive, plant = axis.drive, axis.plant
-    flex, loop = plant.flexure, plant.current_loop
+    flex, loop, accel = plant.flexure, plant.current_loop, plant.accelerometer
     m12, c2, k2 = drive.mass, drive.damping, flex.stiffness
     m4, k4, c4 = flex.secondary_mass, flex.secondary_stiffness, flex.secondary_damping
     kt, wi, zi = drive.force_constant, loop.omega, loop.zeta
-    current = None if plant.current_noise is None else noise_filter(plant.current_noise)
-    n_cur = 0 if current is None else current[0].shape[0]
-    sensor = plant.sensor_bandwidth
-    n = 6 + n_cur + (0 if sensor is None else 2)
-    a, b_u, b_w = np.zeros((n, n)), np.zeros((n, 1)), np.zeros((n, 2))
+    n_cur = _filter_order(plant.current_noise)
+    sensor = None if plant.sensor_bandwidth is None else 6 + n_cur
+    j_acc = 6 + n_cur + (0 if sensor is None else 2)            # first state of the accelerometer's noise filter
+    n_acc = 0 if accel is None else _filter_order(accel.noise)
+    n = j_acc + (0 if accel is None else n_acc + 2)
+    a, b_u, b_w, b_f = np.zeros((n, n)), np.zeros((n, 1)), np.zeros((n, 3)), np.zeros((n, 1))
     a[0, 1] = 1.0                              # mechanics, Eqs. (5-4)..(5-7) with k1 rigid
     a[1, :6] = [-(k2 + k4) / m12, -(c2 + c4) / m12, k4 / m12, c4 / m12, kt / m12, 0.0]
+    b_f[1, 0] = 1.0 / m12
     a[2, 3] = 1.0
     a[3, :4] = [k4 / m4, c4 / m4, -k4 / m4, -c4 / m4]
     a[4, 5] = 1.0                              # current loop, Eq. (5-9)
     a[5, 4:6] = [-wi * wi, -2.0 * zi * wi]
     b_u[5, 0] = drive.amplifier_gain * wi * wi
-    if current is not None:                    # dI = C_i z_i + D_i w0 enters as K_T dI / m12
-        fa, fb, fc, fd = current
-        a[6:6 + n_cur, 6:6 + n_cur] = fa
-        b_w[6:6 + n_cur, 0] = fb[:, 0]
-        a[1, 6:6 + n_cur] = kt / m12 * fc[0]
-        b_w[1, 0] = kt / m12 * fd[0, 0]
-    if sensor is None:
-        return a, b_u, b_w, None
-    j, wc, zc = 6 + n_cur, sensor.omega, sensor.zeta      # y'' = wc^2 (x1 + n_s - y) - 2 zeta wc y'
-    a[j, j + 1] = 1.0
-    a[j + 1, [0, j, j + 1]] = [wc * wc, -wc * wc, -2.0 * zc * wc]
-    b_w[j + 1, 1] = wc * wc                    # n_s, white (config check)
-    return a, b_u, b_w, j
+    fc, fd = _add_filter(a, b_w, 0, plant.current_noise, 6)     # dI = C_i z_i + D_i w0 enters as K_T dI / m12
+    a[1, 6:6 + n_cur] = kt / m12 * fc
+    b_w[1, 0] = kt / m12 * fd
+    if sensor is not None:                     # y'' = wc^2 (x1 + n_s - y) - 2 zeta wc y'
+        wc, zc = plant.sensor_bandwidth.omega, plant.sensor_bandwidth.zeta
+        a[sensor, sensor + 1] = 1.0
+        a[sensor + 1, [0, sensor, sensor + 1]] = [wc * wc, -wc * wc, -2.0 * zc * wc]
+        b_w[sensor + 1, 1] = wc * wc           # n_s, white (config check)
+    if accel is None:
+        return FlexureModel(a, b_u, b_w, b_f, sensor, None, slice(6, 6 + n_cur), n)
+    # a_y'' = wa^2 (x1'' + n_a - a_y) - 2 zeta wa a_y', x1'' the mechanics' row 1
+    na_c, na_d = _add_filter(a, b_w, 2, accel.noise, j_acc)
+    k = j_acc + n_acc
+    wa, za = accel.bandwidth.omega, accel.bandwidth.zeta
+    a[k, k + 1] = 1.0
+    a[k + 1] = wa * wa * a[1]
+    a[k + 1, j_acc:k] += wa * wa * na_c
+    a[k + 1, [k, k + 1]] += [-wa * wa, -2.0 * za * wa]
+    b_w[k + 1] = wa * wa * b_w[1]
+    b_w[k + 1, 2] += wa * wa * na_d
+    b_f[k + 1, 0] = wa * wa / m12
+    return FlexureModel(a, b_u, b_w, b_f, sensor, k, slice(6, 6 + n_cur), j_acc)

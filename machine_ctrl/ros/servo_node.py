@@ -47,6 +47,11 @@ class ServoNode(StepNode):
         values = declare_parameters(self, table, {'axes': controlled}, names=('axes', 'feedforward'),
                                     on_change={'feedforward': self.on_feedforward})
         self.servo = ServoGroup(self.machine, values.axes, feedforward=values.feedforward)
+        if self.servo.uses_acceleration:
+            self.get_logger().fatal(f'axes {" ".join(self.servo.uses_acceleration)}: the acceleration loop '
+                                    '(acceleration_gain > 0) needs the accelerometer reading, which the graph does '
+                                    'not carry yet; run it offline (machine-ctrl experiment fts-accel)')
+            raise SystemExit(2)
         self.axes = self.servo.axis_names
         self.declare_gains()
         fine = {p.fine for p in self.machine.dual_stage}

@@ -1,0 +1,25 @@
+"""The rows of the seed tables (``machine-ctrl experiment fts-*``): a reproduced figure, the
+seed's value beside ours, their ratio, and the reason printed when they differ by more than
+the tolerance (30 % by default: the issues' rule for saying why)."""
+from __future__ import annotations
+
+import math
+
+
+def seed_row(name: str, seed, ours: float, unit: str = '', note_if_off: str = '', tol: float = 0.30) -> dict:
+    """`seed` a value or a (low, high) range; `off` when ours is outside it by more than `tol`."""
+    if isinstance(seed, tuple):
+        lo, hi = seed
+        ratio = ours / (0.5 * (lo + hi))
+        off = not (lo * (1 - tol) <= ours <= hi * (1 + tol))
+    else:
+        ratio = ours / seed if seed else float('nan')
+        off = not (abs(ratio - 1) <= tol) if math.isfinite(ratio) else True
+    return {'name': name, 'seed': seed, 'ours': ours, 'ratio': ratio, 'unit': unit,
+            'note': note_if_off if off else '', 'off': bool(off)}
+
+
+def row_text(row: dict, width: int = 48) -> str:
+    """One printed line: name, seed, ours, ratio, unit, and the note when off."""
+    return (f'{row["name"]:<{width}} {row["seed"]:>8.4g} {row["ours"]:>9.4g} {row["ratio"]:>7.3f}  {row["unit"]}'
+            + (f'  > 30 %: {row["note"]}' if row['off'] else ''))
