@@ -195,6 +195,8 @@ HOLD = Service('trajectory/hold', 'std_srvs/srv/Trigger', 'feed hold along the p
 RESUME = Service('trajectory/resume', 'std_srvs/srv/Trigger', 'resume after a hold')
 STOP = Service('trajectory/stop', 'std_srvs/srv/Trigger', 'stop smoothly and drop the program')
 HOME = Service('trajectory/home', 'std_srvs/srv/Trigger', 'move to home (when idle)')
+FREEFORM = Service('trajectory/freeform', 'std_srvs/srv/Trigger',
+                   'start the spindle-slaved freeform cut of the freeform.* parameters (when idle)')
 CANCEL = Service('trajectory/cancel', 'action_msgs/srv/CancelGoal',
                 'cancel the active goal by id (zero id: any): stopped as by stop, then canceled')
 RESET = Service('hw_sim/reset', 'std_srvs/srv/Trigger', 'clear a fault')

@@ -347,6 +347,20 @@ TRAJECTORY = NodeParameters('trajectory_node', (
     LOOKAHEAD_STEPS,
     ParameterSpec('output_topic', STRING, contract.REFERENCE.name, description='where the reference chunks go '
                   f'({contract.TRAJECTORY_REFERENCE.name} when compensation sits between)', required=True),
+    # the freeform cut that contract.FREEFORM starts (trajectory/freeform.py; Ding Ch. 8): read at the call
+    ParameterSpec('freeform.surface', STRING, 'sinusoidal_grid', description='surface: sinusoidal_grid (Ding '
+                  'Table 8-5), beam_integrator (Table 8-4) or the path of a CSV surface table (x, y, height in m); '
+                  f'live: read by {contract.FREEFORM.name}', required=True, live=True),
+    ParameterSpec('freeform.spindle_speed', DOUBLE, 2 * math.pi, 'rad/s', 'spindle speed (default 60 rpm, Ding '
+                  f'Table 8-5); live: read by {contract.FREEFORM.name}', low=0.0, low_open=True, live=True),
+    ParameterSpec('freeform.feed_per_rev', DOUBLE, 5e-6, 'm', 'radial feed per revolution, towards the centre '
+                  f'(Ding Table 8-5); live: read by {contract.FREEFORM.name}', low=0.0, live=True),
+    ParameterSpec('freeform.start_radius', DOUBLE, 25e-3, 'm', 'radius where the cut starts (the 50 mm workpiece '
+                  f'of Ding section 8.5.3); live: read by {contract.FREEFORM.name}', low=0.0, live=True),
+    ParameterSpec('freeform.duration', DOUBLE, 0.1, 's', f'length of the cut; live: read by {contract.FREEFORM.name}',
+                  low=0.0, low_open=True, live=True),
+    ParameterSpec('freeform.start_angle', DOUBLE, 0.0, 'rad', f'spindle angle where the cut starts; live: read by '
+                  f'{contract.FREEFORM.name}', live=True),
 ), checks=(_at_least('lookahead_steps', 'chunk_steps', 2),), sim_time=True)
 
 COMPENSATION = NodeParameters('compensation_node', (

@@ -10,8 +10,10 @@ import sys
 import numpy as np
 import pytest
 
+from limit_checks import assert_within_limits
 from trajectory.freeform import (BeamIntegrator, FreeformStatus, SinusoidalGrid, SurfaceTableError, Turning,
-                                 freeform_reference, read_surface_table)
+                                 freeform_program, freeform_reference, read_surface_table, surface_named)
+from trajectory.moves import AxisState
 
 RPM = 2 * math.pi / 60
 
@@ -122,3 +124,55 @@ def test_the_experiment_prints_each_cut_beside_the_seed_and_the_loop():
     assert 0 < near['ours'] < near['predicted']                  # below the in-phase bound
     for row in rows.values():
         assert not row['off'] or len(row['note']) > 40, row['name']
+
+
+# --- a freeform cut as a motion: entry, cut, stop (what the trajectory node runs) ----------------
+
+SLOW_CUT = Turning(6 * 2 * math.pi / 60, 5e-6, 0.2e-3, 0.005)     # 6 rpm at r = 0.2 mm: a short graph run
+
+
+def test_a_freeform_program_enters_the_cut_under_way_plays_it_and_stops_at_rest(fts_lathe):
+    start = AxisState.at_rest(fts_lathe.home)
+    result = freeform_program(fts_lathe, SinusoidalGrid(), SLOW_CUT, start)
+    assert result.ok, result.reason
+    cut = freeform_reference(fts_lathe, SinusoidalGrid(), SLOW_CUT).reference
+    first, end = result.cut
+    whole = result.reference
+    for name in ('position', 'velocity', 'acceleration'):             # the cut, row for row, computed once
+        assert np.array_equal(getattr(whole, name)[first:end], getattr(cut, name))
+    assert np.array_equal(whole.position[0], fts_lathe.home) and not whole.velocity[0].any()
+    assert np.abs(whole.velocity[-1]).max() < 1e-12 and np.abs(whole.acceleration[-1]).max() < 1e-9   # at rest
+    assert_within_limits(fts_lathe, whole.position)
+
+
+def test_surfaces_by_name_or_table_and_a_refused_cut_gives_the_reason(fts_lathe, tmp_path):
+    assert isinstance(surface_named('sinusoidal_grid'), SinusoidalGrid)
+    assert isinstance(surface_named('beam_integrator'), BeamIntegrator)
+    with pytest.raises(ValueError, match=r"^surface 'spiral': a name \(sinusoidal_grid, beam_integrator\) or a "
+                                         r'\.csv surface table$'):
+        surface_named('spiral')
+    with pytest.raises(SurfaceTableError):
+        surface_named(str(tmp_path / 'missing.csv'))
+    crossing = Turning(SLOW_CUT.spindle_speed, 5e-3, 0.2e-3, 1.0)
+    result = freeform_program(fts_lathe, SinusoidalGrid(), crossing, AxisState.at_rest(fts_lathe.home))
+    assert result.status is FreeformStatus.INVALID_INPUT and 'crosses the spindle centre' in result.reason
+
+
+def test_the_session_plays_a_freeform_goal_and_refuses_a_bad_one_with_the_reason(fts_lathe):
+    from test_trajectory_session import Recorder, run_until_idle
+    from trajectory.session import Session, State
+    out = Recorder()
+    session = Session(fts_lathe, out, 500, 1000)
+    out.session = session
+    session.start_streaming(list(fts_lathe.home), 0)
+    refused = session.freeform('spiral', SLOW_CUT)
+    assert not refused.success and refused.message.startswith("freeform: invalid_input: surface 'spiral'")
+    assert out.goal_changes[-1][1:] == ('aborted', refused.message)
+    answer = session.freeform('sinusoidal_grid', SLOW_CUT)
+    assert answer.success, answer.message
+    start = session.stream.motion.start
+    run_until_idle(session)
+    assert session.state == State.IDLE and out.goal_changes[-1][1] == 'succeeded'
+    program = freeform_program(fts_lathe, SinusoidalGrid(), SLOW_CUT, AxisState.at_rest(fts_lathe.home))
+    streamed = np.array([out.by_step[start + k] for k in range(len(program.reference))])
+    assert np.array_equal(streamed, program.reference.position)

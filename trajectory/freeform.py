@@ -21,6 +21,12 @@ known at the same step, and they differ by C's and X's tracking errors. The fast
 velocity and acceleration are the central differences of its sampled positions (second
 order; one-sided at the ends).
 
+:func:`freeform_program` makes it a motion a machine can run from where it stands: a
+time-optimal jerk-limited entry (Ruckig) to the cut's first state — the spindle at speed, the
+slide at the start radius and feeding, the fast axis on the surface — then the cut, then a
+time-optimal stop; what the trajectory node runs for a freeform goal. :func:`surface_named`
+reads a surface by name (``sinusoidal_grid``, ``beam_integrator``: the thesis's) or CSV path.
+
 :func:`freeform_reference` returns a :class:`FreeformResult` (status, reason, reference):
 a surface that leaves the fast axis's stroke, a feed that crosses the spindle centre, a
 non-finite height or limits exceeded are refused with the reason, nothing clamped. Limits:
@@ -41,7 +47,8 @@ import numpy as np
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.reference import Reference
 from trajectory.axis_limits import TOLERANCE, amount
-from trajectory.moves import stroke_violation
+from trajectory import moves
+from trajectory.moves import AxisState, stroke_violation
 
 
 @dataclass(frozen=True)
@@ -173,6 +180,7 @@ class FreeformResult:
     reason: str = ''
     reference: Reference | None = None
     peaks: dict = field(default_factory=dict)   # axis -> (max |velocity|, max |acceleration|)
+    cut: tuple[int, int] | None = None          # freeform_program: rows [first, end) of the cut
 
     @property
     def ok(self) -> bool:
@@ -237,3 +245,38 @@ def freeform_reference(machine: MachineConfig, surface, turning: Turning, spindl
                                           f'{axis.name} needs a peak {what} of {peak:.4g} {unit}, beyond its limit '
                                           f'{limit:g} {unit}', None, peaks)
     return FreeformResult(FreeformStatus.OK, '', reference, peaks)
+
+
+SURFACES = {'sinusoidal_grid': SinusoidalGrid, 'beam_integrator': BeamIntegrator}   # the thesis's, by name
+
+
+def surface_named(spec: str):
+    """A surface by name (SURFACES) or by the path of a CSV surface table; ValueError with
+    the reason."""
+    if spec in SURFACES:
+        return SURFACES[spec]()
+    if not spec.lower().endswith('.csv'):
+        raise ValueError(f'surface {spec!r}: a name ({", ".join(SURFACES)}) or a .csv surface table')
+    return read_surface_table(spec)
+
+
+def freeform_program(machine: MachineConfig, surface, turning: Turning, start: AxisState,
+                     spindle: str = 'c', radial: str = 'x', fast: str = 'w', check_limits: bool = True) -> FreeformResult:
+    """The cut of :func:`freeform_reference` as a whole motion from `start` (module doc):
+    entry, cut, stop. `cut` in the result: the rows of the cut."""
+    cut = freeform_reference(machine, surface, turning, spindle, radial, fast, check_limits)
+    if not cut.ok:
+        return cut
+    ref = cut.reference
+    first = AxisState(*(tuple(float(v) for v in getattr(ref, f)[0]) for f in ('position', 'velocity', 'acceleration')))
+    last = AxisState(*(tuple(float(v) for v in getattr(ref, f)[-1]) for f in ('position', 'velocity', 'acceleration')))
+    try:
+        entry = moves.move_to_state(machine, first, start)
+        stop = moves.smooth_stop(machine, last)
+    except ValueError as exc:
+        return FreeformResult(FreeformStatus.EXCEEDS_LIMITS, f'no entry into or stop out of the cut: {exc}', None,
+                              cut.peaks)
+    for name in ('position', 'velocity', 'acceleration'):      # Ruckig ends on the first row up to rounding:
+        getattr(entry, name)[-1] = getattr(ref, name)[0]       # the cut's own row is the one played
+    whole = moves.concatenate([entry, ref, stop])
+    return FreeformResult(FreeformStatus.OK, '', whole, cut.peaks, (len(entry) - 1, len(entry) - 1 + len(ref)))

@@ -233,6 +233,22 @@ def stroke_violation(machine: MachineConfig, reference: Reference) -> str:
     return ''
 
 
+def move_to_state(machine: MachineConfig, target: AxisState, start: AxisState, scale: float = 1.0) -> Reference:
+    """Time-optimal jerk-limited move from `start` to `target` (position, velocity and
+    acceleration: e.g. the first row of a cut that begins under way), sampled at the control
+    period; its last row is `target` (Ruckig's discrete duration). ValueError with the reason."""
+    goal = validate_goal(machine, target.position)
+    inp = _input(machine, start, scale)
+    for name in ('velocity', 'acceleration'):
+        values = getattr(target, name)
+        if len(values) != len(goal) or not np.isfinite(values).all():
+            raise ValueError(f'target {name} needs {len(goal)} finite values')
+    inp.target_position = goal.tolist()
+    inp.target_velocity = [float(v) for v in target.velocity]
+    inp.target_acceleration = [float(a) for a in target.acceleration]
+    return _plan(machine, inp)
+
+
 def concatenate(references) -> Reference:
     """References played back to back. Each later one starts with the row the previous one
     ended on (a move from where the previous stopped); that row is played once."""

@@ -65,7 +65,7 @@ from machine_ctrl.diagnostics import PeerLiveliness, Rejections, error_text
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.model.reference import Reference
-from trajectory import moves, toolpath
+from trajectory import freeform, moves, toolpath
 from trajectory.goals import Goal, GoalBook, GoalState
 from trajectory.planner import plan
 from trajectory.stream import ReferenceStream
@@ -338,6 +338,30 @@ class Session:
         goal = self.goals.new('home', 'home', stamp)
         self._begin(waypoint_program(reference, [np.array(self.machine.home, dtype=float)]), 'home', goal)
         return Answer(True, f'homing in {len(self.stream.motion.reference)} steps (goal {goal.uuid})')
+
+    def freeform(self, surface: str, turning: freeform.Turning, stamp: tuple[int, int] = ZERO_STAMP) -> Answer:
+        """A spindle-slaved freeform cut of `surface` (freeform.surface_named) with `turning`,
+        from where the stream holds the machine: entry, cut, stop (freeform.freeform_program),
+        played as one path (a hold ramps the feed override down along it). A goal: only while
+        idle; refused with the reason (status and reason of the freeform result)."""
+        label = f'freeform {surface}'
+        if not self.may_accept('freeform', stamp, label):
+            return Answer(False, self.rejections.last)
+        here = moves.AxisState.at_rest(self.stream.position(self.stream.next_step))
+        try:
+            result = freeform.freeform_program(self.machine, freeform.surface_named(surface), turning, here)
+            reason = '' if result.ok else f'{result.status}: {result.reason}'
+        except ValueError as exc:
+            result, reason = None, f'invalid_input: {exc}'
+        if reason:
+            self.refuse('freeform', reason, stamp, label)
+            return Answer(False, self.rejections.last)
+        reference = result.reference
+        goal = self.goals.new('freeform', label, stamp)
+        self._begin(Program(reference, ['path'], [reference.position[-1]], [len(reference) - 1], [0.0]), label, goal)
+        first, end = result.cut
+        return Answer(True, f'{label}: {len(reference)} steps, the cut from step {first} to {end} of them '
+                            f'(goal {goal.uuid})')
 
     def _begin(self, program: Program, label: str, goal: Goal | None = None) -> None:
         self.stream.start(program.reference, label, self.limits, self.override_setting)

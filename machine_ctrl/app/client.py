@@ -209,6 +209,21 @@ class MachineClient:
         answer = future.result()
         return answer.success, answer.message
 
+    def set_parameters(self, node: str, values: dict, timeout: float = 30.0) -> list[str]:
+        """Set parameters of `node` (relative name, rcl_interfaces/SetParameters, what
+        `ros2 param set` calls); returns the reasons of those refused (empty: all taken)."""
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
+        service = f'{node}/set_parameters'
+        client = self._services.get(service) or self._services.setdefault(
+            service, self.node.create_client(SetParameters, service))
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise Timeout(f'service {service} is not available')
+        request = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+        future = client.call_async(request)
+        self.wait(future.done, f'the answer of {service}', timeout)
+        return [f'{name}: {r.reason}' for name, r in zip(values, future.result().results) if not r.successful]
+
     def cancel(self, goal_id: str | None = None, timeout: float = 30.0):
         """action_msgs/CancelGoal on the trajectory node (`goal_id` None: the active goal);
         returns (return code, ids of the goals now canceling)."""

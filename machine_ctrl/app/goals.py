@@ -12,9 +12,10 @@ import time
 REASON_WAIT = 2.0
 
 
-def goal_outcome(client, stamp) -> tuple[str | None, str | None]:
-    """(goal id or None, its newest state or None) for the goal sent with `stamp`."""
-    goal_id = client.goal_of(stamp)
+def goal_outcome(client, stamp, goal_id: str | None = None) -> tuple[str | None, str | None]:
+    """(goal id or None, its newest state or None) for the goal sent with `stamp` (or of
+    `goal_id`, when known)."""
+    goal_id = goal_id or client.goal_of(stamp)
     return goal_id, (client.goal_state(goal_id) or None) if goal_id else None
 
 
@@ -28,12 +29,13 @@ def _entry(client, goal_id: str, state: str) -> dict:
         time.sleep(0.02)
 
 
-def follow_goal(client, publish, timeout: float, out=sys.stdout) -> int:
+def follow_goal(client, publish, timeout: float, out=sys.stdout, known_id=None) -> int:
     """Send with `publish(stamp)`, follow the goal by its id, show its states and the
     progress until it ends: 0 when it succeeded; 1 when refused or aborted (planning failed,
     machine faulted, hw_sim lost), canceled (stopped), the trajectory node lost (its
     liveliness lease ran out: it can no longer say what became of the goal) or timed out,
-    with the reason in one line on stderr."""
+    with the reason in one line on stderr. `known_id()`: the goal's id when the request had
+    no stamp (a service call answered with it); default: found by the stamp."""
     from machine_ctrl.app.bringup import StateReporter
     from machine_ctrl.app.client import TERMINAL
     stamp = client.stamp_now()
@@ -44,7 +46,7 @@ def follow_goal(client, publish, timeout: float, out=sys.stdout) -> int:
     shown: list[str] = []
     goal_id = state = None
     while True:
-        goal_id, state = goal_outcome(client, stamp)
+        goal_id, state = goal_outcome(client, stamp, known_id and known_id())
         history = client.goal_states.get(goal_id, []) if goal_id else []
         for seen in history[len(shown):]:
             shown.append(seen)

@@ -24,6 +24,12 @@ Inputs (every one validated; a refused goal moves nothing and its reason is publ
   from there; one that cannot act before the motion ends answers `success: false` with
   the reason (`too late: ...`).
 * `/trajectory/home` (std_srvs/Trigger): move to the machine's home at rest.
+* `/trajectory/freeform` (std_srvs/Trigger): the spindle-slaved freeform cut of the
+  `freeform.*` parameters (surface, spindle speed, feed per revolution, start radius and
+  angle, duration; trajectory/freeform.py, Ding Ch. 8): a jerk-limited entry to the cut's
+  first state (spindle at speed, slide feeding, fast axis on the surface), the cut computed
+  for every step from the commanded spindle angle and radius, a time-optimal stop. Played
+  as a path (a hold ramps the feed override down along it).
 * `/trajectory/cancel` (action_msgs/CancelGoal): cancel the active goal by id (zero id:
   whatever goal is active; a stamp: only a goal stamped at or before it), as a stop.
 
@@ -82,6 +88,7 @@ from machine_ctrl.diagnostics import error_text
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.ros.node_common import main_for, qos, use_sim_time, wall_timer, watch_liveliness
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
+from trajectory.freeform import Turning
 from trajectory.goals import Goal, GoalState
 from trajectory.session import Answer, Session, plan_path, planner_process_init
 
@@ -119,7 +126,10 @@ class TrajectoryNode(Node):
         use_sim_time(self)
         self.machine = machine_parameter(self)
         # feed is live: a new value applies from the next tool path planned
-        values = declare_parameters(self, parameters.TRAJECTORY, on_change={'feed': lambda v: setattr(self, 'feed', v)})
+        freeform_names = [p.name for p in parameters.TRAJECTORY.parameters if p.name.startswith('freeform.')]
+        values = declare_parameters(self, parameters.TRAJECTORY, on_change={'feed': lambda v: setattr(self, 'feed', v),
+                                                                           **{n: lambda _v: None for n in freeform_names}})
+        self.parameter_values = values             # kept current: the freeform.* ones are read at the call
         self.feed, self.chunk_steps, self.lookahead = values.feed, values.chunk_steps, values.lookahead_steps
         output_topic = values.output_topic
         self.clock = ros_io.StepClock.of(self.machine)
@@ -156,6 +166,7 @@ class TrajectoryNode(Node):
         self.create_service(Trigger, contract.RESUME.name, self.on_resume)
         self.create_service(Trigger, contract.STOP.name, self.on_stop)
         self.create_service(Trigger, contract.HOME.name, self.on_home)
+        self.create_service(Trigger, contract.FREEFORM.name, self.on_freeform)
         self.create_service(CancelGoal, contract.CANCEL.name, self.on_cancel)
         wall_timer(self, 0.05, self.check_planning)
         wall_timer(self, 1.0, self.publish_status)
@@ -265,6 +276,13 @@ class TrajectoryNode(Node):
 
     def on_home(self, request, response):
         return self.answer(response, self.session.home(self.clock.split(self.session.step)))
+
+    def on_freeform(self, request, response):
+        v = self.parameter_values
+        turning = Turning(v['freeform.spindle_speed'], v['freeform.feed_per_rev'], v['freeform.start_radius'],
+                          v['freeform.duration'], v['freeform.start_angle'])
+        return self.answer(response, self.session.freeform(v['freeform.surface'], turning,
+                                                           self.clock.split(self.session.step)))
 
     def on_cancel(self, request, response):
         """action_msgs/CancelGoal on the active goal (trajectory.session.Session.cancel)."""

@@ -1,9 +1,9 @@
-"""``machine-ctrl bringup|send|move|demo``: the running node graph (machine_ctrl.app.bringup
-starts it; send and move are clients of its trajectory node, machine_ctrl.app.goals follows
-their goals by id; demo is machine_ctrl.app.demo). bringup, send and move take the graph's
-``--namespace`` (default the root).
+"""``machine-ctrl bringup|send|move|freeform|demo``: the running node graph
+(machine_ctrl.app.bringup starts it; send, move and freeform are clients of its trajectory
+node, machine_ctrl.app.goals follows their goals by id; demo is machine_ctrl.app.demo).
+bringup, send, move and freeform take the graph's ``--namespace`` (default the root).
 
-send and move wait for the graph to be ready (hw_sim's latched ready, at most 30 s: else
+send, move and freeform wait for the graph to be ready (hw_sim's latched ready, at most 30 s: else
 exit 2 "the graph is not ready after 30 s: is it up? machine-ctrl bringup"), then for the
 trajectory node to hear the goal topic, stamp and publish the goal, and follow it: exit 0
 when it succeeded, 1 when refused, aborted, canceled or timed out (the reason on stderr),
@@ -11,6 +11,7 @@ when it succeeded, 1 when refused, aborted, canceled or timed out (the reason on
 from __future__ import annotations
 
 import math
+import sys
 import time
 
 from machine_ctrl.app.cli.common import error, fresh_directory, namespace_option
@@ -43,6 +44,19 @@ def register(subparsers) -> None:
     move.add_argument('--timeout', type=float, default=600.0, metavar='S', help='give up after S s (wall)')
     namespace_option(move)
     move.set_defaults(run=cmd_move)
+    cut = subparsers.add_parser('freeform', help='a spindle-slaved freeform cut (Ding Ch. 8) on the running graph, '
+                                'followed: the trajectory node\'s freeform.* parameters, then its freeform service')
+    cut.add_argument('surface', nargs='?', help='sinusoidal_grid, beam_integrator or a CSV surface table '
+                     '(default: the node\'s freeform.surface)')
+    for flag, name, text in (('--rpm', 'spindle_speed', 'spindle speed, rpm'),
+                             ('--feed-per-rev', 'feed_per_rev', 'radial feed per revolution, m'),
+                             ('--radius', 'start_radius', 'start radius, m'), ('--duration', 'duration', 'cut, s'),
+                             ('--angle', 'start_angle', 'start angle, rad')):
+        cut.add_argument(flag, dest=name, type=float, help=f'{text} (default: the node\'s freeform.{name})')
+    cut.add_argument('--machine', default=DEFAULT_MACHINE)
+    cut.add_argument('--timeout', type=float, default=3600.0, metavar='S', help='give up after S s (wall)')
+    namespace_option(cut)
+    cut.set_defaults(run=cmd_freeform)
     demo = subparsers.add_parser('demo', help='the main job: helix on the 9-axis machine, recorded and analysed')
     demo.add_argument('--out', metavar='DIR', help='output directory (default: a new temporary directory)')
     demo.add_argument('--turns', type=float, default=DEMO_TURNS, help=f'helix turns (default {DEMO_TURNS:g})')
@@ -86,7 +100,7 @@ def parse_joint_goal(items) -> tuple[list[str], list[float]]:
     return names, values
 
 
-def _run_goal(command: str, machine, timeout: float, send, namespace: str = '') -> int:
+def _run_goal(command: str, machine, timeout: float, send, namespace: str = '', known_id=None) -> int:
     """Wait for the graph (ready, the trajectory node listening), then send(client, stamp)
     and follow the goal."""
     from machine_ctrl.app.client import READY_TIMEOUT, Timeout
@@ -104,7 +118,7 @@ def _run_goal(command: str, machine, timeout: float, send, namespace: str = '') 
                         'the trajectory node (is the graph up? machine-ctrl bringup)', left)
         except Timeout as exc:
             return error(command, exc)
-        return follow_goal(client, lambda stamp: send(client, stamp), timeout)
+        return follow_goal(client, lambda stamp: send(client, stamp), timeout, known_id=known_id)
 
 
 def cmd_send(args) -> int:
@@ -126,6 +140,37 @@ def cmd_move(args) -> int:
         return error('move', exc)
     return _run_goal('move', machine, args.timeout,
                      lambda client, stamp: client.send_goal(names, [values], stamp=stamp), args.namespace)
+
+
+def cmd_freeform(args) -> int:
+    """Set the freeform.* parameters given (the others stay as the node has them), call the
+    freeform service and follow the goal it answers with."""
+    import re
+    from machine_ctrl import contract
+    machine = load_machine(args.machine)
+    values = {f'freeform.{name}': value for name, value in (
+        ('surface', args.surface), ('spindle_speed', None if args.spindle_speed is None else args.spindle_speed * math.pi / 30),
+        ('feed_per_rev', args.feed_per_rev), ('start_radius', args.start_radius), ('duration', args.duration),
+        ('start_angle', args.start_angle)) if value is not None}
+    started: list[str] = []
+
+    def send(client, stamp):
+        refused = client.set_parameters('trajectory', values)
+        if refused:
+            raise Refused('; '.join(refused))
+        ok, message = client.call(contract.FREEFORM.name)
+        if not ok:
+            raise Refused(message)
+        started.append(re.search(r'\(goal ([0-9a-f-]{36})\)', message).group(1))
+    try:
+        return _run_goal('freeform', machine, args.timeout, send, args.namespace, known_id=lambda: started[0])
+    except Refused as exc:
+        print(f'machine-ctrl: refused: {exc}', file=sys.stderr)
+        return 1
+
+
+class Refused(Exception):
+    """The graph refused the request (its reason)."""
 
 
 def cmd_demo(args) -> int:

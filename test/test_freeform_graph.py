@@ -1,0 +1,54 @@
+"""A freeform cut through the running graph (issue [3/8] "Done when"): `machine-ctrl bringup
+fts_lathe --record` at the PID's 199.6 kHz, `machine-ctrl freeform` (the trajectory node's
+freeform.* parameters and /trajectory/freeform) as another program would, Ctrl-C, then the
+bag: the reference the servos got is the cut trajectory/freeform.py computes, row for row,
+W followed it, and `machine-ctrl analyze` reads the session."""
+import json
+import math
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from machine_ctrl.recording import analysis
+from trajectory.freeform import SinusoidalGrid, Turning, freeform_program
+from trajectory.moves import AxisState
+
+EXE = str(Path(sys.executable).with_name('machine-ctrl'))
+CUT = Turning(2 * math.pi / 60, 5e-6, 0.2e-3, 0.005)     # 1 rpm, r = 0.2 mm: ~12,000 steps in all
+
+
+def test_a_freeform_cut_runs_through_the_fts_lathe_graph_recorded_and_analysed(ros_supervisor, ros_env,
+                                                                                  tmp_path, fts_lathe):
+    bag = tmp_path / 'bag'
+    child = ros_supervisor.start('bringup', [EXE, 'bringup', 'fts_lathe', '--record', str(bag)])
+    ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
+
+    def freeform(*args):
+        return subprocess.run([EXE, 'freeform', *args, '--machine', 'fts_lathe'], env=ros_env,
+                              capture_output=True, text=True, timeout=600)
+    refused = freeform('spiral')
+    assert refused.returncode == 1 and "refused: freeform: invalid_input: surface 'spiral'" in refused.stderr, \
+        refused.stderr
+    done = freeform('sinusoidal_grid', '--rpm', '1', '--feed-per-rev', '5e-6', '--radius', '0.0002',
+                    '--duration', '0.005', '--angle', '0')
+    assert done.returncode == 0, done.stderr
+    assert 'done: freeform sinusoidal_grid' in done.stdout
+    child.signal_group(signal.SIGINT)
+    assert ros_supervisor.wait('bringup', timeout=120) == 0
+
+    run = analysis.load(bag)
+    program = freeform_program(fts_lathe, SinusoidalGrid(), CUT, AxisState.at_rest(fts_lathe.home))
+    expected = program.reference.position
+    start = int(np.flatnonzero(np.abs(run.reference - expected[1]).max(axis=1) == 0)[0]) - 1
+    np.testing.assert_array_equal(run.reference[start:start + len(expected)], expected)     # row for row
+    first, end = program.cut
+    w = fts_lathe.axis_names.index('w')
+    following = run.reference[start + first:start + end, w] - run.measured[start + first:start + end, w]
+    assert np.abs(following).max() < 20e-9          # the 1 rpm grid: slow motions, nm errors
+    analyzed = subprocess.run([EXE, 'analyze', str(bag), '--json'], env=ros_env, capture_output=True, text=True,
+                              timeout=300)
+    assert analyzed.returncode == 0, analyzed.stderr
+    assert json.loads(analyzed.stdout)['runs'][0]['machine'] == 'fts_lathe'
