@@ -1,19 +1,19 @@
 """A voice-coil flexure stage (Ding's fast tool servo, seed 003_edeaa855566124b7) as one
 linear time-invariant system, discretized exactly per control period: the model of
-machine_ctrl/model/flexure_model.py (flexure, current loop, sensor low-pass, current and
-sensor noise) with each noise driven by seeded white noise held over the period (variance
-density^2 f_s / 2 per sample: one-sided PSD density^2 up to the Nyquist frequency). The
-ADC's white floor is the sensor's per-sample noise (``plant.sensor_noise``,
-hw_sim/plant.py :class:`Sensor`).
+machine_ctrl/model/flexure_model.py (flexure, current loop, sensor low-pass, accelerometer,
+current, sensor and accelerometer noise, an external force). The noises are continuous white
+noise through the model's columns (one-sided PSD 1/Hz; the columns carry the densities): their
+effect over a period is drawn exactly, a Gaussian vector of the covariance Van Loan's matrix
+exponential gives, from a numpy generator seeded from the plant's stream. The ADC's white
+floor is the sensor's per-sample noise (``plant.sensor_noise``, hw_sim/plant.py
+:class:`Sensor`); the accelerometer's ADC channel is :class:`Accelerometer`.
 
 Loop delay (section 4.4.4, DAC -> ADC): the command computed from the sample at t_k acts from
 t_k + loop_delay; until then the previous command holds. Both pieces are integrated exactly
-(matrix exponentials of the augmented system), so the only approximation is the held noise
-(its sinc^2 roll-off is 0.4 % at 8 kHz for a 199.6 kHz period).
+(matrix exponentials of the augmented system); so is the external force, held over the period.
 
-Not simulated yet (issue [3/8]): the ground vibration (Eq. 6-8; 1.4e-4 nm of the 0.20 nm
-real error at 468 Hz in machine_ctrl/experiments/fts_budget.py), the accelerometer and the
-cutting force.
+Not simulated: the ground vibration (Eq. 6-8; 1.4e-4 nm of the 0.20 nm real error at 468 Hz
+in machine_ctrl/experiments/fts_budget.py).
 """
 from __future__ import annotations
 
@@ -37,11 +37,33 @@ def _held_input(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.
     return d[:n, :n], d[:n, n:]
 
 
+def _noise_factor(a: np.ndarray, b_w: np.ndarray, t: float) -> np.ndarray:
+    """F with F F' = Q, the covariance over `t` of the state driven by white noise of one-sided
+    PSD 1/Hz (intensity 1/2) through b_w: Q = integral_0^t e^{A s} b_w b_w' e^{A' s} ds / 2 (Van
+    Loan's matrix exponential), so that F z, z standard normal, is the period's exact noise."""
+    n = a.shape[0]
+    van_loan = np.zeros((2 * n, 2 * n))
+    van_loan[:n, :n], van_loan[:n, n:], van_loan[n:, n:] = -a, 0.5 * b_w @ b_w.T, a.T
+    e = expm(van_loan * t)
+    q = e[n:, n:].T @ e[:n, n:]
+    # factor the correlation matrix, then each state's own scale: rounding stays relative to
+    # each state's standard deviation (they span from pm to m/s^2), a noiseless state gets none
+    std = np.sqrt(np.clip(np.diag(q), 0.0, None))
+    live = std > 0.0
+    correlation = q[np.ix_(live, live)] / np.outer(std[live], std[live])
+    values, vectors = np.linalg.eigh(0.5 * (correlation + correlation.T))
+    factor = np.zeros((n, n))
+    factor[np.ix_(live, np.arange(live.sum()))] = std[live, None] * vectors * np.sqrt(np.clip(values, 0.0, None))
+    return factor
+
+
 class FlexureAxis(_Actuator):
     """The stage of the module doc; `position` is the true tool position x1, `sensed` the
     sensor's output y (before its per-sample noise and quantization), `acceleration_sensed`
     the accelerometer's output a_y (m/s^2, before its ADC; None without one). `force` (N) is
     the external force on the moving mass over the next period (the cutting force dF)."""
+
+    BLOCK = 4096                                  # noise rows drawn at once (numpy)
 
     def __init__(self, axis: AxisConfig, period: float, rng: random.Random, position: float = 0.0):
         super().__init__(axis, rng)
@@ -51,16 +73,15 @@ class FlexureAxis(_Actuator):
         self._sensor_index, self._accelerometer_index = model.sensor, model.accelerometer
         phi, gamma_new = _held_input(a, model.b_u, period - plant.loop_delay)
         _, gamma_old = _held_input(a, model.b_u, plant.loop_delay)
-        full, gamma_w = _held_input(a, np.hstack([model.b_w, model.b_f]), period)
-        # one matrix, one product per step: state' = M [state, u_{k-1}, u_k, w0, w1, w2, F]
+        full, gamma_f = _held_input(a, model.b_f, period)
+        # one matrix, one product per step: state' = M [state, u_{k-1}, u_k, F] + the period's noise
         self._n = n
-        self._m = np.hstack([full, phi @ gamma_old, gamma_new, gamma_w])
-        accel = plant.accelerometer
-        noises = (plant.current_noise, plant.sensor_noise_density, None if accel is None else accel.noise)
-        # (slot of w_j in v, sigma), drawn in this order; an absent noise's slot stays 0
-        self._noises = [(n + 2 + j, s.density * math.sqrt(0.5 / period)) for j, s in enumerate(noises) if s is not None]
+        self._m = np.hstack([full, phi @ gamma_old, gamma_new, gamma_f])
+        self._noise_factor = _noise_factor(a, model.b_w, period) if model.b_w.any() else None
+        self._noise = np.random.default_rng(rng.getrandbits(64))     # seeded from the plant's stream
+        self._rows, self._row = np.zeros((0, n)), 0
         self.force = 0.0
-        self._v = np.zeros(n + 6)                  # at rest at `position`, the flexure held by the coil
+        self._v = np.zeros(n + 3)                  # at rest at `position`, the flexure held by the coil
         self._v[[0, 2]] = position
         self._v[4] = plant.flexure.stiffness * position / axis.drive.force_constant
         if self._sensor_index is not None:
@@ -87,11 +108,14 @@ class FlexureAxis(_Actuator):
         applied = self.apply(u)
         v, n = self._v, self._n
         v[n + 1] = applied
-        gauss = self.rng.gauss
-        for slot, sigma in self._noises:
-            v[slot] = gauss(0.0, sigma)
-        v[n + 5] = self.force
+        v[n + 2] = self.force
         v[:n] = self._m @ v
+        if self._noise_factor is not None:
+            if self._row == len(self._rows):
+                self._rows = self._noise.standard_normal((self.BLOCK, n)) @ self._noise_factor.T
+                self._row = 0
+            v[:n] += self._rows[self._row]
+            self._row += 1
         v[n] = applied
         return applied
 

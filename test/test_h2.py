@@ -148,3 +148,21 @@ def test_the_command_prints_the_table_as_json(tmp_path):
     table = json.loads(result.stdout)
     assert [r['name'] for r in table['rows']][0] == 'H2 bandwidth (-3 dB, y/r), simulated'
     assert (tmp_path / 'fts_h2.png').stat().st_size > 10_000
+
+
+def test_the_closed_loop_integral_of_the_h2_loop_matches_its_simulation_and_the_flexure_sweep_has_its_minimum(
+        fts_lathe, h2_result):
+    """fts_flexure's continuous-time PSD integral for the Table 5-2 pair against the 20 kHz
+    simulation of fts-h2 (two computations: integrals of spectra vs time steps with exact noise),
+    and Fig. 6-17's sweep on a 3 x 3 grid: with the ground negligible (Eq. 6-8 in volts) a stiffer,
+    more damped flexure follows better than Table 5-2's."""
+    from machine_ctrl.experiments import fts_flexure
+    machine = fts_h2.machine_at(fts_lathe, 1.0 / fts_h2.RATE_HZ, 'h2')
+    f = np.geomspace(0.1, 0.5 * fts_h2.RATE_HZ, 1500)
+    integral = fts_flexure.closed_loop_budget(machine, f)
+    simulated = h2_result['runs']['h2']
+    assert integral['following']['rms'] == pytest.approx(simulated['following_rms'], rel=0.15)
+    assert integral['real']['rms'] == pytest.approx(simulated['real_rms'], rel=0.15)
+    sweep = fts_flexure.sweep(machine, False, (1e4, 1e5, 1e6), (1.0, 100.0, 1e4), f)
+    assert np.isfinite(sweep['following_rms']).all()
+    assert (sweep['k2'], sweep['c2']) == (1e6, 1e4) and sweep['minimum'] < integral['following']['rms']

@@ -42,7 +42,7 @@ import numpy as np
 from hw_sim import offline
 from machine_ctrl.experiments import fts_budget
 from machine_ctrl.experiments.fts_freeform import sine_amplitude
-from machine_ctrl.experiments.seed_rows import row_text, seed_row
+from machine_ctrl.experiments.seed_rows import print_table, row_text, seed_row
 from machine_ctrl.model.config import MachineConfig, load_machine
 from trajectory.freeform import axis_sine
 
@@ -259,9 +259,7 @@ def plots(result: dict, directory) -> list[str]:
 
 
 def main(argv=None) -> int:
-    result = reproduce()
-    print(format_table(result))
-    return 0 if result['status'] == 'ok' else 1
+    return print_table(reproduce, format_table)
 
 
 if __name__ == '__main__':

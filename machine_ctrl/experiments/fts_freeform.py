@@ -34,7 +34,7 @@ import numpy as np
 
 from hw_sim import offline
 from machine_ctrl.experiments import fts_budget
-from machine_ctrl.experiments.seed_rows import seed_row
+from machine_ctrl.experiments.seed_rows import print_table, seed_row
 from machine_ctrl.model.config import MachineConfig, load_machine
 from trajectory.freeform import BeamIntegrator, SinusoidalGrid, Turning, axis_sine, freeform_reference
 
@@ -169,9 +169,7 @@ def format_table(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    result = reproduce()
-    print(format_table(result))
-    return 0 if result['status'] == 'ok' else 1
+    return print_table(reproduce, format_table)
 
 
 if __name__ == '__main__':

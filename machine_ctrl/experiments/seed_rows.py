@@ -23,3 +23,10 @@ def row_text(row: dict, width: int = 48) -> str:
     """One printed line: name, seed, ours, ratio, unit, and the note when off."""
     return (f'{row["name"]:<{width}} {row["seed"]:>8.4g} {row["ours"]:>9.4g} {row["ratio"]:>7.3f}  {row["unit"]}'
             + (f'  > 30 %: {row["note"]}' if row['off'] else ''))
+
+
+def print_table(reproduce, format_table) -> int:
+    """``python -m`` of a seed-table experiment: its table on stdout; exit 0, or 1 when it failed."""
+    result = reproduce()
+    print(format_table(result))
+    return 0 if result['status'] == 'ok' else 1

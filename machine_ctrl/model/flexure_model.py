@@ -44,8 +44,9 @@ def noise_filter(noise: NoiseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 @dataclass(frozen=True)
 class FlexureModel:
-    """x' = a x + b_u u + b_w w + b_f F: u the DAC volts, w unit white noise [current, sensor,
-    accelerometer] (a column of zeros where the axis has no such noise), F a force on the
+    """x' = a x + b_u u + b_w w + b_f F: u the DAC volts, w white noise of one-sided PSD 1 per Hz
+    [current, sensor, accelerometer] (each column carries its noise's density; zeros where the
+    axis has no such noise), F a force on the
     moving mass m12 (N; the cutting force dF of Eq. 7-7). States [x1, v1, x4, v4, i, di], the
     current-noise filter's, the sensor's [y, y'], the accelerometer noise filter's, the
     accelerometer's [a_y, a_y'] (the last four groups only when configured); `sensor` and
@@ -107,7 +108,8 @@ def continuous_model(axis: AxisConfig) -> FlexureModel:
         wc, zc = plant.sensor_bandwidth.omega, plant.sensor_bandwidth.zeta
         a[sensor, sensor + 1] = 1.0
         a[sensor + 1, [0, sensor, sensor + 1]] = [wc * wc, -wc * wc, -2.0 * zc * wc]
-        b_w[sensor + 1, 1] = wc * wc           # n_s, white (config check)
+        density = 0.0 if plant.sensor_noise_density is None else plant.sensor_noise_density.density
+        b_w[sensor + 1, 1] = wc * wc * density  # n_s, white (config check)
     if accel is None:
         return FlexureModel(a, b_u, b_w, b_f, sensor, None, slice(6, 6 + n_cur), n)
     # a_y'' = wa^2 (x1'' + n_a - a_y) - 2 zeta wa a_y', x1'' the mechanics' row 1

@@ -63,6 +63,8 @@ SEED_TABLES = (
     ('fts-accel', 'fts_accel', 'reproduce',
      "Ding Ch. 7: acceleration feedback on fts_lathe's W, dynamic compliance and the intermittent cut, offline",
      'write fts_accel.png: dynamic compliance (Figs. 7-13, 7-14) and the cut (Fig. 7-17)'),
+    ('fts-flexure', 'fts_flexure', 'reproduce',
+     "Ding section 6.5.2, Fig. 6-17: W's following error under the H2 law over flexure stiffness and damping", None),
     ('fts-identify', 'fts_identify', 'reproduce',
      "Ding section 5.5: Table 5-2 from a stepped-sine FRF of fts_lathe's W stage by a grey-box fit", None),
 )
@@ -267,9 +269,9 @@ def _scalars(value):
 
 
 def cmd_seed_table(args) -> int:
-    """midrange (machine_ctrl.experiments.midrange.table_3_1), fts-budget, fts-freeform, fts-h2,
-    fts-accel and fts-identify (their reproduce()): the table seed | ours | ratio, or --json;
-    exit 1 when the experiment reports a failure (its reason on stderr)."""
+    """midrange (machine_ctrl.experiments.midrange.table_3_1) and the fts-* experiments (their
+    reproduce()): the table seed | ours | ratio, or --json; exit 1 when the experiment reports
+    a failure (its reason on stderr)."""
     import importlib
     module = importlib.import_module(f'machine_ctrl.experiments.{args.module}')
     result = getattr(module, args.entry)()
