@@ -153,6 +153,8 @@ def test_surfaces_by_name_or_table_and_a_refused_cut_gives_the_reason(fts_lathe,
         surface_named('spiral')
     with pytest.raises(SurfaceTableError):
         surface_named(str(tmp_path / 'missing.csv'))
+    too_long = freeform_reference(fts_lathe, SinusoidalGrid(), Turning(SLOW_CUT.spindle_speed, 0.0, 0.2e-3, 6.0))
+    assert too_long.status is FreeformStatus.INVALID_INPUT and 'beyond the 5.25' in too_long.reason, too_long.reason
     crossing = Turning(SLOW_CUT.spindle_speed, 5e-3, 0.2e-3, 1.0)
     result = freeform_program(fts_lathe, SinusoidalGrid(), crossing, AxisState.at_rest(fts_lathe.home))
     assert result.status is FreeformStatus.INVALID_INPUT and 'crosses the spindle centre' in result.reason

@@ -205,6 +205,10 @@ def freeform_reference(machine: MachineConfig, surface, turning: Turning, spindl
     steps = int(round(t.duration / period)) + 1
     if steps < 3:
         return FreeformResult(bad, f'duration {t.duration:g} s is shorter than two control periods')
+    if steps > moves.MAX_GOAL_STEPS:
+        return FreeformResult(bad, f'duration {t.duration:g} s is beyond the '
+                                   f'{moves.MAX_GOAL_STEPS * period:g} s a cut may last ({moves.MAX_GOAL_STEPS} control '
+                                   'steps: it is computed in memory)')
     time = np.arange(steps) * period
     radial_speed = t.feed_per_rev * t.spindle_speed / (2 * math.pi)
     end_radius = t.start_radius - radial_speed * time[-1]
