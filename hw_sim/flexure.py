@@ -12,12 +12,11 @@ Loop delay (section 4.4.4, DAC -> ADC): the command computed from the sample at 
 t_k + loop_delay; until then the previous command holds. Both pieces are integrated exactly
 (matrix exponentials of the augmented system); so is the external force, held over the period.
 
-Not simulated: the ground vibration (Eq. 6-8; 1.4e-4 nm of the 0.20 nm real error at 468 Hz
+Not simulated: the ground vibration (Eq. 6-8; 1.4e-4 nm of the 0.20 nm real error at 468 Hz,
 in machine_ctrl/experiments/fts_budget.py).
 """
 from __future__ import annotations
 
-import math
 import random
 
 import numpy as np
@@ -25,16 +24,7 @@ from scipy.linalg import expm
 
 from hw_sim.plant import _Actuator, quantize
 from machine_ctrl.model.config import AxisConfig
-from machine_ctrl.model.flexure_model import continuous_model
-
-
-def _held_input(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
-    """(e^{A t}, integral_0^t e^{A s} ds B): a zero-order-held input over t."""
-    n, m = a.shape[0], b.shape[1]
-    augmented = np.zeros((n + m, n + m))
-    augmented[:n, :n], augmented[:n, n:] = a, b
-    d = expm(augmented * t)
-    return d[:n, :n], d[:n, n:]
+from machine_ctrl.model.flexure_model import continuous_model, held_input
 
 
 def _noise_factor(a: np.ndarray, b_w: np.ndarray, t: float) -> np.ndarray:
@@ -71,9 +61,9 @@ class FlexureAxis(_Actuator):
         model = continuous_model(axis)
         a, n = model.a, model.a.shape[0]
         self._sensor_index, self._accelerometer_index = model.sensor, model.accelerometer
-        phi, gamma_new = _held_input(a, model.b_u, period - plant.loop_delay)
-        _, gamma_old = _held_input(a, model.b_u, plant.loop_delay)
-        full, gamma_f = _held_input(a, model.b_f, period)
+        phi, gamma_new = held_input(a, model.b_u, period - plant.loop_delay)
+        _, gamma_old = held_input(a, model.b_u, plant.loop_delay)
+        full, gamma_f = held_input(a, model.b_f, period)
         # one matrix, one product per step: state' = M [state, u_{k-1}, u_k, F] + the period's noise
         self._n = n
         self._m = np.hstack([full, phi @ gamma_old, gamma_new, gamma_f])

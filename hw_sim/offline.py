@@ -58,7 +58,10 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     rec = {name: np.empty((steps, n))
            for name in ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')}
     offsets_log = np.zeros((steps, len(fine_index)))
-    forces = {axis: np.asarray(f, dtype=float) for axis, f in (forces or {}).items()}
+    forces = {axis: np.asarray(f, dtype=float).reshape(-1) for axis, f in (forces or {}).items()}
+    empty = [axis for axis, f in forces.items() if not len(f)]
+    if empty:
+        raise ValueError(f'forces for {", ".join(empty)}: no values')
     for k in range(steps):
         for axis, f in forces.items():
             simulator.set_force(axis, f[min(k, len(f) - 1)])

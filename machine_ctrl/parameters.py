@@ -361,6 +361,8 @@ TRAJECTORY = NodeParameters('trajectory_node', (
                   low=0.0, low_open=True, live=True),
     ParameterSpec('freeform.start_angle', DOUBLE, 0.0, 'rad', f'spindle angle where the cut starts; live: read by '
                   f'{contract.FREEFORM.name}', live=True),
+    ParameterSpec('freeform.lead', DOUBLE, 0.02, 's', 'time over which the fast axis lands on the surface before the '
+                  f'cut and lifts off after it; live: read by {contract.FREEFORM.name}', low=0.0, high=1.0, live=True),
 ), checks=(_at_least('lookahead_steps', 'chunk_steps', 2),), sim_time=True)
 
 COMPENSATION = NodeParameters('compensation_node', (

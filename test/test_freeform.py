@@ -138,8 +138,9 @@ def test_a_freeform_program_enters_the_cut_under_way_plays_it_and_stops_at_rest(
     cut = freeform_reference(fts_lathe, SinusoidalGrid(), SLOW_CUT).reference
     first, end = result.cut
     whole = result.reference
-    for name in ('position', 'velocity', 'acceleration'):             # the cut, row for row, computed once
-        assert np.array_equal(getattr(whole, name)[first:end], getattr(cut, name))
+    assert np.array_equal(whole.position[first:end], cut.position)    # the cut, row for row
+    for name in ('velocity', 'acceleration'):      # the same central differences, but at the cut's ends
+        assert np.array_equal(getattr(whole, name)[first + 2:end - 2], getattr(cut, name)[2:-2])
     assert np.array_equal(whole.position[0], fts_lathe.home) and not whole.velocity[0].any()
     assert np.abs(whole.velocity[-1]).max() < 1e-12 and np.abs(whole.acceleration[-1]).max() < 1e-9   # at rest
     assert_within_limits(fts_lathe, whole.position)
@@ -160,21 +161,49 @@ def test_surfaces_by_name_or_table_and_a_refused_cut_gives_the_reason(fts_lathe,
     assert result.status is FreeformStatus.INVALID_INPUT and 'crosses the spindle centre' in result.reason
 
 
-def test_the_session_plays_a_freeform_goal_and_refuses_a_bad_one_with_the_reason(fts_lathe):
+def test_the_session_plays_a_planned_freeform_goal_and_aborts_a_bad_one_with_the_reason(fts_lathe):
+    """What the trajectory node does: plan_freeform in its planner process, then the session."""
     from test_trajectory_session import Recorder, run_until_idle
-    from trajectory.session import Session, State
+    from trajectory.session import Session, State, plan_freeform
     out = Recorder()
     session = Session(fts_lathe, out, 500, 1000)
     out.session = session
     session.start_streaming(list(fts_lathe.home), 0)
-    refused = session.freeform('spiral', SLOW_CUT)
-    assert not refused.success and refused.message.startswith("freeform: invalid_input: surface 'spiral'")
-    assert out.goal_changes[-1][1:] == ('aborted', refused.message)
-    answer = session.freeform('sinusoidal_grid', SLOW_CUT)
-    assert answer.success, answer.message
+    goal = session.planning('freeform spiral', kind='freeform')
+    session.path_planned(*plan_freeform(fts_lathe, 'spiral', SLOW_CUT, fts_lathe.home))
+    assert goal.state.text == 'aborted' and goal.reason.startswith("freeform: planning failed: surface 'spiral'")
+    assert session.state == State.IDLE
+    session.planning('freeform sinusoidal_grid', kind='freeform')
+    reference, failure = plan_freeform(fts_lathe, 'sinusoidal_grid', SLOW_CUT, fts_lathe.home)
+    assert failure == ''
+    session.path_planned(reference, failure)
     start = session.stream.motion.start
     run_until_idle(session)
     assert session.state == State.IDLE and out.goal_changes[-1][1] == 'succeeded'
-    program = freeform_program(fts_lathe, SinusoidalGrid(), SLOW_CUT, AxisState.at_rest(fts_lathe.home))
-    streamed = np.array([out.by_step[start + k] for k in range(len(program.reference))])
-    assert np.array_equal(streamed, program.reference.position)
+    streamed = np.array([out.by_step[start + k] for k in range(len(reference))])
+    assert np.array_equal(streamed, reference.position)
+
+
+def test_huge_or_unreadable_inputs_are_reasons_not_exceptions(fts_lathe, tmp_path):
+    from trajectory.session import plan_freeform
+    reference, failure = plan_freeform(fts_lathe, 'sinusoidal_grid', Turning(1.0, 0.0, 1e-3, 1e308), fts_lathe.home)
+    assert reference is None and 'beyond the 5.25' in failure
+    wide = tmp_path / 'wide.csv'
+    wide.write_text('0,0,' + '1' * 200_000 + '\n')                 # a field beyond the csv module's limit
+    reference, failure = plan_freeform(fts_lathe, str(wide), SLOW_CUT, fts_lathe.home)
+    assert reference is None and failure.startswith(f'{wide}: not a CSV surface table: '), failure
+
+
+def test_the_default_cut_stays_inside_every_stroke_and_limit(fts_lathe):
+    """The node's default freeform.* values (60 rpm at r = 25 mm, Ding Table 8-5) at a duration
+    that ends with W moving fast: W lands and lifts off under way, the slow axes' entry and stop
+    never drag it along (it stays at home while they move)."""
+    result = freeform_program(fts_lathe, SinusoidalGrid(), Turning(2 * math.pi, 5e-6, 25e-3, 0.099),
+                              AxisState.at_rest(fts_lathe.home))
+    assert result.ok, result.reason
+    w = fts_lathe.axis('w')
+    column = result.reference.position[:, fts_lathe.axis_names.index('w')]
+    assert w.stroke[0] <= column.min() and column.max() <= w.stroke[1]
+    first, end = result.cut
+    assert not column[:first - int(round(0.02 / fts_lathe.control_period))].any()      # home through the entry
+    assert_within_limits(fts_lathe, result.reference.position)

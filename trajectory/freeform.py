@@ -22,9 +22,12 @@ velocity and acceleration are the central differences of its sampled positions (
 order; one-sided at the ends).
 
 :func:`freeform_program` makes it a motion a machine can run from where it stands: a
-time-optimal jerk-limited entry (Ruckig) to the cut's first state — the spindle at speed, the
-slide at the start radius and feeding, the fast axis on the surface — then the cut, then a
-time-optimal stop; what the trajectory node runs for a freeform goal. :func:`surface_named`
+time-optimal jerk-limited entry (Ruckig) that brings the spindle up to speed and the slide to
+its radius and feed with the fast axis at rest at its home; a lead-in over which the fast axis
+lands on the surface (still slaved to the spindle angle and radius, its height faded in); the
+cut; the lead-out (faded out); a time-optimal stop. The fast axis never moves with the slow
+axes' entry or stop, so its stroke holds whatever the spindle needs to get up to speed; what
+the trajectory node runs for a freeform goal. :func:`surface_named`
 reads a surface by name (``sinusoidal_grid``, ``beam_integrator``: the thesis's) or CSV path.
 
 :func:`freeform_reference` returns a :class:`FreeformResult` (status, reason, reference):
@@ -118,6 +121,8 @@ def read_surface_table(path) -> SurfaceTable:
                 rows.append([float(v) for v in row])
     except OSError as exc:
         raise SurfaceTableError(f'{path}: cannot read: {exc.strerror or exc}') from None
+    except (csv.Error, UnicodeDecodeError) as exc:
+        raise SurfaceTableError(f'{path}: not a CSV surface table: {exc}') from None
     data = np.array(rows, dtype=float).reshape(-1, 3)
     if not np.all(np.isfinite(data)):
         raise SurfaceTableError(f'{path}: row {int(np.flatnonzero(~np.isfinite(data).all(axis=1))[0]) + 1}: '
@@ -188,8 +193,12 @@ class FreeformResult:
 
 
 def freeform_reference(machine: MachineConfig, surface, turning: Turning, spindle: str = 'c',
-                       radial: str = 'x', fast: str = 'w', check_limits: bool = True) -> FreeformResult:
-    """The spindle-slaved reference of the module doc: every other axis at its home."""
+                       radial: str = 'x', fast: str = 'w', check_limits: bool = True,
+                       lead: float = 0.0) -> FreeformResult:
+    """The spindle-slaved reference of the module doc: every other axis at its home. With
+    `lead` > 0 s the spindle and the slide run `lead` longer at each end (the same formulas:
+    the cut's rows are the same numbers) while the fast axis lands on the surface from its home
+    and lifts off it again, its height times a septic smoothstep (position to jerk continuous)."""
     bad = FreeformStatus.INVALID_INPUT
     for role, name in (('spindle', spindle), ('radial', radial), ('fast', fast)):
         if name not in machine.axis_names:
@@ -202,14 +211,17 @@ def freeform_reference(machine: MachineConfig, surface, turning: Turning, spindl
         return FreeformResult(bad, 'spindle speed and duration must be > 0 and the feed >= 0, got '
                                    f'{t.spindle_speed:g} rad/s, {t.duration:g} s, {t.feed_per_rev:g} m/rev')
     period = machine.control_period
-    steps = int(round(t.duration / period)) + 1
-    if steps < 3:
-        return FreeformResult(bad, f'duration {t.duration:g} s is shorter than two control periods')
-    if steps > moves.MAX_GOAL_STEPS:
+    if not (math.isfinite(lead) and lead >= 0):
+        return FreeformResult(bad, f'lead must be >= 0 s, got {lead!r}')
+    if (t.duration + 2 * lead) / period > moves.MAX_GOAL_STEPS:
         return FreeformResult(bad, f'duration {t.duration:g} s is beyond the '
                                    f'{moves.MAX_GOAL_STEPS * period:g} s a cut may last ({moves.MAX_GOAL_STEPS} control '
                                    'steps: it is computed in memory)')
-    time = np.arange(steps) * period
+    steps = int(round(t.duration / period)) + 1
+    if steps < 3:
+        return FreeformResult(bad, f'duration {t.duration:g} s is shorter than two control periods')
+    led = int(round(lead / period))
+    time = np.arange(-led, steps + led) * period
     radial_speed = t.feed_per_rev * t.spindle_speed / (2 * math.pi)
     end_radius = t.start_radius - radial_speed * time[-1]
     if end_radius < 0:
@@ -224,12 +236,12 @@ def freeform_reference(machine: MachineConfig, surface, turning: Turning, spindl
         return FreeformResult(bad, f'the surface has no finite height at x = {radius[k] * math.cos(theta[k]):.6g} m, '
                                    f'y = {radius[k] * math.sin(theta[k]):.6g} m (t = {time[k]:.6g} s)')
     names = machine.axis_names
-    position = np.tile(np.asarray(machine.home, dtype=float), (steps, 1))
+    position = np.tile(np.asarray(machine.home, dtype=float), (len(time), 1))
     velocity, acceleration = np.zeros_like(position), np.zeros_like(position)
     ic, ir, iw = (names.index(a) for a in (spindle, radial, fast))
     position[:, ic], velocity[:, ic] = theta, t.spindle_speed
     position[:, ir], velocity[:, ir] = radius, -radial_speed
-    position[:, iw] = position[0, iw] + height
+    position[:, iw] = position[0, iw] + height * _landing(len(time), led)
     velocity[:, iw] = np.gradient(position[:, iw], period, edge_order=2)
     acceleration[:, iw] = np.gradient(velocity[:, iw], period, edge_order=2)
     reference = Reference(names, period, position, velocity, acceleration)
@@ -251,7 +263,21 @@ def freeform_reference(machine: MachineConfig, surface, turning: Turning, spindl
     return FreeformResult(FreeformStatus.OK, '', reference, peaks)
 
 
+def _landing(n: int, led: int) -> np.ndarray:
+    """1 over n rows but the first and last `led`, which rise from 0 and fall to 0 by the septic
+    smoothstep 35x^4 - 84x^5 + 70x^6 - 20x^7 (zero slope to the third derivative at both ends)."""
+    weight = np.ones(n)
+    if led:
+        x = np.arange(led) / led
+        ramp = x ** 4 * (35 - 84 * x + 70 * x * x - 20 * x ** 3)
+        weight[:led], weight[n - led:] = ramp, ramp[::-1]
+    return weight
+
+
 SURFACES = {'sinusoidal_grid': SinusoidalGrid, 'beam_integrator': BeamIntegrator}   # the thesis's, by name
+LEAD = 0.02     # s, assumed: the fast axis lands on the surface and lifts off over 20 ms (module doc)
+JUNCTION_SCALE = 0.98   # the entry and stop at 98 % of the limits: sampled across their junctions with the
+                        # cut (at speed) the jerk would otherwise read up to ~1 % over (test_freeform.py)
 
 
 def surface_named(spec: str):
@@ -265,22 +291,31 @@ def surface_named(spec: str):
 
 
 def freeform_program(machine: MachineConfig, surface, turning: Turning, start: AxisState,
-                     spindle: str = 'c', radial: str = 'x', fast: str = 'w', check_limits: bool = True) -> FreeformResult:
+                     spindle: str = 'c', radial: str = 'x', fast: str = 'w', check_limits: bool = True,
+                     lead: float = LEAD) -> FreeformResult:
     """The cut of :func:`freeform_reference` as a whole motion from `start` (module doc):
-    entry, cut, stop. `cut` in the result: the rows of the cut."""
-    cut = freeform_reference(machine, surface, turning, spindle, radial, fast, check_limits)
+    an entry that brings the spindle and the slide up to the cut's speeds (the fast axis home,
+    at rest), the lead-in, the cut, the lead-out, a stop. `cut` in the result: the rows of the
+    cut (those of freeform_reference without a lead)."""
+    cut = freeform_reference(machine, surface, turning, spindle, radial, fast, check_limits, lead)
     if not cut.ok:
         return cut
     ref = cut.reference
-    first = AxisState(*(tuple(float(v) for v in getattr(ref, f)[0]) for f in ('position', 'velocity', 'acceleration')))
-    last = AxisState(*(tuple(float(v) for v in getattr(ref, f)[-1]) for f in ('position', 'velocity', 'acceleration')))
+    led = int(round(lead / machine.control_period))
+    into, out_of = (AxisState(*(tuple(float(v) for v in getattr(ref, f)[row]) for f in ('position', 'velocity',
+                                                                                      'acceleration')))
+                    for row in (0, -1))
     try:
-        entry = moves.move_to_state(machine, first, start)
-        stop = moves.smooth_stop(machine, last)
+        entry = moves.move_to_state(machine, into, start, JUNCTION_SCALE)
+        stop = moves.smooth_stop(machine, out_of, JUNCTION_SCALE)
     except ValueError as exc:
         return FreeformResult(FreeformStatus.EXCEEDS_LIMITS, f'no entry into or stop out of the cut: {exc}', None,
                               cut.peaks)
     for name in ('position', 'velocity', 'acceleration'):      # Ruckig ends on the first row up to rounding:
         getattr(entry, name)[-1] = getattr(ref, name)[0]       # the cut's own row is the one played
     whole = moves.concatenate([entry, ref, stop])
-    return FreeformResult(FreeformStatus.OK, '', whole, cut.peaks, (len(entry) - 1, len(entry) - 1 + len(ref)))
+    if len(whole) > 2 * moves.MAX_GOAL_STEPS:
+        return FreeformResult(FreeformStatus.INVALID_INPUT, f'entry, cut and stop take {len(whole)} control steps, '
+                                                            f'beyond {2 * moves.MAX_GOAL_STEPS}', None, cut.peaks)
+    first = len(entry) - 1 + led
+    return FreeformResult(FreeformStatus.OK, '', whole, cut.peaks, (first, first + len(ref) - 2 * led))

@@ -174,6 +174,18 @@ def plan_path(machine: MachineConfig, cl: toolpath.CLData, feed: float) -> tuple
     return (result.plan.reference, '') if result.ok else (None, result.reason)
 
 
+def plan_freeform(machine: MachineConfig, surface: str, turning: freeform.Turning, start,
+                  lead: float = freeform.LEAD) -> tuple[Reference | None, str]:
+    """A freeform cut (freeform.freeform_program) from `start` (positions, at rest), in the
+    node's planner process: (the whole motion, '') or (None, the reason). Any error is a reason."""
+    try:
+        result = freeform.freeform_program(machine, freeform.surface_named(surface), turning,
+                                           moves.AxisState.at_rest(start), lead=lead)
+    except Exception as exc:  # noqa: BLE001 - a bad surface file or parameter refuses the goal, nothing else
+        return None, error_text(exc)
+    return (result.reference, '') if result.ok else (None, f'{result.status}: {result.reason}')
+
+
 class Session:
     """One machine's trajectory session (module docstring). `chunk_steps`: rows per chunk
     handed to Outputs.rows; `lookahead`: rows kept streamed ahead of the newest step."""
@@ -272,9 +284,10 @@ class Session:
         return False
 
     # -- goals -----------------------------------------------------------------------------
-    def planning(self, label: str, stamp: tuple[int, int] = ZERO_STAMP) -> Goal:
-        """A tool path (`label`) accepted (after may_accept) and handed to the planner."""
-        self.planning_goal = self.goals.new('path', label, stamp)
+    def planning(self, label: str, stamp: tuple[int, int] = ZERO_STAMP, kind: str = 'path') -> Goal:
+        """A tool path (or a freeform cut: `kind`), `label`, accepted (after may_accept) and
+        handed to the planner."""
+        self.planning_goal = self.goals.new(kind, label, stamp)
         self.goals.set(self.planning_goal, GoalState.ACCEPTED)
         self._set_state(State.PLANNING)
         return self.planning_goal
@@ -285,8 +298,9 @@ class Session:
         return self.state == State.PLANNING
 
     def path_planned(self, reference: Reference | None, failure: str = '') -> None:
-        """The planner's outcome: the path's references, or why it failed. Ignored unless
-        planning. Starts the approach and the path, or refuses the path (idle)."""
+        """The planner's outcome: the path's references (or a freeform cut's whole motion, which
+        starts where the machine is held: its approach is empty), or why it failed. Ignored
+        unless planning. Starts the approach and the path, or refuses the path (idle)."""
         if not self.awaiting_plan:
             return
         goal = self.planning_goal
@@ -302,7 +316,7 @@ class Session:
                                     [len(approach) - 1, len(whole) - 1], [0.0, 0.0]), self.planning_label)
                 return
         self._set_state(State.IDLE)
-        self.refuse('path', f'planning failed: {failure}')
+        self.refuse(goal.kind if goal is not None else 'path', f'planning failed: {failure}')
         if goal is not None:
             self.goals.set(goal, GoalState.ABORTED, self.rejections.last)
 
@@ -338,30 +352,6 @@ class Session:
         goal = self.goals.new('home', 'home', stamp)
         self._begin(waypoint_program(reference, [np.array(self.machine.home, dtype=float)]), 'home', goal)
         return Answer(True, f'homing in {len(self.stream.motion.reference)} steps (goal {goal.uuid})')
-
-    def freeform(self, surface: str, turning: freeform.Turning, stamp: tuple[int, int] = ZERO_STAMP) -> Answer:
-        """A spindle-slaved freeform cut of `surface` (freeform.surface_named) with `turning`,
-        from where the stream holds the machine: entry, cut, stop (freeform.freeform_program),
-        played as one path (a hold ramps the feed override down along it). A goal: only while
-        idle; refused with the reason (status and reason of the freeform result)."""
-        label = f'freeform {surface}'
-        if not self.may_accept('freeform', stamp, label):
-            return Answer(False, self.rejections.last)
-        here = moves.AxisState.at_rest(self.stream.position(self.stream.next_step))
-        try:
-            result = freeform.freeform_program(self.machine, freeform.surface_named(surface), turning, here)
-            reason = '' if result.ok else f'{result.status}: {result.reason}'
-        except ValueError as exc:
-            result, reason = None, f'invalid_input: {exc}'
-        if reason:
-            self.refuse('freeform', reason, stamp, label)
-            return Answer(False, self.rejections.last)
-        reference = result.reference
-        goal = self.goals.new('freeform', label, stamp)
-        self._begin(Program(reference, ['path'], [reference.position[-1]], [len(reference) - 1], [0.0]), label, goal)
-        first, end = result.cut
-        return Answer(True, f'{label}: {len(reference)} steps, the cut from step {first} to {end} of them '
-                            f'(goal {goal.uuid})')
 
     def _begin(self, program: Program, label: str, goal: Goal | None = None) -> None:
         self.stream.start(program.reference, label, self.limits, self.override_setting)

@@ -21,7 +21,7 @@ The generalized plant (Figs. 6-2, 6-3), continuous time, built by :func:`augment
 Not in the design (stated in the README): the cutting-force weight W_fc (section 6.3.1:
 "a degree of freedom to adjust the dynamic stiffness curve"; its value is not printed) and
 the ground vibration W_g (Eq. 6-8; read in sensor volts, as machine_ctrl/experiments/fts_budget.py
-does, it is 1e-4 of the error budget; hw_sim does not simulate it).
+does, it is under 1e-3 of the error budget's RMS; hw_sim does not simulate it).
 
 A filter pole at s = 0 (the 1/s of Eq. 6-7) cannot be steered by any controller, and the
 Riccati equations then have no stabilizing solution (machine_ctrl/control/h2_synthesis.py);
@@ -50,7 +50,7 @@ from scipy import linalg, signal
 from machine_ctrl.control.h2_synthesis import GeneralizedPlant, H2Result, H2Status, StateSpace, h2_synthesis
 from machine_ctrl.control.law import Parameter, gains_change_problem, retune_checked
 from machine_ctrl.model.config import AxisConfig, H2Gains
-from machine_ctrl.model.flexure_model import continuous_model
+from machine_ctrl.model.flexure_model import continuous_model, held_input
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ def h2_design(axis: AxisConfig, gains: H2Gains, period: float) -> H2Design:
     k = _balanced(result.controller)
     ad, bd, cd, dd, _ = signal.cont2discrete((k.a, k.b, k.c, k.d), period, method='bilinear')
     discrete = StateSpace(ad, bd, cd, dd)
-    if _sampled_loop_radius(p, discrete, period) >= 1.0:
+    if _sampled_loop_radius(axis, discrete, period) >= 1.0:
         return H2Design(H2Status.NO_SOLUTION, f'axis {axis.name}: the sampled loop with the discretized '
                                               'controller is unstable (a shorter control period helps)', p)
     return H2Design(H2Status.OK, '', p, k, discrete, period, result.norm)
@@ -152,14 +152,28 @@ def _balanced(k: StateSpace) -> StateSpace:
     return StateSpace(k.a * sc / sc[:, None], k.b / sc[:, None], k.c * sc, k.d)
 
 
-def _sampled_loop_radius(p: GeneralizedPlant, k: StateSpace, period: float) -> float:
-    """Spectral radius of the design's stage (weights left out; the delay as its Pade
-    approximant) held over `period` and closed by the discrete controller `k`. An H2
+def _sampled_loop_radius(axis: AxisConfig, k: StateSpace, period: float) -> float:
+    """Spectral radius of the sampled loop as hw_sim runs it: the stage (noise filters left
+    out: nothing in the loop drives them) discretized exactly with the command of the sample
+    at t_k applied from t_k + loop_delay, closed by the discrete controller `k`. An H2
     controller may itself be unstable (module doc); its loop may not."""
-    n = p.a.shape[0] - 2                                   # without the W_e and W_u states
-    phi, gamma, _, _, _ = signal.cont2discrete((p.a[:n, :n], p.b2[:n], p.c2[:, :n], np.zeros((1, 1))), period)
-    c2 = p.c2[:, :n]
-    loop = np.block([[phi + gamma @ k.d @ c2, gamma @ k.c], [k.b @ c2, k.a]])
+    model = continuous_model(axis)
+    keep = [i for i in range(model.core) if not model.current_noise.start <= i < model.current_noise.stop]
+    a, b = model.a[np.ix_(keep, keep)], model.b_u[keep]
+    y = keep.index(0 if model.sensor is None else model.sensor)
+    delay = axis.plant.loop_delay
+    phi, gamma_new = held_input(a, b, period - delay)
+    _, gamma_old = held_input(a, b, delay)
+    n, nk = len(keep), k.a.shape[0]
+    # states [x, u_{k-1}, controller]; u_k = C s_k + D y_k, y_k = x_k[y]
+    c_y = np.zeros((1, n))
+    c_y[0, y] = 1.0
+    loop = np.zeros((n + 1 + nk, n + 1 + nk))
+    loop[:n, :n] = phi + gamma_new @ k.d @ c_y
+    loop[:n, n] = (phi @ gamma_old)[:, 0]
+    loop[:n, n + 1:] = gamma_new @ k.c
+    loop[n, :n], loop[n, n + 1:] = (k.d @ c_y)[0], k.c[0]
+    loop[n + 1:, :n], loop[n + 1:, n + 1:] = k.b @ c_y, k.a
     return float(np.max(np.abs(np.linalg.eigvals(loop))))
 
 

@@ -133,10 +133,8 @@ def h2_synthesis(plant: GeneralizedPlant) -> H2Result:
     f = -np.linalg.solve(r1, b2.T @ x + d12.T @ c1)
     gain = -np.linalg.solve(r2, (y @ c2.T + b1 @ d21.T).T).T
     k = StateSpace(a + b2 @ f + gain @ c2, -gain, f, np.zeros((b2.shape[1], c2.shape[0])))
-    if np.max(np.linalg.eigvals(closed_loop(plant, k).a).real) >= 0.0:
+    norm = h2_norm(closed_loop(plant, k))
+    if not np.isfinite(norm):
         return H2Result(H2Status.NO_SOLUTION, 'the Riccati solutions do not stabilize the loop (numerically '
                                               'ill-posed plant: check the scaling of its weights)')
-    # the optimal cost from the Riccati solutions (Zhou, Doyle and Glover Thm. 14.7): well conditioned
-    # where a Lyapunov equation of the closed loop is not (weights with poles near s = 0)
-    cost = np.trace(b1.T @ x @ b1) + np.trace(r1 @ f @ y @ f.T)
-    return H2Result(H2Status.OK, '', k, float(np.sqrt(max(cost, 0.0))))
+    return H2Result(H2Status.OK, '', k, norm)

@@ -106,6 +106,6 @@ class ServoGroup:
             for servo in self.servos:
                 servo.set_feedforward(self.feedforward_requested)
             self.feedforward, self.feedforward_requested = self.feedforward_requested, None
-        acc = acc or (0.0,) * len(self.servos)
+        acc = (0.0,) * len(self.servos) if acc is None else acc
         return [s.step(xr, vr, ar, x, v, am)
                 for s, xr, vr, ar, x, v, am in zip(self.servos, ref_pos, ref_vel, ref_acc, pos, vel, acc)]

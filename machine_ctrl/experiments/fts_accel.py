@@ -40,7 +40,6 @@ import os
 import numpy as np
 
 from hw_sim import offline
-from machine_ctrl.experiments import fts_budget
 from machine_ctrl.experiments.fts_freeform import sine_amplitude
 from machine_ctrl.experiments.seed_rows import print_table, row_text, seed_row
 from machine_ctrl.model.config import MachineConfig, load_machine
@@ -194,7 +193,8 @@ def reproduce(machine: MachineConfig | None = None, frequencies=FREQUENCIES) -> 
                          cuts[ka]['peak_deviation'] / c0['peak_deviation'], '1',
                          'the surface form is the tool deviation over the whole track, averaged over 0.2 mm '
                          '(section 7.6.2); here the peak deviation at the entry'))
-    runs = {'force_n': force, 'cuts': cuts, 'compliance': curves, 'other_sensitivity_reading': other_reading,
+    runs = {'force_n': force, 'period': base.control_period, 'cuts': cuts, 'compliance': curves,
+            'other_sensitivity_reading': other_reading,
             'kg': {ka: mass_factor(base, ka) for ka in CUT_GAINS}}
     return {'status': 'ok', 'reason': '', 'machine': machine.name, 'rows': rows, 'runs': runs}
 
@@ -244,7 +244,7 @@ def plots(result: dict, directory) -> list[str]:
     ax.set_xlabel('frequency [Hz]')
     ax.set_ylabel('|X/dF| [m/N]')
     ax.legend(fontsize=7)
-    period = 1.0 / 199.6e3                               # s, the machine's (fts_lathe.yaml)
+    period = runs['period']
     for ka, c in runs['cuts'].items():
         t = (np.arange(len(c['following'])) - c['entry']) * period * 1e3
         axc.plot(t, c['following'] / NM, lw=0.7, label=f'K_a = {ka:g} ({c["peak_following"] / NM:.0f} nm)')

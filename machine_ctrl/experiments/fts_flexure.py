@@ -56,7 +56,7 @@ def closed_loop_budget(machine: MachineConfig, f: np.ndarray, ground_in_metres: 
     if not design.ok:
         raise ValueError(design.reason)
     model, k = continuous_model(axis), design.continuous
-    n, y = model.core, model.sensor
+    n, y = model.core, 0 if model.sensor is None else model.sensor
     a, b_u = model.a[:n, :n], model.b_u[:n, 0]
     tau = axis.plant.loop_delay + 0.5 * period
     nk = k.a.shape[0]

@@ -21,7 +21,9 @@ def seed_row(name: str, seed, ours: float, unit: str = '', note_if_off: str = ''
 
 def row_text(row: dict, width: int = 48) -> str:
     """One printed line: name, seed, ours, ratio, unit, and the note when off."""
-    return (f'{row["name"]:<{width}} {row["seed"]:>8.4g} {row["ours"]:>9.4g} {row["ratio"]:>7.3f}  {row["unit"]}'
+    seed = row['seed']
+    seed = f'{seed[0]:g}-{seed[1]:g}' if isinstance(seed, tuple) else f'{seed:.4g}'
+    return (f'{row["name"]:<{width}} {seed:>8} {row["ours"]:>9.4g} {row["ratio"]:>7.3f}  {row["unit"]}'
             + (f'  > 30 %: {row["note"]}' if row['off'] else ''))
 
 

@@ -14,7 +14,7 @@ with the current noise dI the output of its shaping filter (Eq. 6-7 form, `curre
 n_s the sensor's electronics noise (band-limited by the sensor itself, Eq. 6-6) and n_a the
 accelerometer's (through its conditioning low-pass, section 7.5.1), each the response to
 unit white noise; a force F on m12 (the cutting force dF of Eq. 7-7) enters as F / m12.
-Not modelled: the ground vibration (Eq. 6-8; 1e-4 of the error budget,
+Not modelled: the ground vibration (Eq. 6-8; under 1e-3 of the error budget's RMS,
 machine_ctrl/experiments/fts_budget.py).
 """
 from __future__ import annotations
@@ -23,8 +23,18 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
+from scipy.linalg import expm
 
 from machine_ctrl.model.config import AxisConfig, NoiseConfig
+
+
+def held_input(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(e^{A t}, integral_0^t e^{A s} ds B): the exact effect of an input held over t."""
+    n, m = a.shape[0], b.shape[1]
+    augmented = np.zeros((n + m, n + m))
+    augmented[:n, :n], augmented[:n, n:] = a, b
+    d = expm(augmented * t)
+    return d[:n, :n], d[:n, n:]
 
 
 def noise_filter(noise: NoiseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

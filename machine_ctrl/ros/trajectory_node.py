@@ -26,10 +26,12 @@ Inputs (every one validated; a refused goal moves nothing and its reason is publ
 * `/trajectory/home` (std_srvs/Trigger): move to the machine's home at rest.
 * `/trajectory/freeform` (std_srvs/Trigger): the spindle-slaved freeform cut of the
   `freeform.*` parameters (surface, spindle speed, feed per revolution, start radius and
-  angle, duration; trajectory/freeform.py, Ding Ch. 8): a jerk-limited entry to the cut's
+  angle, duration, lead-in/out time; trajectory/freeform.py, Ding Ch. 8): a jerk-limited entry to the cut's
   first state (spindle at speed, slide feeding, fast axis on the surface), the cut computed
-  for every step from the commanded spindle angle and radius, a time-optimal stop. Played
-  as a path (a hold ramps the feed override down along it).
+  for every step from the commanded spindle angle and radius, a time-optimal stop. Planned in
+  the planner process as a tool path is (the answer names the goal; a cut that cannot be
+  made aborts it with the reason) and played as one (a hold ramps the feed override down
+  along it).
 * `/trajectory/cancel` (action_msgs/CancelGoal): cancel the active goal by id (zero id:
   whatever goal is active; a stamp: only a goal stamped at or before it), as a stop.
 
@@ -90,7 +92,7 @@ from machine_ctrl.ros.node_common import main_for, qos, use_sim_time, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 from trajectory.freeform import Turning
 from trajectory.goals import Goal, GoalState
-from trajectory.session import Answer, Session, plan_path, planner_process_init
+from trajectory.session import Answer, Session, plan_freeform, plan_path, planner_process_init
 
 LATCHED = ros_io.qos(contract.LATCHED_QOS)
 GOAL_QOS = ros_io.qos(contract.COMMAND_QOS)
@@ -278,11 +280,19 @@ class TrajectoryNode(Node):
         return self.answer(response, self.session.home(self.clock.split(self.session.step)))
 
     def on_freeform(self, request, response):
+        """Plan the cut of the freeform.* parameters in the planner process (as a tool path:
+        the goal accepted now, aborted with the reason if it cannot be cut)."""
         v = self.parameter_values
+        stamp, label = self.clock.split(self.session.step), f'freeform {v["freeform.surface"]}'
+        if not self.session.may_accept('freeform', stamp, label):
+            return self.answer(response, Answer(False, self.session.rejections.last))
         turning = Turning(v['freeform.spindle_speed'], v['freeform.feed_per_rev'], v['freeform.start_radius'],
                           v['freeform.duration'], v['freeform.start_angle'])
-        return self.answer(response, self.session.freeform(v['freeform.surface'], turning,
-                                                           self.clock.split(self.session.step)))
+        here = self.session.stream.position(self.session.stream.next_step)
+        self.planning = self.planner.submit(plan_freeform, self.machine, v['freeform.surface'], turning, here,
+                                            v['freeform.lead'])
+        goal = self.session.planning(label, stamp, kind='freeform')
+        return self.answer(response, Answer(True, f'planning {label} (goal {goal.uuid})'))
 
     def on_cancel(self, request, response):
         """action_msgs/CancelGoal on the active goal (trajectory.session.Session.cancel)."""

@@ -51,7 +51,8 @@ def register(subparsers) -> None:
     for flag, name, text in (('--rpm', 'spindle_speed', 'spindle speed, rpm'),
                              ('--feed-per-rev', 'feed_per_rev', 'radial feed per revolution, m'),
                              ('--radius', 'start_radius', 'start radius, m'), ('--duration', 'duration', 'cut, s'),
-                             ('--angle', 'start_angle', 'start angle, rad')):
+                             ('--angle', 'start_angle', 'start angle, rad'),
+                             ('--lead', 'lead', 'landing and lift-off time of the fast axis, s')):
         cut.add_argument(flag, dest=name, type=float, help=f'{text} (default: the node\'s freeform.{name})')
     cut.add_argument('--machine', default=DEFAULT_MACHINE)
     cut.add_argument('--timeout', type=float, default=3600.0, metavar='S', help='give up after S s (wall)')
@@ -151,7 +152,7 @@ def cmd_freeform(args) -> int:
     values = {f'freeform.{name}': value for name, value in (
         ('surface', args.surface), ('spindle_speed', None if args.spindle_speed is None else args.spindle_speed * math.pi / 30),
         ('feed_per_rev', args.feed_per_rev), ('start_radius', args.start_radius), ('duration', args.duration),
-        ('start_angle', args.start_angle)) if value is not None}
+        ('start_angle', args.start_angle), ('lead', args.lead)) if value is not None}
     started: list[str] = []
 
     def send(client, stamp):
@@ -159,13 +160,18 @@ def cmd_freeform(args) -> int:
         if refused:
             raise Refused('; '.join(refused))
         ok, message = client.call(contract.FREEFORM.name)
-        if not ok:
+        goal = re.search(r'\(goal ([0-9a-f-]{36})\)', message)
+        if not ok or goal is None:
             raise Refused(message)
-        started.append(re.search(r'\(goal ([0-9a-f-]{36})\)', message).group(1))
+        started.append(goal.group(1))
+    from machine_ctrl.app.client import Timeout
     try:
         return _run_goal('freeform', machine, args.timeout, send, args.namespace, known_id=lambda: started[0])
     except Refused as exc:
         print(f'machine-ctrl: refused: {exc}', file=sys.stderr)
+        return 1
+    except Timeout as exc:
+        print(f'machine-ctrl: freeform: {exc}', file=sys.stderr)
         return 1
 
 
