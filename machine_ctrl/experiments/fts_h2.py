@@ -1,6 +1,6 @@
 """Ding's H2-optimal fast tool servo against the PID (seed 003_edeaa855566124b7, Ch. 6) on
-the machine ``fts_lathe``, offline: W alone (no dual-stage offsets, as section 6.4 measured
-it) at the thesis's 20 kHz (section 6.4.1), every noise of the plant on.
+the machine ``fts_lathe``, offline: W alone (as section 6.4 measured it) at the thesis's
+20 kHz (section 6.4.1), every noise of the plant on.
 
 * The H2 law (machine_ctrl/control/h2.py) with the YAML's weights (the lower W_u of Fig. 6-7);
   its -3 dB bandwidth of y/r measured by a stepped sine on the simulated loop (thesis: about
@@ -58,16 +58,16 @@ FIG_6_5_WEIGHTS = {'control_weight': 1e8, 'control_bandwidth': 1e8}   # section 
 
 
 def machine_at(machine: MachineConfig, period: float, law: str, **gains) -> MachineConfig:
-    """`machine` at `period` with W's law `law` (its gains section changed by `gains`)."""
-    axes = []
-    for axis in machine.axes:
-        if axis.name == AXIS:
-            control = axis.control
-            if gains:
-                control = dataclasses.replace(control, **{law: dataclasses.replace(getattr(control, law), **gains)})
-            axis = dataclasses.replace(axis, control=dataclasses.replace(control, law=law))
-        axes.append(axis)
-    return dataclasses.replace(machine, control_period=period, axes=tuple(axes))
+    """W of `machine` alone (C, X, Z left out: without the dual-stage offsets nothing couples
+    them to W, and W's noise streams are seeded by its own name) at `period` with the law
+    `law` (its gains section changed by `gains`)."""
+    axis = machine.axis(AXIS)
+    control = axis.control
+    if gains:
+        control = dataclasses.replace(control, **{law: dataclasses.replace(getattr(control, law), **gains)})
+    axis = dataclasses.replace(axis, control=dataclasses.replace(control, law=law))
+    return dataclasses.replace(machine, control_period=period, axes=(axis,), home=(machine.home[
+        machine.axis_names.index(AXIS)],), dual_stage=())
 
 
 def _run(machine: MachineConfig, reference: Reference):
