@@ -75,6 +75,7 @@ class ServoGroup:
                        for n in self.axis_names]
         self.feedforward = feedforward
         self.feedforward_requested: bool | None = None      # a switch waiting for a rest
+        self._no_acceleration = (0.0,) * len(self.servos)
 
     def servo(self, axis: str) -> AxisServo:
         return self.servos[self.axis_names.index(axis)]
@@ -106,6 +107,6 @@ class ServoGroup:
             for servo in self.servos:
                 servo.set_feedforward(self.feedforward_requested)
             self.feedforward, self.feedforward_requested = self.feedforward_requested, None
-        acc = (0.0,) * len(self.servos) if acc is None else acc
+        acc = self._no_acceleration if acc is None else acc
         return [s.step(xr, vr, ar, x, v, am)
                 for s, xr, vr, ar, x, v, am in zip(self.servos, ref_pos, ref_vel, ref_acc, pos, vel, acc)]

@@ -35,13 +35,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 
 import numpy as np
 
 from hw_sim import offline
+from machine_ctrl.experiments import fts_h2
 from machine_ctrl.experiments.fts_freeform import sine_amplitude
-from machine_ctrl.experiments.seed_rows import print_table, row_text, seed_row
+from machine_ctrl.experiments.seed_rows import print_table, row_text, save_figure, seed_row, two_panels
 from machine_ctrl.model.config import MachineConfig, load_machine
 from trajectory.freeform import axis_sine
 
@@ -68,30 +68,29 @@ THESIS = {
 CALIBRATION = 'peak_ka0_nm'
 
 
-def mass_factor(machine: MachineConfig, ka: float) -> float:
-    """K_g = (M + K_a H_acc H_I K_T)/M at DC (section 7.4.1, seed-notes.md), M = m1 + m2."""
+def mass_factor(machine: MachineConfig, ka: float, sensitivity: float | None = None) -> float:
+    """K_g = (M + K_a H_acc H_I K_T)/M at DC (section 7.4.1, seed-notes.md), M = m1 + m2
+    (H_acc: the law's, or `sensitivity`)."""
     axis = machine.axis(AXIS)
-    gains = axis.control.pid
+    h_acc = axis.control.pid.accelerometer_sensitivity if sensitivity is None else sensitivity
     m = axis.drive.mass
-    return (m + ka * gains.accelerometer_sensitivity * axis.drive.amplifier_gain * axis.drive.force_constant) / m
+    return (m + ka * h_acc * axis.drive.amplifier_gain * axis.drive.force_constant) / m
 
 
 def w_alone(machine: MachineConfig, ka: float, scaled: bool, sensitivity: float | None = None) -> MachineConfig:
     """The machine with only W, its PID with K_a = `ka` (and the gains times K_g when `scaled`;
     `sensitivity`: another H_acc for the law and the accelerometer both)."""
-    axis = machine.axis(AXIS)
     if sensitivity is not None:
+        axis = machine.axis(AXIS)
         accel = dataclasses.replace(axis.plant.accelerometer, sensitivity=sensitivity)
         axis = dataclasses.replace(axis, plant=dataclasses.replace(axis.plant, accelerometer=accel))
-        axis = dataclasses.replace(axis, control=dataclasses.replace(
-            axis.control, pid=dataclasses.replace(axis.control.pid, accelerometer_sensitivity=sensitivity)))
-    single = dataclasses.replace(machine, axes=(axis,), home=(0.0,), dual_stage=())
-    g = axis.control.pid
-    kg = mass_factor(single, ka) if scaled else 1.0
-    pid = dataclasses.replace(g, proportional=g.proportional * kg, integral=g.integral * kg,
-                              derivative=g.derivative * kg, acceleration_gain=ka)
-    axis = dataclasses.replace(axis, control=dataclasses.replace(axis.control, pid=pid))
-    return dataclasses.replace(single, axes=(axis,))
+        machine = dataclasses.replace(machine, axes=tuple(axis if a.name == AXIS else a for a in machine.axes))
+    g = machine.axis(AXIS).control.pid
+    sensed = g.accelerometer_sensitivity if sensitivity is None else sensitivity
+    kg = mass_factor(machine, ka, sensed) if scaled else 1.0
+    return fts_h2.machine_at(machine, machine.control_period, 'pid', proportional=g.proportional * kg,
+                             integral=g.integral * kg, derivative=g.derivative * kg, acceleration_gain=ka,
+                             accelerometer_sensitivity=sensed)
 
 
 def _run(machine: MachineConfig, duration: float, force: np.ndarray):
@@ -232,12 +231,8 @@ def plots(result: dict, directory) -> list[str]:
     """Dynamic compliance (Figs. 7-13, 7-14) and the cut's following errors (Fig. 7-17)."""
     if result.get('status') != 'ok':
         return []
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    os.makedirs(directory, exist_ok=True)
     runs = result['runs']
-    fig, (ax, axc) = plt.subplots(1, 2, figsize=(12, 4.5))
+    plt, fig, (ax, axc) = two_panels(directory)
     for (name, c), colour in zip(runs['compliance'].items(), ('tab:blue', 'tab:orange', 'tab:green')):
         ax.loglog(c['f'], c['simulated'], 'o', color=colour, ms=3, label=f'{name} simulated')
         ax.loglog(c['f'], c['eq_7_9'], '-', color=colour, lw=1, label=f'{name} Eq. (7-9)')
@@ -251,11 +246,7 @@ def plots(result: dict, directory) -> list[str]:
     axc.set_xlabel('time from the entry [ms]')
     axc.set_ylabel('following error [nm] (Fig. 7-17)')
     axc.legend(fontsize=7)
-    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.11, top=0.96, wspace=0.22)
-    path = os.path.join(directory, 'fts_accel.png')
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return [path]
+    return [save_figure(plt, fig, directory, 'fts_accel.png')]
 
 
 def main(argv=None) -> int:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 
 import numpy as np
 
@@ -30,7 +29,7 @@ from hw_sim import offline
 from machine_ctrl.control.h2 import h2_design
 from machine_ctrl.experiments import fts_budget
 from machine_ctrl.experiments.fts_freeform import sine_amplitude
-from machine_ctrl.experiments.seed_rows import print_table, row_text, seed_row
+from machine_ctrl.experiments.seed_rows import print_table, row_text, save_figure, seed_row, two_panels
 from machine_ctrl.model.config import MachineConfig, load_machine
 from machine_ctrl.model.reference import Reference
 from trajectory.freeform import axis_sine
@@ -202,12 +201,8 @@ def plots(result: dict, directory) -> list[str]:
     errors (Fig. 6-12). Returns the paths written."""
     if result.get('status') != 'ok':
         return []
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    os.makedirs(directory, exist_ok=True)
     runs = result['runs']
-    fig, (ax, axs) = plt.subplots(1, 2, figsize=(12, 4.5))
+    plt, fig, (ax, axs) = two_panels(directory)
     for key, label in (('h2', 'H2'), ('pid_1500', 'PID 1.5 kHz'), ('pid_same_bandwidth', 'PID, H2 bandwidth')):
         r = runs[key]
         bw = r['bandwidth'] if key == 'h2' else r
@@ -222,11 +217,7 @@ def plots(result: dict, directory) -> list[str]:
     axs.set_ylabel('following error amplitude [nm] (Fig. 6-12)')
     ax.legend(fontsize=8)
     axs.legend(fontsize=8)
-    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.11, top=0.96, wspace=0.22)
-    path = os.path.join(directory, 'fts_h2.png')
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return [path]
+    return [save_figure(plt, fig, directory, 'fts_h2.png')]
 
 
 def main(argv=None) -> int:

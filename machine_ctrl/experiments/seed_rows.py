@@ -27,6 +27,29 @@ def row_text(row: dict, width: int = 48) -> str:
             + (f'  > 30 %: {row["note"]}' if row['off'] else ''))
 
 
+def two_panels(directory):
+    """(matplotlib's pyplot, a figure with two side-by-side axes) for a seed table's PNG, the
+    directory made; :func:`save_figure` writes it."""
+    import os
+
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    os.makedirs(directory, exist_ok=True)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    return plt, fig, axes
+
+
+def save_figure(plt, fig, directory, name: str) -> str:
+    """Write `fig` as DIRECTORY/NAME (the seed tables' layout and resolution), close it; the path."""
+    import os
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.11, top=0.96, wspace=0.22)
+    path = os.path.join(directory, name)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
 def print_table(reproduce, format_table) -> int:
     """``python -m`` of a seed-table experiment: its table on stdout; exit 0, or 1 when it failed."""
     result = reproduce()
