@@ -1,7 +1,8 @@
 """A voice-coil flexure stage (Ding's fast tool servo, seed 003_edeaa855566124b7) as one
 linear time-invariant system, discretized exactly per control period: the model of
 machine_ctrl/model/flexure_model.py (flexure, current loop, sensor low-pass, accelerometer,
-current, sensor and accelerometer noise, an external force). The noises are continuous white
+current, sensor and accelerometer noise, the ground's motion at the flexure's root, an external
+force). The noises are continuous white
 noise through the model's columns (one-sided PSD 1/Hz; the columns carry the densities): their
 effect over a period is drawn exactly, a Gaussian vector of the covariance Van Loan's matrix
 exponential gives, from a numpy generator seeded from the plant's stream. The ADC's white
@@ -12,11 +13,10 @@ Loop delay (section 4.4.4, DAC -> ADC): the command computed from the sample at 
 t_k + loop_delay; until then the previous command holds. Both pieces are integrated exactly
 (matrix exponentials of the augmented system); so is the external force, held over the period.
 
-Not simulated: the ground vibration (Eq. 6-8; 1.4e-4 nm of the 0.20 nm real error at 468 Hz,
-in machine_ctrl/experiments/fts_budget.py).
 """
 from __future__ import annotations
 
+import math
 import random
 
 import numpy as np
@@ -29,13 +29,24 @@ from machine_ctrl.model.flexure_model import continuous_model, held_input
 
 def _noise_factor(a: np.ndarray, b_w: np.ndarray, t: float) -> np.ndarray:
     """F with F F' = Q, the covariance over `t` of the state driven by white noise of one-sided
-    PSD 1/Hz (intensity 1/2) through b_w: Q = integral_0^t e^{A s} b_w b_w' e^{A' s} ds / 2 (Van
-    Loan's matrix exponential), so that F z, z standard normal, is the period's exact noise."""
+    PSD 1/Hz (intensity 1/2) through b_w: Q = integral_0^t e^{A s} b_w b_w' e^{A' s} ds / 2, so
+    that F z, z standard normal, is the period's exact noise. Van Loan's matrix exponential over
+    a slice h = t / 2^k short enough that e^{-A h} stays moderate (its |eig| h <= 1: the
+    formula subtracts products of e^{-A h} and e^{A h}, which loses every digit across the stiff
+    poles of the current loop and the ground's roll-off over a whole period), then doubled k
+    times: Q(2h) = Q(h) + e^{A h} Q(h) e^{A' h}."""
     n = a.shape[0]
+    fastest = float(np.max(np.abs(np.linalg.eigvals(a)))) if n else 0.0
+    k = max(0, math.ceil(math.log2(fastest * t))) if fastest * t > 1.0 else 0
+    h = t / 2 ** k
     van_loan = np.zeros((2 * n, 2 * n))
     van_loan[:n, :n], van_loan[:n, n:], van_loan[n:, n:] = -a, 0.5 * b_w @ b_w.T, a.T
-    e = expm(van_loan * t)
-    q = e[n:, n:].T @ e[:n, n:]
+    e = expm(van_loan * h)
+    phi, q = e[n:, n:].T, e[n:, n:].T @ e[:n, n:]
+    for _ in range(k):
+        q = q + phi @ q @ phi.T
+        phi = phi @ phi
+    q = 0.5 * (q + q.T)
     # factor the correlation matrix, then each state's own scale: rounding stays relative to
     # each state's standard deviation (they span from pm to m/s^2), a noiseless state gets none
     std = np.sqrt(np.clip(np.diag(q), 0.0, None))

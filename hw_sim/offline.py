@@ -55,9 +55,10 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     coupling = DualStageCoupling(machine, dual_stage=dual_stage)
     fine_index = [machine.axis_names.index(a) for a in coupling.fine_axes]
     n = len(machine.axes)
-    rec = {name: np.empty((steps, n))
-           for name in ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')}
-    offsets_log = np.zeros((steps, len(fine_index)))
+    names = ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')
+    rows = [[] for _ in names]            # per step one tuple each; arrays at the end (cheaper per step)
+    reference_rows, measured_rows, velocity_rows, effort_rows, true_rows, command_rows = rows
+    offsets_rows = []
     forces = {axis: np.asarray(f, dtype=float).reshape(-1) for axis, f in (forces or {}).items()}
     empty = [axis for axis, f in forces.items() if not len(f)]
     if empty:
@@ -70,13 +71,18 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         offsets = coupling.step(ref_pos, measured.position).offsets
         commands = servo.step(apply_offsets(ref_pos, fine_index, offsets), ref_vel, ref_acc,
                                 measured.position, measured.velocity, measured.acceleration)
-        rec['reference'][k], rec['measured'][k] = ref_pos, measured.position
-        rec['measured_velocity'][k], rec['effort'][k] = measured.velocity, measured.effort
-        rec['true'][k], rec['commands'][k] = simulator.true_position, commands
-        offsets_log[k] = offsets
+        reference_rows.append(ref_pos)
+        measured_rows.append(measured.position)
+        velocity_rows.append(measured.velocity)
+        effort_rows.append(measured.effort)
+        true_rows.append(simulator.true_position)
+        command_rows.append(commands)
+        offsets_rows.append(offsets)
         simulator.step(commands)
         if progress is not None and k % 10000 == 0:
             progress(k, steps)
-    return RunRecord(machine.axis_names, machine.control_period, offsets=offsets_log,
+    rec = {name: np.array(r, dtype=float).reshape(steps, n) for name, r in zip(names, rows)}
+    return RunRecord(machine.axis_names, machine.control_period,
+                     offsets=np.array(offsets_rows, dtype=float).reshape(steps, len(fine_index)),
                      fault=simulator.fault, saturations=coupling.saturation_count,
                      fine_axes=coupling.fine_axes, **rec)

@@ -101,10 +101,10 @@ class MachineSimulator:
     def step(self, commands) -> Measurement:
         """Apply one command per axis for one period; return the new measurement."""
         if self.fault is None:
-            bad = [a.name for a, u in zip(self.machine.axes, commands) if not math.isfinite(u)]
             if len(commands) != len(self.plants):
                 self.stop(f'{len(commands)} commands for {len(self.plants)} axes')
-            elif bad:
+            elif not all(map(math.isfinite, commands)):
+                bad = [a.name for a, u in zip(self.machine.axes, commands) if not math.isfinite(u)]
                 self.stop(f'non-finite command for {", ".join(bad)}')
         if self.fault is None:
             self.applied = tuple(p.step(u) for p, u in zip(self.plants, commands))

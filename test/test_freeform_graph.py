@@ -2,7 +2,8 @@
 fts_lathe --record` at the PID's 199.6 kHz, `machine-ctrl freeform` (the trajectory node's
 freeform.* parameters and /trajectory/freeform) as another program would, Ctrl-C, then the
 bag: the reference the servos got is the cut trajectory/freeform.py computes, row for row,
-W followed it, and `machine-ctrl analyze` reads the session."""
+W followed it, W's accelerometer was recorded for every state, and `machine-ctrl analyze`
+reads the session."""
 import json
 import math
 import signal
@@ -50,6 +51,21 @@ def test_a_freeform_cut_runs_through_the_fts_lathe_graph_recorded_and_analysed(r
     following = run.reference[start + first:start + end, w] - run.measured[start + first:start + end, w]
     assert run.reference[start + first:start + end, w].min() > 1e-6          # W landed on the surface (1.5 um)
     assert np.abs(following).max() < 100e-9         # W followed: tens of nm after a 2 ms landing on ~1.5 um
+    # W's accelerometer is in the bag (sensor_msgs/Imu on /accelerometers), one reading for
+    # every recorded state's step, along W's joint axis (z of the link fts)
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import Imu
+
+    from machine_ctrl.recording.bag import Bag
+    from machine_ctrl.recording.cdr import stamp_ns
+    with Bag(bag) as reader:
+        states = {stamp_ns(m.data) for m in reader.messages(['/joint_states'])}
+        readings = [deserialize_message(m.data, Imu) for m in reader.messages(['/accelerometers'])]
+    stamps = {r.header.stamp.sec * 10**9 + r.header.stamp.nanosec for r in readings}
+    assert states and states <= stamps
+    assert {r.header.frame_id for r in readings} == {'fts'}
+    assert all(r.linear_acceleration.x == r.linear_acceleration.y == 0.0 for r in readings)
+    assert np.ptp([r.linear_acceleration.z for r in readings]) > 0           # W's landing and noise
     analyzed = subprocess.run([EXE, 'analyze', str(bag), '--json'], env=ros_env, capture_output=True, text=True,
                               timeout=300)
     assert analyzed.returncode == 0, analyzed.stderr

@@ -149,9 +149,9 @@ def test_the_pid_takes_a_new_integral_gain_without_a_jump(fts_lathe):
     assert 'fixed while running' in law.retune_problem(dataclasses.replace(law.gains, sensitivity=1e5))
 
 
-def at_rest(fts_lathe, seconds):
-    """W alone in its closed loop at rest for `seconds`: (measured, true) positions."""
-    period, axis = fts_lathe.control_period, fts_lathe.axis('w')
+def at_rest(fts_lathe, seconds, axis=None):
+    """W (or `axis`, W edited) alone in its closed loop at rest for `seconds`: (measured, true) positions."""
+    period, axis = fts_lathe.control_period, axis or fts_lathe.axis('w')
     plant = make_plant(axis, period, 1, random.Random('1:w:actuator'))
     sensor = Sensor(axis.sensor_resolution, axis.plant.sensor_noise, period, random.Random('1:w'))
     law = make_law(axis, period)
@@ -197,6 +197,44 @@ def test_a_20_hz_motion_is_followed_as_the_closed_loop_predicts_and_within_the_s
     assert np.abs(error[tail]).max() < 25e-9 * 1.3
 
 
+W_G, W_G_CORNER = 2.83e-9, 2000 * math.pi     # Ding Eq. (6-8): gain (no unit printed), corner rad/s
+
+
+def test_the_ground_moves_the_flexures_root_through_its_spring_and_damper(fts_lathe):
+    """x1 / w_g of the stage's model (the columns hw_sim draws) is (c2 s + k2) G(s) W_g(s), G of
+    Eqs. 5-4..5-7 written here, W_g of Eq. (6-8) read in sensor volts over S_capa (the YAML's
+    reading), times the YAML's assumed roll-off."""
+    from machine_ctrl.model.flexure_model import continuous_model
+    ground = fts_lathe.axis('w').plant.ground_vibration
+    assert ground.density == pytest.approx(W_G / S_CAPA, rel=1e-4)
+    assert ground.corner == pytest.approx(W_G_CORNER, rel=1e-9)
+    model = continuous_model(fts_lathe.axis('w'))
+    n4 = np.array([M4, C4, K4])
+    d = np.polyadd(np.polymul([M4, 0, 0], [C4, K4]), np.polymul([M12, C2, K2], n4))
+    for f in (1.0, 30.0, 700.0, 9e3, 6e4):
+        s = 2j * math.pi * f
+        ours = (np.linalg.solve(s * np.eye(len(model.a)) - model.a, model.b_w[:, 3]))[0]
+        seed = (C2 * s + K2) * np.polyval(n4, s) / np.polyval(d, s) * ground.density * (s + W_G_CORNER) / s \
+            * ground.rolloff / (s + ground.rolloff)
+        assert ours == pytest.approx(seed, rel=1e-6), f
+
+
+def test_ground_read_in_metres_gives_the_budgets_ground_error_in_the_closed_loop(fts_lathe):
+    """Eq. (6-8) read in metres (the reading the YAML rejects: the ground dominates) makes the
+    ground large enough to measure: W at rest, ground its only noise, the real error's RMS within
+    10 % of the budget's ground term (machine_ctrl/experiments/fts_budget.py, PSD integrals)."""
+    axis = fts_lathe.axis('w')
+    loud = dataclasses.replace(quiet(axis), plant=dataclasses.replace(
+        quiet(axis).plant, ground_vibration=dataclasses.replace(axis.plant.ground_vibration, density=W_G)))
+    _, true = at_rest(fts_lathe, 0.2, loud)
+    budget = fts_budget.error_budget(*fts_budget.loop_of_axis(axis, fts_lathe.control_period),
+                                     fts_budget.Disturbances(ground_in_volts=False))
+    assert budget['status'] == 'ok', budget['reason']
+    predicted = budget['real']['ground']['rms']
+    assert predicted > 1e-9                                             # nm and more: no rounding at play
+    assert np.std(true[len(true) // 4:]) == pytest.approx(predicted, rel=0.10)
+
+
 @pytest.mark.parametrize('edit, problem', [
     (('      loop_delay: 3.5e-6', '      loop_delay: 6.0e-6'),
      'axes.w.plant: loop_delay 6e-06 s must be shorter than the control period 5.01e-06 s'),
@@ -206,6 +244,9 @@ def test_a_20_hz_motion_is_followed_as_the_closed_loop_predicts_and_within_the_s
      'axes.c.plant: loop_delay: only for voice_coil drives'),
     (('sensor_noise_density: {density: 5.888e-12}', 'sensor_noise_density: {density: 5.888e-12, corner: 10.0}'),
      'axes.w.plant: sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak)'),
+    (('        rolloff: 6283185.307', '        rolloff: 0.0'),
+     "axes.w.plant: ground_vibration needs a rolloff (rad/s): the root's velocity drives the flexure's damper, "
+     'and a displacement flat to infinite frequency has none'),
 ])
 def test_a_plant_the_simulator_cannot_build_is_refused_at_load(tmp_path, edit, problem):
     shutil.copy(MACHINES / 'fts_lathe.urdf', tmp_path)

@@ -76,7 +76,8 @@ def offline(micromill):
     return run(micromill, reference, steps=STEPS)
 
 
-def record_graph(micromill, ros_node, ros_supervisor, single_process, contour='circle'):
+def record_graph(micromill, ros_node, ros_supervisor, single_process, contour='circle', during=None):
+    """The first STEPS states of the graph; `during()` runs once the nodes are started."""
     recorder = StateRecorder(ros_node('recorder'), micromill)
     window = ProgressReporter.WINDOW
     try:
@@ -90,6 +91,8 @@ def record_graph(micromill, ros_node, ros_supervisor, single_process, contour='c
         else:
             ros_supervisor.start_nodes(default_graph(micromill, contour, hw_sim={'min_subscribers': 4,
                                                                                  'recorder_window': window}))
+        if during is not None:
+            during()
         recorder.wait_for(STEPS, timeout=120, supervisor=ros_supervisor)
     finally:
         ros_supervisor.stop_all()
@@ -113,15 +116,66 @@ def test_single_process_graph_equals_offline_runner(micromill, offline, ros_node
     assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=True), offline)
 
 
-def test_the_fts_lathe_graph_at_199_6_khz_equals_the_offline_runner(fts_lathe, ros_node, ros_supervisor):
+def test_the_fts_lathe_graph_at_199_6_khz_with_its_acceleration_loop_equals_the_offline_runner(
+        fts_lathe, ros_node, ros_supervisor, tmp_path):
     """Ding's lathe (issue [3/8]) as a process per node at its 5010 ns period, holding home
-    with every noise source on (seeded): the same states as the offline runner, bit for bit."""
+    with every noise source on (seeded), W's PID with the acceleration loop of Fig. 7-6
+    (K_a = 4, section 7.5.3): servo_fine reads the accelerometer from /accelerometers step by
+    step; the same states and commands as the offline runner, bit for bit. Rogue readings on
+    /accelerometers (a frame no accelerometer has, NaN, a stamp off the control grid) are
+    refused with their reason on servo_fine's /diagnostics and change nothing."""
+    import shutil
+
+    from builtin_interfaces.msg import Time
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import Imu
+
+    from machine_ctrl.model.config import load_machine
     from machine_ctrl.model.reference import Reference
-    held = run(fts_lathe, Reference.hold(fts_lathe.axis_names, fts_lathe.control_period, fts_lathe.home, 1),
-               steps=STEPS)
-    graph = record_graph(fts_lathe, ros_node, ros_supervisor, single_process=False, contour='hold')
+    from machine_ctrl.ros import messages as ros_io
+    shutil.copy(fts_lathe.urdf_path, tmp_path)
+    text = fts_lathe.yaml_path.read_text()
+    assert text.count('acceleration_gain: 0.0 ') == 1
+    (tmp_path / 'fts_ka4.yaml').write_text(text.replace('acceleration_gain: 0.0 ', 'acceleration_gain: 4.0 '))
+    machine = load_machine(tmp_path / 'fts_ka4.yaml')
+    held = run(machine, Reference.hold(machine.axis_names, machine.control_period, machine.home, 1), steps=STEPS)
+    without = run(fts_lathe, Reference.hold(machine.axis_names, machine.control_period, machine.home, 1), steps=STEPS)
+    w = machine.axis_names.index('w')
+    assert not np.array_equal(held.effort[:, w], without.effort[:, w])     # the loop acts on W's command
+
+    rogue = ros_node('rogue')
+    publisher = rogue.create_publisher(Imu, contract.ACCELEROMETERS.name, ros_io.STEP_QOS)
+    seen = {}
+    rogue.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, lambda msg: seen.update(
+        {st.name: {kv.key: kv.value for kv in st.values} for st in msg.status}), 100)
+    executor = SingleThreadedExecutor(context=rogue.context)
+    executor.add_node(rogue)
+
+    def reading(stamp, frame='fts', value=1.0):
+        msg = ros_io.accelerometer_message(stamp, machine.axis('w'), value)
+        msg.header.frame_id = frame
+        return msg
+    cases = [(reading(Time(sec=0, nanosec=5010), frame='x_slide'), "frame_id 'x_slide' is not the link of w (fts)"),
+             (reading(Time(sec=0, nanosec=5010), value=float('nan')), 'linear_acceleration holds NaN or inf'),
+             (reading(Time(sec=0, nanosec=1234)), 'stamp 1234 ns is not on the 5010 ns control grid')]
+
+    def inject():
+        for count, (msg, reason) in enumerate(cases, start=1):
+            while not publisher.get_subscription_count():
+                executor.spin_once(timeout_sec=0.05)
+            publisher.publish(msg)
+            deadline = time.monotonic() + 60
+            while not (int(seen.get('servo_fine', {}).get('rejected_messages', 0)) == count
+                       and seen['servo_fine']['last_rejection'].endswith(reason)):
+                assert time.monotonic() < deadline, (reason, seen.get('servo_fine'))
+                ros_supervisor.check()
+                executor.spin_once(timeout_sec=0.05)
+    try:
+        graph = record_graph(machine, ros_node, ros_supervisor, single_process=False, contour='hold', during=inject)
+    finally:
+        executor.shutdown()
     assert all(np.array_equal(a, b) for a, b in zip(graph, (held.measured, held.measured_velocity, held.effort)))
-    w = fts_lathe.axis_names.index('w')
     assert np.ptp(graph[0][:, w]) > 1e-9 and np.ptp(graph[2][:, w]) > 0      # the noise moved W, the PID answered
 
 

@@ -21,7 +21,8 @@ The generalized plant (Figs. 6-2, 6-3), continuous time, built by :func:`augment
 Not in the design (stated in the README): the cutting-force weight W_fc (section 6.3.1:
 "a degree of freedom to adjust the dynamic stiffness curve"; its value is not printed) and
 the ground vibration W_g (Eq. 6-8; read in sensor volts, as machine_ctrl/experiments/fts_budget.py
-does, it is under 1e-3 of the error budget's RMS; hw_sim does not simulate it).
+does, it is under 1e-3 of the error budget's RMS; hw_sim simulates it, the design leaves its
+states out).
 
 A filter pole at s = 0 (the 1/s of Eq. 6-7) cannot be steered by any controller, and the
 Riccati equations then have no stabilizing solution (machine_ctrl/control/h2_synthesis.py);

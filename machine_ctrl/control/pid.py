@@ -25,9 +25,9 @@ Live gains: K_p, K_i and K_d may change between two steps. K_p and K_d move the 
 an amount proportional to the present error (the derivative term's state is its output, so
 a new K_d scales only what follows); a new K_i acts on the future error only (bumpless).
 T_f and S are fixed: T_f is the derivative filter's pole, S the sensor's calibration; so
-are K_a, H_acc and H_a (section 7.4.1 changes K_a together with the PID gains, and the
-graph does not carry the accelerometer's reading: a running loop gains or loses its
-acceleration loop only as a new law).
+are K_a, H_acc and H_a (section 7.4.1 changes K_a together with the PID gains; a servo
+node subscribes the accelerometer readings when its law starts with K_a > 0, so a running
+loop gains or loses its acceleration loop only as a new law).
 """
 from __future__ import annotations
 

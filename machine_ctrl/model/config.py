@@ -105,10 +105,12 @@ class NoiseConfig:
     |W(j w)| = density |(s + corner)/s| |peak(s)| (Ding thesis Eqs. 6-6..6-8 have this form):
     `density` per sqrt(Hz) of the signal's unit, `corner` (rad/s, 0: white) the corner of
     an integrator that makes the low frequencies grow as 1/f, `peak` a resonance (the Eq. 4-76
-    form, zeta_num/zeta_den the gain at omega)."""
+    form, zeta_num/zeta_den the gain at omega), `rolloff` (rad/s, 0: none) a first-order
+    low-pass r/(s + r) above the fitted band (a displacement whose velocity must be finite)."""
     density: float = _positive()
     corner: float = _nonnegative(default=0.0)
     peak: NotchConfig | None = None
+    rolloff: float = _nonnegative(default=0.0)
 
 
 @dataclass(frozen=True)
@@ -142,6 +144,7 @@ class PlantConfig:
     sensor_noise_density: NoiseConfig | None = None   # m/sqrt(Hz) at the sensor, before its low-pass
     current_noise: NoiseConfig | None = None  # A/sqrt(Hz) added to the current
     accelerometer: AccelerometerConfig | None = None  # on the moving mass (acceleration feedback)
+    ground_vibration: NoiseConfig | None = None   # m/sqrt(Hz), the frame's motion at the flexure's root
 
 
 @dataclass(frozen=True)
@@ -277,6 +280,8 @@ class AxisConfig:
     effort: float                            # actuator peak force/torque from the URDF
     plant: PlantConfig | None = None         # None: this axis cannot be simulated
     control: ControlConfig | None = None     # None: no servo law configured
+    link: str = ''                           # the URDF link the axis moves (frame of its accelerometer)
+    direction: tuple[float, float, float] = (1.0, 0.0, 0.0)   # the joint axis in that link's frame, unit
 
     @property
     def unit(self) -> str:
@@ -446,6 +451,8 @@ def _axis(s: _Section, name: str, joint: urdf.Joint) -> AxisConfig:
         effort=joint.effort,
         plant=_read(s.section('plant'), PlantConfig) if 'plant' in s.data else None,
         control=_control(s.section('control')) if 'control' in s.data else None,
+        link=joint.child,
+        direction=joint.axis,
     )
     s._used.update(('plant', 'control'))
     s.finish()
@@ -508,7 +515,8 @@ def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
                          tool_frame, tuple(axes), home, dual_stage, simulation)
 
 
-FLEXURE_ONLY = ('flexure', 'current_loop', 'sensor_bandwidth', 'sensor_noise_density', 'current_noise', 'accelerometer')
+FLEXURE_ONLY = ('flexure', 'current_loop', 'sensor_bandwidth', 'sensor_noise_density', 'current_noise', 'accelerometer',
+                'ground_vibration')
 
 
 def _plant_problem(axis: AxisConfig, period: float) -> str:
@@ -525,6 +533,9 @@ def _plant_problem(axis: AxisConfig, period: float) -> str:
         white = plant.sensor_noise_density
         if white is not None and (white.corner or white.peak is not None):
             return 'sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak)'
+        if plant.ground_vibration is not None and not plant.ground_vibration.rolloff:
+            return ('ground_vibration needs a rolloff (rad/s): the root\'s velocity drives the flexure\'s damper, '
+                    'and a displacement flat to infinite frequency has none')
         if plant.loop_delay >= period:
             return f'loop_delay {plant.loop_delay:g} s must be shorter than the control period {period:g} s'
         return ''

@@ -5,7 +5,8 @@ machine_ctrl/control/h2.py, the controller's belief) both start from.
 
     u  -> current loop H_I(s) = g w_I^2 / (s^2 + 2 zeta w_I s + w_I^2)     (Eq. 5-9), A
     F   = K_T (I + dI)                                                      (Eq. 5-10), N
-    m12 x1'' = F - k2 x1 - c2 x1' - k4 (x1 - x4) - c4 (x1' - x4')           (Eqs. 5-4..5-7, k1 rigid)
+    m12 x1'' = F - k2 (x1 - x_g) - c2 (x1' - x_g') - k4 (x1 - x4) - c4 (x1' - x4')
+                                                                           (Eqs. 5-4..5-7, k1 rigid)
     m4  x4'' =      k4 (x1 - x4) + c4 (x1' - x4')
     y   = H_capa(s) (x1 + n_s)                                              (Eq. 5-8), sensor output
     a_y = H_acc(s) (x1'' + n_a)                          (Fig. 7-6, Table 7-2), accelerometer output
@@ -14,8 +15,10 @@ with the current noise dI the output of its shaping filter (Eq. 6-7 form, `curre
 n_s the sensor's electronics noise (band-limited by the sensor itself, Eq. 6-6) and n_a the
 accelerometer's (through its conditioning low-pass, section 7.5.1), each the response to
 unit white noise; a force F on m12 (the cutting force dF of Eq. 7-7) enters as F / m12.
-Not modelled: the ground vibration (Eq. 6-8; under 1e-3 of the error budget's RMS,
-machine_ctrl/experiments/fts_budget.py).
+The ground vibration x_g moves the flexure's root (m3 of Eqs. 5-4..5-7 is the ground, as in
+machine_ctrl/experiments/fts_budget.py's G_g = (c2 s + k2) G): x_g is its filter's output
+(Eq. 6-8 form, with the config's roll-off, so x_g' is finite), the sensor reads x1 as in the
+budget (the frame's motion at the sensor is not modelled apart).
 """
 from __future__ import annotations
 
@@ -38,8 +41,8 @@ def held_input(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.n
 
 
 def noise_filter(noise: NoiseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """State space (A, B, C, D) of W(s) = density (s + corner)/s peak(s) (module doc; the
-    corner term only when corner > 0)."""
+    """State space (A, B, C, D) of W(s) = density (s + corner)/s peak(s) r/(s + r) (module doc;
+    the corner term only when corner > 0, the roll-off r only when rolloff > 0)."""
     num, den = np.array([noise.density]), np.array([1.0])
     if noise.corner > 0.0:
         num, den = np.polymul(num, [1.0, noise.corner]), np.polymul(den, [1.0, 0.0])
@@ -47,6 +50,8 @@ def noise_filter(noise: NoiseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
         w, p = noise.peak.omega, noise.peak
         num = np.polymul(num, [1.0, 2.0 * p.zeta_num * w, w * w])
         den = np.polymul(den, [1.0, 2.0 * p.zeta_den * w, w * w])
+    if noise.rolloff > 0.0:
+        num, den = num * noise.rolloff, np.polymul(den, [1.0, noise.rolloff])
     if len(den) == 1:
         return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[noise.density]])
     return tuple(np.atleast_2d(m) for m in signal.tf2ss(num, den))
@@ -55,14 +60,14 @@ def noise_filter(noise: NoiseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
 @dataclass(frozen=True)
 class FlexureModel:
     """x' = a x + b_u u + b_w w + b_f F: u the DAC volts, w white noise of one-sided PSD 1 per Hz
-    [current, sensor, accelerometer] (each column carries its noise's density; zeros where the
-    axis has no such noise), F a force on the
-    moving mass m12 (N; the cutting force dF of Eq. 7-7). States [x1, v1, x4, v4, i, di], the
-    current-noise filter's, the sensor's [y, y'], the accelerometer noise filter's, the
-    accelerometer's [a_y, a_y'] (the last four groups only when configured); `sensor` and
-    `accelerometer` index y and a_y (None without them); `current_noise` the current-noise
-    filter's states; `core` the number of states before the accelerometer's (nothing before
-    them depends on them)."""
+    [current, sensor, accelerometer, ground] (each column carries its noise's density; zeros
+    where the axis has no such noise), F a force on the moving mass m12 (N; the cutting force
+    dF of Eq. 7-7). States [x1, v1, x4, v4, i, di], the current-noise filter's, the sensor's
+    [y, y'], the accelerometer noise filter's, the accelerometer's [a_y, a_y'], the ground
+    filter's (the last five groups only when configured); `sensor` and `accelerometer` index y
+    and a_y (None without them); `current_noise` the current-noise filter's states; `core` the
+    number of states before the accelerometer's: a model-based design may keep a[:core, :core]
+    (no ground: the ground states are outside it, their coupling into the mechanics dropped)."""
     a: np.ndarray
     b_u: np.ndarray
     b_w: np.ndarray
@@ -101,11 +106,17 @@ def continuous_model(axis: AxisConfig) -> FlexureModel:
     sensor = None if plant.sensor_bandwidth is None else 6 + n_cur
     j_acc = 6 + n_cur + (0 if sensor is None else 2)            # first state of the accelerometer's noise filter
     n_acc = 0 if accel is None else _filter_order(accel.noise)
-    n = j_acc + (0 if accel is None else n_acc + 2)
-    a, b_u, b_w, b_f = np.zeros((n, n)), np.zeros((n, 1)), np.zeros((n, 3)), np.zeros((n, 1))
+    j_ground = j_acc + (0 if accel is None else n_acc + 2)
+    n = j_ground + _filter_order(plant.ground_vibration)
+    a, b_u, b_w, b_f = np.zeros((n, n)), np.zeros((n, 1)), np.zeros((n, 4)), np.zeros((n, 1))
     a[0, 1] = 1.0                              # mechanics, Eqs. (5-4)..(5-7) with k1 rigid
     a[1, :6] = [-(k2 + k4) / m12, -(c2 + c4) / m12, k4 / m12, c4 / m12, kt / m12, 0.0]
     b_f[1, 0] = 1.0 / m12
+    gc, _ = _add_filter(a, b_w, 3, plant.ground_vibration, j_ground)   # x_g = C_g z_g (strictly proper: roll-off)
+    if len(gc):                                # (k2 x_g + c2 x_g') / m12, x_g' = C_g (A_g z_g + B_g w3)
+        g = slice(j_ground, n)
+        a[1, g] = (k2 * gc + c2 * gc @ a[g, g]) / m12
+        b_w[1, 3] = c2 * gc @ b_w[g, 3] / m12
     a[2, 3] = 1.0
     a[3, :4] = [k4 / m4, c4 / m4, -k4 / m4, -c4 / m4]
     a[4, 5] = 1.0                              # current loop, Eq. (5-9)
@@ -121,7 +132,7 @@ def continuous_model(axis: AxisConfig) -> FlexureModel:
         density = 0.0 if plant.sensor_noise_density is None else plant.sensor_noise_density.density
         b_w[sensor + 1, 1] = wc * wc * density  # n_s, white (config check)
     if accel is None:
-        return FlexureModel(a, b_u, b_w, b_f, sensor, None, slice(6, 6 + n_cur), n)
+        return FlexureModel(a, b_u, b_w, b_f, sensor, None, slice(6, 6 + n_cur), j_acc)
     # a_y'' = wa^2 (x1'' + n_a - a_y) - 2 zeta wa a_y', x1'' the mechanics' row 1
     na_c, na_d = _add_filter(a, b_w, 2, accel.noise, j_acc)
     k = j_acc + n_acc

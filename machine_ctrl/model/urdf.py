@@ -20,6 +20,8 @@ class Joint:
     stroke: tuple[float, float] | None   # None for continuous joints
     velocity: float
     effort: float
+    child: str = ''                      # the link it moves (its frame is the joint's frame)
+    axis: tuple[float, float, float] = (1.0, 0.0, 0.0)   # unit <axis xyz>, in that frame (URDF default 1 0 0)
 
 
 def _error(path: Path, problem: str) -> ConfigError:
@@ -58,6 +60,19 @@ def _limit(path: Path, joint: str, limit: ET.Element | None, attr: str, required
     return value
 
 
+def _axis(path: Path, joint: str, axis: ET.Element | None) -> tuple[float, float, float]:
+    """The unit vector of <axis xyz="..."> (1 0 0 when absent, as URDF says)."""
+    text = '1 0 0' if axis is None else axis.get('xyz', '1 0 0')
+    try:
+        xyz = [float(v) for v in text.split()]
+    except ValueError:
+        xyz = []
+    norm = math.sqrt(sum(v * v for v in xyz)) if len(xyz) == 3 and all(map(math.isfinite, xyz)) else 0.0
+    if norm == 0.0:
+        raise _error(path, f'joint {joint}: <axis xyz="{text}"> is not a non-zero vector of three numbers')
+    return tuple(v / norm for v in xyz)
+
+
 def read_joints(path: Path) -> dict[str, Joint]:
     """Movable joints in file order."""
     root = _root(path)
@@ -88,5 +103,6 @@ def read_joints(path: Path) -> dict[str, Joint]:
         effort = _limit(path, name, limit, 'effort', True)
         if velocity <= 0 or effort <= 0:
             raise _error(path, f'joint {name}: <limit velocity/effort> must be > 0')
-        joints[name] = Joint(name, kind, (lower, upper) if bounded else None, velocity, effort)
+        joints[name] = Joint(name, kind, (lower, upper) if bounded else None, velocity, effort,
+                             element.find('child').get('link'), _axis(path, name, element.find('axis')))
     return joints

@@ -6,8 +6,10 @@ sim time of the step), ground truth every `ground_truth_decimation` steps (defau
 1 kHz on the micromill) on /hw_sim/ground_truth/joint_states and
 /hw_sim/ground_truth/tool_pose (true tool tip in the workpiece frame; no controller
 subscribes to them; each is computed and published only while it has a subscriber, as the
-true tool pose through the error map costs ~0.15 ms) and /diagnostics (1 Hz wall, and at
-once on a fault). Per-step states go out and commands come in as CDR bytes
+true tool pose through the error map costs ~0.15 ms), /accelerometers (sensor_msgs/Imu, one
+per step and accelerometer of the machine, before the step's state, while subscribed: the
+reading of hw_sim.flexure.Accelerometer along the axis, frame_id the axis's URDF link) and
+/diagnostics (1 Hz wall, and at once on a fault). Per-step states go out and commands come in as CDR bytes
 (machine_ctrl.recording.cdr; standard sensor_msgs/JointState on the wire). Subscribes
 /servo_commands (sensor_msgs/JointState: name = axes, effort = commands, stamp = the stamp
 of the state answered). Service /hw_sim/reset (std_srvs/Trigger) clears a fault.
@@ -51,7 +53,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 
@@ -96,6 +98,11 @@ class HwSimNode(Node):
         # that hw_sim lets fall recorder_window steps behind loses no /clock either
         self.pub_clock = self.create_publisher(Clock, contract.CLOCK.name, ros_io.STEP_QOS)
         self.pub_state = self.create_publisher(JointState, contract.JOINT_STATES.name, ros_io.STEP_QOS)
+        # one sensor_msgs/Imu per accelerometer and step, while subscribed (a servo with the
+        # acceleration loop, a recorder; a lock-step re-send of the state re-sends them too)
+        self.accelerometer_axes = [(i, a) for i, a in enumerate(self.machine.axes) if a.plant and a.plant.accelerometer]
+        self.pub_acceleration = (self.create_publisher(Imu, contract.ACCELEROMETERS.name, ros_io.STEP_QOS)
+                                 if self.accelerometer_axes else None)
         self.pub_true = self.create_publisher(JointState, contract.TRUE_JOINT_STATES.name, ros_io.STEP_QOS)
         self.pub_pose = self.create_publisher(PoseStamped, contract.TRUE_TOOL_POSE.name, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
@@ -190,6 +197,10 @@ class HwSimNode(Node):
     def publish_state(self, step: int) -> None:
         sec, nanosec = self.clock.split(step)
         m = self.sim.measurement
+        if self.pub_acceleration is not None and self.pub_acceleration.get_subscription_count():
+            stamp = Time(sec=sec, nanosec=nanosec)      # before the state: a servo waiting for both has it first
+            for i, axis in self.accelerometer_axes:
+                self.pub_acceleration.publish(ros_io.accelerometer_message(stamp, axis, m.acceleration[i]))
         self.pub_state.publish(self.encoder.encode(sec, nanosec, m.position, m.velocity, m.effort))
         if not self.ready_published and self.session.ready:
             self.ready_published = True

@@ -18,7 +18,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 from machine_ctrl.model.numeric import all_finite
 from trajectory_msgs.msg import JointTrajectory
 
@@ -58,6 +58,33 @@ def _finite(values, what: str) -> list[float]:
     if not all_finite(values):
         raise InvalidMessage(f'{what} holds NaN or inf')
     return values
+
+
+def accelerometer_message(stamp: Time, axis, reading: float) -> Imu:
+    """sensor_msgs/Imu of `axis`'s accelerometer (contract.ACCELEROMETERS): frame_id the link
+    the axis moves, linear_acceleration the reading (m/s^2) along the joint axis in that frame;
+    no orientation and no angular velocity (covariance element 0 = -1, REP 145), the linear
+    acceleration's covariance unknown (zeros)."""
+    msg = Imu()
+    msg.header.stamp, msg.header.frame_id = stamp, axis.link
+    msg.orientation_covariance[0] = msg.angular_velocity_covariance[0] = -1.0
+    a = msg.linear_acceleration
+    a.x, a.y, a.z = (reading * d for d in axis.direction)
+    return msg
+
+
+def accelerometer_reading(msg: Imu, axes) -> tuple[str, float]:
+    """(axis name, m/s^2 along its joint axis) of an accelerometer message from one of `axes`
+    (by frame_id = the axis's link); InvalidMessage when the frame is no such axis's or a
+    component is NaN or inf."""
+    frame = msg.header.frame_id
+    axis = next((a for a in axes if a.link == frame), None)
+    if axis is None:
+        raise InvalidMessage(f'accelerometer frame_id {frame!r} is not the link of '
+                             f'{", ".join(f"{a.name} ({a.link})" for a in axes) or "any axis with one"}')
+    a = msg.linear_acceleration
+    x, y, z = _finite((a.x, a.y, a.z), 'linear_acceleration')
+    return axis.name, x * axis.direction[0] + y * axis.direction[1] + z * axis.direction[2]
 
 
 def joint_state(stamp: Time, names, position=(), velocity=(), effort=()) -> JointState:

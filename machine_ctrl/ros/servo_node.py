@@ -2,14 +2,17 @@
 one per stage, or all), answering every /joint_states step with /servo_commands.
 
 Inputs per step k: the state (/joint_states), the reference row k of its axes (streamed
-ahead in chunks on /reference, trajectory_msgs/JointTrajectory on the control grid) and,
-for fine axes of a dual-stage pair, the offsets of step k (/dual_stage/offsets). An input
-stream that has never delivered is waited for (reported on /diagnostics as waiting_for);
-once it has, the node waits for a missing step up to `input_timeout` s (wall) — so a
-lock-step run does not depend on message timing — and then: no reference row = hold the
-last reference position at rest (underrun, counted and reported); no offsets = no answer
-(a fine axis has no setpoint without them; counted as missing_offsets), so hw_sim faults
-naming the fine axes after its command_timeout (README "Faults": the dual-stage node lost).
+ahead in chunks on /reference, trajectory_msgs/JointTrajectory on the control grid),
+for fine axes of a dual-stage pair the offsets of step k (/dual_stage/offsets) and, for
+axes whose law closes the acceleration loop (pid with acceleration_gain > 0), the
+accelerometer readings of step k (/accelerometers, sensor_msgs/Imu by the axis's link). An
+input stream that has never delivered is waited for (reported on /diagnostics as
+waiting_for); once it has, the node waits for a missing step up to `input_timeout` s (wall)
+— so a lock-step run does not depend on message timing — and then: no reference row = hold
+the last reference position at rest (underrun, counted and reported); no offsets or no
+reading = no answer (the law has no setpoint or no feedback; counted as missing_offsets,
+missing_accelerations), so hw_sim faults naming the axes after its command_timeout (README
+"Faults": the dual-stage node lost).
 A repeated state stamp (hw_sim re-sends while waiting) is answered with the command already
 computed, so no controller state is ever advanced twice.
 
@@ -24,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
@@ -47,11 +50,6 @@ class ServoNode(StepNode):
         values = declare_parameters(self, table, {'axes': controlled}, names=('axes', 'feedforward'),
                                     on_change={'feedforward': self.on_feedforward})
         self.servo = ServoGroup(self.machine, values.axes, feedforward=values.feedforward)
-        if self.servo.uses_acceleration:
-            self.get_logger().fatal(f'axes {" ".join(self.servo.uses_acceleration)}: the acceleration loop '
-                                    '(acceleration_gain > 0) needs the accelerometer reading, which the graph does '
-                                    'not carry yet; run it offline (machine-ctrl experiment fts-accel)')
-            raise SystemExit(2)
         self.axes = self.servo.axis_names
         self.declare_gains()
         fine = {p.fine for p in self.machine.dual_stage}
@@ -60,10 +58,12 @@ class ServoNode(StepNode):
         coupled = declare_parameters(self, parameters.SERVO, {'wait_for_offsets': bool(self.fine_slots)},
                                      names=('wait_for_offsets',)).wait_for_offsets
         self.wait_for_offsets = coupled and bool(self.fine_slots)
-        self.offsets: dict[int, list[float]] = {}
-        self.offsets_started = False
-        self.missing_offsets = 0           # steps left unanswered for want of offsets
-        self.offsets_lost_step = None      # the newest such step
+        self.offsets = StepInput(contract.DUAL_STAGE_OFFSETS.name)
+        # the axes whose law reads its accelerometer, and their slots in the group
+        self.accelerometer_axes = [self.machine.axis(a) for a in self.servo.uses_acceleration]
+        self.acceleration_slots = [self.axes.index(a.name) for a in self.accelerometer_axes]
+        self.accelerations = StepInput(contract.ACCELEROMETERS.name)
+        self.machine_accelerometers = [a for a in self.machine.axes if a.plant and a.plant.accelerometer]
 
         self.make_buffer(self.axes)
         self.encoder = JointStateEncoder(self.axes)
@@ -74,6 +74,8 @@ class ServoNode(StepNode):
         if self.wait_for_offsets:
             subscribe_joint_states(self, contract.DUAL_STAGE_OFFSETS.name, self.on_offsets,
                                    lambda reason: self.rejections.add('offsets', reason))
+        if self.accelerometer_axes:
+            self.create_subscription(Imu, contract.ACCELEROMETERS.name, self.on_acceleration, ros_io.STEP_QOS)
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: axes {" ".join(self.axes)}')
 
@@ -110,65 +112,125 @@ class ServoNode(StepNode):
 
     def on_offsets(self, msg: JointStateData) -> None:
         try:
-            self.offsets[self.clock.step_at(msg.sec, msg.nanosec)] = ros_io.select(msg, 'position', self.fine_names)
+            self.offsets.put(self.clock.step_at(msg.sec, msg.nanosec), ros_io.select(msg, 'position', self.fine_names))
         except ros_io.InvalidMessage as exc:
             self.rejections.add('offsets', str(exc))
             return
-        self.offsets_started = True
         self.responder.poke()
 
+    def on_acceleration(self, msg: Imu) -> None:
+        """One axis's reading of one step; the step's readings are complete with every axis's."""
+        try:
+            step = self.clock.step(msg.header.stamp)
+            axis, value = ros_io.accelerometer_reading(msg, self.machine_accelerometers)
+        except ros_io.InvalidMessage as exc:
+            self.rejections.add('accelerations', str(exc))
+            return
+        if all(a.name != axis for a in self.accelerometer_axes):
+            return                          # another node's axis
+        readings = self.accelerations.pending.get(step, {})
+        readings[axis] = value
+        self.accelerations.put(step, readings)
+        self.responder.poke()
+
+    def _accelerations_of(self, step: int) -> bool:
+        return len(self.accelerations.pending.get(step, ())) == len(self.accelerometer_axes)
+
     def streaming(self) -> bool:
-        return self.buffer.started and (self.offsets_started or not self.wait_for_offsets)
+        return self.buffer.started and (self.offsets.started or not self.wait_for_offsets) \
+            and (self.accelerations.started or not self.accelerometer_axes)
 
     def ready(self, step: int) -> bool:
-        return self.buffer.has(step) and (not self.wait_for_offsets or step in self.offsets)
+        return self.buffer.has(step) and (not self.wait_for_offsets or step in self.offsets.pending) \
+            and (not self.accelerometer_axes or self._accelerations_of(step))
 
     def compute(self, step: int, msg: JointStateData) -> bytes | None:
         measured = self.positions(msg, self.axes, velocities=True)
         if measured is None:
             return None
         position, velocity = measured
-        offsets = self.offsets.pop(step, None)
-        for old in [s for s in self.offsets if s < step]:
-            del self.offsets[old]
+        complete = not self.accelerometer_axes or self._accelerations_of(step)
+        offsets, readings = self.offsets.take(step), self.accelerations.take(step)
+        # the dual-stage node or hw_sim's accelerometer stream lost: no offsets or readings
+        # within input_timeout. A fine axis without its offsets has no setpoint, an acceleration
+        # loop without its reading no feedback: no answer, so hw_sim faults on the axes after
+        # its command_timeout (README "Faults"); the inputs of this step sent again later (a
+        # respawned dual_stage, hw_sim's re-send) are answered as usual
         if offsets is None and self.wait_for_offsets:
-            # the dual-stage node lost (killed, stopped): no offsets within input_timeout. A
-            # fine axis without its offsets has no setpoint: no answer, so hw_sim faults on
-            # the fine axes after its command_timeout (README "Faults"); the offsets of a
-            # respawned dual_stage for this step (hw_sim re-sends it) are answered as usual
-            self.missing_offsets += 1
-            self.offsets_lost_step = step
+            self.offsets.miss(step)
+            return None
+        if not complete:
+            self.accelerations.miss(step)
             return None
         ref_pos, ref_vel, ref_acc, _ = self.buffer.take(step, position)
         if offsets is not None:
             ref_pos = apply_offsets(ref_pos, self.fine_slots, offsets)
-        commands = self.servo.step(ref_pos, ref_vel, ref_acc, position, velocity)
+        acceleration = None
+        if readings is not None:
+            acceleration = [0.0] * len(self.axes)
+            for slot, axis in zip(self.acceleration_slots, self.accelerometer_axes):
+                acceleration[slot] = readings[axis.name]
+        commands = self.servo.step(ref_pos, ref_vel, ref_acc, position, velocity, acceleration)
         return self.encoder.encode(msg.sec, msg.nanosec, effort=commands)
 
     def waiting_for(self) -> str:
         if not self.responder.waiting:
             return ''
         missing = [] if self.buffer.started else [f'{contract.REFERENCE.name} (never received)']
-        if self.wait_for_offsets and not self.offsets_started:
-            missing.append(f'{contract.DUAL_STAGE_OFFSETS.name} (never received)')
-        elif self.wait_for_offsets and self.offsets_lost_step is not None and self.offsets_lost_step >= self.responder.answered_step:
-            missing.append(f'{contract.DUAL_STAGE_OFFSETS.name} (none for step {self.offsets_lost_step} within '
-                           f'{self.input_timeout:g} s: not answered)')
+        for waited, stream in ((self.wait_for_offsets, self.offsets), (bool(self.accelerometer_axes), self.accelerations)):
+            if waited:
+                missing += stream.waiting_text(self.responder.answered_step, self.input_timeout)
         return ', '.join(missing) or 'inputs of the current step'
 
     def publish_diagnostics(self) -> None:
-        problems = self.buffer.underruns or self.missing_offsets or self.rejections.count
+        problems = self.buffer.underruns or self.offsets.missing or self.accelerations.missing or self.rejections.count
         step = self.responder.answered_step
         requested = self.servo.feedforward_requested
         values = {'axes': ' '.join(self.axes), 'answered_step': step, 'waiting_for': self.waiting_for(),
                   'reference_underruns': self.buffer.underruns, 'buffered_steps': len(self.buffer),
-                  'missing_offsets': self.missing_offsets, 'rejected_messages': self.rejections.count,
+                  'missing_offsets': self.offsets.missing, 'missing_accelerations': self.accelerations.missing,
+                  'rejected_messages': self.rejections.count,
                   'last_rejection': self.rejections.last, 'feedforward': self.servo.feedforward,
                   'feedforward_requested': '' if requested is None else requested,
                   **{g.name: getattr(self.servo.servo(g.axis).law.gains, g.gain) for g in self.gains}}
         self.pub_diag.publish(ros_io.diagnostics(
             self.clock.stamp(step), self.get_name(), DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
             'reference underrun' if self.buffer.underruns else 'ok', values))
+
+
+class StepInput:
+    """A per-step input stream besides the state (the offsets of the dual-stage node, the
+    accelerometer readings): values by step until their step is computed, whether it has ever
+    delivered, and the steps left unanswered for want of it."""
+
+    def __init__(self, topic: str):
+        self.topic = topic
+        self.pending: dict[int, object] = {}
+        self.started = False
+        self.missing = 0                   # steps left unanswered for want of this input
+        self.lost_step: int | None = None  # the newest such step
+
+    def put(self, step: int, value) -> None:
+        self.pending[step] = value
+        self.started = True
+
+    def take(self, step: int):
+        """The value of `step` (None if it has none), dropping it and every older one."""
+        value = self.pending.pop(step, None)
+        for old in [s for s in self.pending if s < step]:
+            del self.pending[old]
+        return value
+
+    def miss(self, step: int) -> None:
+        self.missing += 1
+        self.lost_step = step
+
+    def waiting_text(self, answered_step: int, timeout: float) -> list[str]:
+        if not self.started:
+            return [f'{self.topic} (never received)']
+        if self.lost_step is not None and self.lost_step >= answered_step:
+            return [f'{self.topic} (none for step {self.lost_step} within {timeout:g} s: not answered)']
+        return []
 
 
 def axes_check(machine, controlled) -> parameters.Check:
