@@ -122,6 +122,11 @@ def test_the_experiment_prints_each_cut_beside_the_seed_and_the_loop():
     assert grid['ours'] == pytest.approx(grid['seed'], rel=0.30) and grid['ours'] > 1.0   # the loop's overshoot
     near = rows['grid max following error at <= 20 Hz']
     assert 0 < near['ours'] < near['predicted']                  # below the in-phase bound
+    # the lenslet's cutting force (Fig. 5-19): the simulated deviation and its overshoot against
+    # the loop's periodic steady state from the force's harmonics (an FFT, no time stepping)
+    for name in ('lenslet force: largest deviation [calibration]', 'lenslet force: overshoot after the cut'):
+        assert rows[name]['ours'] == pytest.approx(rows[name]['predicted'], rel=0.02), name
+    assert rows['lenslet force: overshoot after the cut']['ours'] > 50                 # nm: it does ring the other way
     for row in rows.values():
         assert not row['off'] or len(row['note']) > 40, row['name']
 
