@@ -88,6 +88,7 @@ class FlexureAxis(_Actuator):
         if self._sensor_index is not None:
             self._v[self._sensor_index] = position
         self._v[n] = self._v[4] / axis.drive.amplifier_gain     # the command holding it
+        self._state, self._next = self._v[:n], np.empty(n)      # a view of the state in v; the product's buffer
 
     @property
     def position(self) -> float:
@@ -110,13 +111,15 @@ class FlexureAxis(_Actuator):
         v, n = self._v, self._n
         v[n + 1] = applied
         v[n + 2] = self.force
-        v[:n] = self._m @ v
+        np.dot(self._m, v, out=self._next)
         if self._noise_factor is not None:
             if self._row == len(self._rows):
                 self._rows = self._noise.standard_normal((self.BLOCK, n)) @ self._noise_factor.T
                 self._row = 0
-            v[:n] += self._rows[self._row]
+            np.add(self._next, self._rows[self._row], out=self._state)
             self._row += 1
+        else:
+            self._state[:] = self._next
         v[n] = applied
         return applied
 

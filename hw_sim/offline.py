@@ -63,11 +63,10 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     empty = [axis for axis, f in forces.items() if not len(f)]
     if empty:
         raise ValueError(f'forces for {", ".join(empty)}: no values')
-    for k in range(steps):
+    for k, (ref_pos, ref_vel, ref_acc) in enumerate(reference.rows(steps)):
         for axis, f in forces.items():
             simulator.set_force(axis, f[min(k, len(f) - 1)])
         measured = simulator.measurement
-        ref_pos, ref_vel, ref_acc = reference.row(k)
         offsets = coupling.step(ref_pos, measured.position).offsets
         commands = servo.step(apply_offsets(ref_pos, fine_index, offsets), ref_vel, ref_acc,
                                 measured.position, measured.velocity, measured.acceleration)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import random
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
@@ -32,8 +32,7 @@ def make_plant(axis: AxisConfig, period: float, substeps: int, rng: random.Rando
     return LinearAxis(axis, period, rng, position)
 
 
-@dataclass(frozen=True)
-class Measurement:
+class Measurement(NamedTuple):       # a NamedTuple: one is made per step (cheaper than a frozen dataclass)
     position: tuple[float, ...]      # encoder / probe readings, axis order
     velocity: tuple[float, ...]      # differentiated readings
     effort: tuple[float, ...]        # commands applied during the previous period
@@ -70,11 +69,10 @@ class MachineSimulator:
         self._measure()
 
     def _measure(self) -> None:
-        readings = [s.measure(p.sensed) for s, p in zip(self.sensors, self.plants)]
+        position, velocity = zip(*[s.measure(p.sensed) for s, p in zip(self.sensors, self.plants)])
         acceleration = self._no_acceleration if not self._with_accelerometer else \
-            tuple(0.0 if a is None else a.measure(p.acceleration_sensed) for a, p in zip(self.accelerometers, self.plants))
-        self.measurement = Measurement(tuple(r[0] for r in readings), tuple(r[1] for r in readings),
-                                       self.applied, acceleration)
+            tuple([0.0 if a is None else a.measure(p.acceleration_sensed) for a, p in zip(self.accelerometers, self.plants)])
+        self.measurement = Measurement(position, velocity, self.applied, acceleration)
 
     def set_force(self, axis: str, force: float) -> None:
         """An external force (N) on `axis`'s moving mass from the next step on (the cutting
@@ -88,7 +86,7 @@ class MachineSimulator:
 
     @property
     def true_position(self) -> tuple[float, ...]:
-        return tuple(p.position for p in self.plants)
+        return tuple([p.position for p in self.plants])
 
     @property
     def true_velocity(self) -> tuple[float, ...]:
@@ -107,7 +105,7 @@ class MachineSimulator:
                 bad = [a.name for a, u in zip(self.machine.axes, commands) if not math.isfinite(u)]
                 self.stop(f'non-finite command for {", ".join(bad)}')
         if self.fault is None:
-            self.applied = tuple(p.step(u) for p, u in zip(self.plants, commands))
+            self.applied = tuple([p.step(u) for p, u in zip(self.plants, commands)])
             self._check_strokes()
         else:
             self.applied = (0.0,) * len(self.plants)
