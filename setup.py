@@ -70,6 +70,8 @@ REQUIRES = [
     'mcap-ros2-support>=0.6,<0.7',  # import mcap_ros2
     'matplotlib>=3.11,<4',
     'PyYAML>=6.0,<7',  # import yaml
+    # identification
+    'nfoursid>=1.0.2,<1.1',  # N4SID (machine_ctrl/identification); pulls pandas
 ]
 EXTRAS = {
     'test': ['pytest>=9.2', 'rosbags>=0.11.9,<0.12',  # rosbags: an independent bag reader for the tests

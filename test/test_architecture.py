@@ -32,6 +32,7 @@ LAYERS = {
     'machine_ctrl/control': 2,        # ROS-free cores
     'machine_ctrl/contour': 2,
     'machine_ctrl/recording': 2,
+    'machine_ctrl/identification': 2,
     'trajectory': 2,
     'compensation': 2,
     'hw_sim': 2,

@@ -25,6 +25,7 @@ DISTRIBUTION_TO_KEY = {
     'pin': 'pinocchio',  # the ROS package carries the Python bindings (4.1.0 in Jazzy)
     'ruckig': 'python3-ruckig-pip',  # the ROS package ruckig is the C++ library only
     'mcap': 'python3-mcap-pip',
+    'nfoursid': 'python3-nfoursid-pip',
     'mcap-ros2-support': 'mcap-ros2-support',  # rosdep's key for it has no python3- prefix
     'pytest': 'python3-pytest',
     'rosbags': 'python3-rosbags-pip',

@@ -1,0 +1,1 @@
+"""Identification of models from data (ROS-free core)."""
