@@ -73,12 +73,22 @@ class StateSpaceModel:
 
 
 @dataclass(frozen=True)
+class NoiseCovariance:
+    """Covariances of the innovation form's residuals (nfoursid): process w (n x n), measurement
+    v (1 x 1), their cross term s = E[w v'] (n x 1); what a Kalman filter of the model needs."""
+    process: np.ndarray
+    measurement: np.ndarray
+    cross: np.ndarray
+
+
+@dataclass(frozen=True)
 class Identification:
     status: Status
     reason: str
     model: StateSpaceModel | None = None
     singular_values: tuple[float, ...] = ()   # of the subspace step, descending (the order plot)
     vaf: float = float('nan')                 # %, on the data identified from
+    noise: NoiseCovariance | None = None
 
     @property
     def ok(self) -> bool:
@@ -153,7 +163,7 @@ def identify(u, y, period: float, order: int | None = None, block_rows: int = BL
     n4sid.subspace_identification()
     singular = tuple(float(v) for v in np.diagonal(n4sid.R32_decomposition.eigenvalues))
     n = order if order is not None else select_order(singular, min(max_order, block_rows - 1))
-    space, _ = n4sid.system_identification(rank=n)
+    space, covariance = n4sid.system_identification(rank=n)     # covariance [[v, s'], [s, w]]
     model = StateSpaceModel(np.asarray(space.a), np.asarray(space.b), np.asarray(space.c), np.asarray(space.d),
                             period)
     matrices = (model.a, model.b, model.c, model.d)
@@ -164,4 +174,5 @@ def identify(u, y, period: float, order: int | None = None, block_rows: int = BL
     if radius >= 1.0:
         return Identification(Status.FAILED, f'order {n}: the identified model is unstable (pole radius {radius:.4g})',
                               model, singular)
-    return Identification(Status.OK, '', model, singular, vaf(y, model.simulate(u)))
+    noise = NoiseCovariance(covariance[1:, 1:], covariance[:1, :1], covariance[1:, :1])
+    return Identification(Status.OK, '', model, singular, vaf(y, model.simulate(u)), noise)

@@ -1,0 +1,139 @@
+"""LQG position control of one axis of Sörnmo's piezo micro manipulator (seed
+004_33b29b0855b96c5a, section 2.4), designed from an identified discrete model (Eqs. 2.1-2.2,
+machine_ctrl/identification/subspace.py), as plain numeric functions and one controller:
+
+* state feedback u_k = -L x^_k - l_i x_i,k + l_r r_k (Eq. 2.4, u_ff = l_r r_k), L_e = [L l_i]
+  minimizing sum z'Qz + u'Ru (Eq. 2.5) over z = [x, x_i] with the integral state of Eq. (2.9)
+  discretized by forward Euler, x_i,k+1 = x_i,k + h (r_k - y_k); the thesis's weights Q = I,
+  R = 2.5 (section 2.5);
+* l_r such that the closed loop without the integral action has static gain 1 (section 2.4:
+  "tuned such that the gain is 1");
+* the Kalman filter of Eqs. (2.6)-(2.7) with the constant disturbance state of Eq. (2.8) on
+  the output (y = C x + D u + x^e), its gain the steady state of the identified noise
+  covariances (the identification "provides the Kalman gain"); the disturbance state's own
+  drift is assumed (:data:`DISTURBANCE_DRIFT`);
+* a notch on the reference at the axis's eigenfrequency (the y axis of section 2.5), a
+  biquad by the bilinear transform pre-warped at its centre.
+
+All of it is linear and deterministic; :class:`LqgController` runs it step by step.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solve_discrete_are
+
+Q_WEIGHT, R_WEIGHT = 1.0, 2.5          # Q = I, R = 2.5, Sörnmo section 2.5
+# assumed: the disturbance state drifts with a variance per sample of 1 % of the measurement
+# noise's: slow against the noise (the thesis adds it for the static gain, not to track fast
+# disturbances) and still converging within a few hundred samples
+DISTURBANCE_DRIFT = 0.01
+
+
+@dataclass(frozen=True)
+class LqgDesign:
+    """The controller of the module doc for the model (phi, gamma, c, d) at `period`."""
+    phi: np.ndarray
+    gamma: np.ndarray          # (n,)
+    c: np.ndarray              # (n,)
+    d: float
+    period: float
+    feedback: np.ndarray       # L, (n,)
+    integral_gain: float       # l_i
+    reference_gain: float      # l_r
+    observer_gain: np.ndarray  # K of the filter with the disturbance state, (n + 1,)
+
+
+def lq_gains(phi, gamma, c, d: float, period: float, q: float = Q_WEIGHT, r: float = R_WEIGHT):
+    """(L, l_i): the LQ state feedback of Eq. (2.5) on [x, x_i] (module doc)."""
+    n = phi.shape[0]
+    a = np.zeros((n + 1, n + 1))
+    a[:n, :n], a[n, :n], a[n, n] = phi, -period * c, 1.0
+    b = np.concatenate([gamma, [-period * d]])[:, None]
+    p = solve_discrete_are(a, b, q * np.eye(n + 1), np.array([[r]]))
+    gains = np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)[0]
+    return gains[:n], float(gains[n])
+
+
+def reference_gain(phi, gamma, c, d: float, feedback) -> float:
+    """l_r with unit static gain of y/r for u = -L x + l_r r (module doc)."""
+    n = phi.shape[0]
+    closed = np.linalg.solve(np.eye(n) - phi + np.outer(gamma, feedback), gamma)
+    static = float(c @ closed + d * (1.0 - feedback @ closed))
+    return 1.0 / static
+
+
+def kalman_gain(phi, c, process, measurement, cross, drift: float = DISTURBANCE_DRIFT) -> np.ndarray:
+    """Steady-state predictor gain of Eq. (2.6) for [x, x^e] (module doc): process noise
+    `process` on x, `drift` x measurement on x^e, measurement noise `measurement`, cross term
+    `cross` between x's noise and the measurement's."""
+    n = phi.shape[0]
+    a = np.eye(n + 1)
+    a[:n, :n] = phi
+    ce = np.concatenate([c, [1.0]])
+    r = float(np.asarray(measurement).reshape(-1)[0])
+    qe = np.zeros((n + 1, n + 1))
+    qe[:n, :n], qe[n, n] = process, drift * r
+    se = np.zeros((n + 1, 1))
+    se[:n, 0] = np.asarray(cross).reshape(-1)
+    p = solve_discrete_are(a.T, ce[:, None], qe, np.array([[r]]), s=se)
+    return ((a @ p @ ce + se[:, 0]) / (ce @ p @ ce + r))
+
+
+def design(phi, gamma, c, d: float, period: float, process, measurement, cross,
+           q: float = Q_WEIGHT, r: float = R_WEIGHT) -> LqgDesign:
+    phi, gamma, c = np.asarray(phi, float), np.asarray(gamma, float).reshape(-1), np.asarray(c, float).reshape(-1)
+    feedback, integral = lq_gains(phi, gamma, c, d, period, q, r)
+    return LqgDesign(phi, gamma, c, float(d), period, feedback, integral,
+                     reference_gain(phi, gamma, c, d, feedback), kalman_gain(phi, c, process, measurement, cross))
+
+
+def notch(frequency: float, period: float, depth: float = 0.0, width: float = 0.5):
+    """(b, a) of the biquad (s^2 + 2 depth zeta w s + w^2) / (s^2 + 2 zeta w s + w^2),
+    zeta = width / 2, by the bilinear transform pre-warped at w = 2 pi `frequency`: gain
+    `depth` at the centre (0: a zero), 1 at DC and far from it."""
+    w = 2 * math.pi * frequency
+    k = w / math.tan(w * period / 2)               # pre-warping: the centre maps exactly
+    zeta = width / 2
+    num = np.array([k * k + 2 * depth * zeta * w * k + w * w, 2 * (w * w - k * k), k * k - 2 * depth * zeta * w * k + w * w])
+    den = np.array([k * k + 2 * zeta * w * k + w * w, 2 * (w * w - k * k), k * k - 2 * zeta * w * k + w * w])
+    return num / den[0], den / den[0]
+
+
+class LqgController:
+    """The LQG law of a design, one step per sample: `step(r, y)` -> u (module doc), the
+    reference through an optional notch (b, a)."""
+
+    def __init__(self, design_: LqgDesign, reference_notch=None):
+        self.design, self.notch = design_, reference_notch
+        self.reset()
+
+    def reset(self) -> None:
+        n = self.design.phi.shape[0]
+        self.estimate = np.zeros(n + 1)            # [x^, x^e]
+        self.integral = 0.0
+        self._notch_in, self._notch_out = [0.0, 0.0], [0.0, 0.0]
+
+    def _filtered(self, r: float) -> float:
+        if self.notch is None:
+            return r
+        b, a = self.notch
+        x1, x2 = self._notch_in
+        y1, y2 = self._notch_out
+        y = b[0] * r + b[1] * x1 + b[2] * x2 - a[1] * y1 - a[2] * y2
+        self._notch_in, self._notch_out = [r, x1], [y, y1]
+        return y
+
+    def step(self, r: float, y: float) -> float:
+        g = self.design
+        r = self._filtered(r)
+        n = g.phi.shape[0]
+        x = self.estimate[:n]
+        u = float(-g.feedback @ x - g.integral_gain * self.integral + g.reference_gain * r)
+        innovation = y - (g.c @ x + g.d * u + self.estimate[n])
+        predicted = np.concatenate([g.phi @ x + g.gamma * u, [self.estimate[n]]])
+        self.estimate = predicted + g.observer_gain * innovation
+        self.integral += g.period * (r - y)
+        return u
