@@ -71,7 +71,8 @@ REQUIRES = [
     'matplotlib>=3.11,<4',
     'PyYAML>=6.0,<7',  # import yaml
     # identification
-    'nfoursid>=1.0.2,<1.1',  # N4SID (machine_ctrl/identification); pulls pandas
+    'nfoursid>=1.0.2,<1.1',  # N4SID (machine_ctrl/identification)
+    'pandas>=3.1,<4',  # nfoursid's input, imported by machine_ctrl/identification
 ]
 EXTRAS = {
     'test': ['pytest>=9.2', 'rosbags>=0.11.9,<0.12',  # rosbags: an independent bag reader for the tests

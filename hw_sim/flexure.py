@@ -1,8 +1,8 @@
 """A voice-coil flexure stage (Ding's fast tool servo, seed 003_edeaa855566124b7) as one
 linear time-invariant system, discretized exactly per control period: the model of
 machine_ctrl/model/flexure_model.py (flexure, current loop, sensor low-pass, accelerometer,
-current, sensor and accelerometer noise, the ground's motion at the flexure's root, an external
-force). The noises are continuous white
+current, sensor and accelerometer noise, the ground's motion at the flexure's root, an
+external force). The noises are continuous white
 noise through the model's columns (one-sided PSD 1/Hz; the columns carry the densities): their
 effect over a period is drawn exactly, a Gaussian vector of the covariance Van Loan's matrix
 exponential gives, from a numpy generator seeded from the plant's stream. The ADC's white
@@ -12,7 +12,6 @@ floor is the sensor's per-sample noise (``plant.sensor_noise``, hw_sim/plant.py
 Loop delay (section 4.4.4, DAC -> ADC): the command computed from the sample at t_k acts from
 t_k + loop_delay; until then the previous command holds. Both pieces are integrated exactly
 (matrix exponentials of the augmented system); so is the external force, held over the period.
-
 """
 from __future__ import annotations
 
@@ -37,7 +36,7 @@ def _noise_factor(a: np.ndarray, b_w: np.ndarray, t: float) -> np.ndarray:
     times: Q(2h) = Q(h) + e^{A h} Q(h) e^{A' h}."""
     n = a.shape[0]
     fastest = float(np.max(np.abs(np.linalg.eigvals(a)))) if n else 0.0
-    k = max(0, math.ceil(math.log2(fastest * t))) if fastest * t > 1.0 else 0
+    k = math.ceil(math.log2(fastest * t)) if fastest * t > 1.0 else 0
     h = t / 2 ** k
     van_loan = np.zeros((2 * n, 2 * n))
     van_loan[:n, :n], van_loan[:n, n:], van_loan[n:, n:] = -a, 0.5 * b_w @ b_w.T, a.T

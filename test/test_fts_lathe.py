@@ -200,6 +200,29 @@ def test_a_20_hz_motion_is_followed_as_the_closed_loop_predicts_and_within_the_s
 W_G, W_G_CORNER = 2.83e-9, 2000 * math.pi     # Ding Eq. (6-8): gain (no unit printed), corner rad/s
 
 
+def test_the_noise_per_period_has_the_covariance_of_the_continuous_noise_even_across_stiff_poles():
+    """hw_sim.flexure._noise_factor against the stationary form: for a stable A,
+    Q(T) = P - e^{AT} P e^{A'T} with A P + P A' + b b'/2 = 0 (a Lyapunov equation, no matrix
+    exponential of -A): a current-loop-like pole at -2.5e6 rad/s beside a 300 Hz mode and a
+    roll-off at -6.3e6 rad/s, over the fts_lathe period."""
+    from scipy.linalg import solve_continuous_lyapunov
+
+    from hw_sim.flexure import _noise_factor
+    w = 2 * math.pi * 300
+    a = np.array([[-2.5e6, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [2.0e9, -w * w, -0.02 * w, 3.0e8],
+                  [0.0, 0.0, 0.0, -6.3e6]])
+    b = np.array([[3.0e3, 0.0], [0.0, 0.0], [0.0, 1.0], [0.0, 5.0e3]])
+    period = 5.01e-6
+    p = solve_continuous_lyapunov(a, -0.5 * b @ b.T)
+    phi = expm(a * period)
+    expected = p - phi @ p @ phi.T
+    factor = _noise_factor(a, b, period)
+    ours = factor @ factor.T
+    scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))
+    assert np.abs(ours - expected).max() / scale.max() < 1e-9
+    assert np.diag(ours) == pytest.approx(np.diag(expected), rel=1e-7)
+
+
 def test_the_ground_moves_the_flexures_root_through_its_spring_and_damper(fts_lathe):
     """x1 / w_g of the stage's model (the columns hw_sim draws) is (c2 s + k2) G(s) W_g(s), G of
     Eqs. 5-4..5-7 written here, W_g of Eq. (6-8) read in sensor volts over S_capa (the YAML's
@@ -243,7 +266,11 @@ def test_ground_read_in_metres_gives_the_budgets_ground_error_in_the_closed_loop
     (('    plant: {}                  # assumed: air bearing', '    plant: {loop_delay: 1.0e-6}  #'),
      'axes.c.plant: loop_delay: only for voice_coil drives'),
     (('sensor_noise_density: {density: 5.888e-12}', 'sensor_noise_density: {density: 5.888e-12, corner: 10.0}'),
-     'axes.w.plant: sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak)'),
+     'axes.w.plant: sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak, '
+     'no rolloff)'),
+    (('sensor_noise_density: {density: 5.888e-12}', 'sensor_noise_density: {density: 5.888e-12, rolloff: 1.0e+6}'),
+     'axes.w.plant: sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak, '
+     'no rolloff)'),
     (('        rolloff: 6283185.307', '        rolloff: 0.0'),
      "axes.w.plant: ground_vibration needs a rolloff (rad/s): the root's velocity drives the flexure's damper, "
      'and a displacement flat to infinite frequency has none'),

@@ -97,11 +97,16 @@ def test_vaf_is_the_share_of_the_output_variance_the_model_explains():
     (lambda u, y: (u[:-1], y), 'input and output must be two series of one length'),
     (lambda u, y: (u, np.where(np.arange(len(y)) == 7, np.nan, y)), 'NaN or inf'),
     (lambda u, y: (u[:50], y[:50]), '50 samples: at least 60 are needed'),
-    (lambda u, y: (np.zeros_like(u), y), 'constant: nothing to identify'),
+    (lambda u, y: (np.zeros_like(u), y), 'the input is constant or a straight line'),
+    (lambda u, y: (np.linspace(0.0, 1.0, len(u)), y), 'the input is constant or a straight line'),
+    (lambda u, y: (u, 3.0 + 0.1 * np.arange(len(y))), 'the output is constant or a straight line'),
 ])
 def test_bad_data_is_refused_with_the_reason(edit, reason):
     u, y, period = chirp_data(*transfer(*MODELS['y']))
     result = identify(*edit(u, y), period)
     assert result.status is Status.BAD_DATA and reason in result.reason and result.model is None
     assert identify(u, y, 0.0).status is Status.BAD_DATA
-    assert 'order 9 must be within 1..6' in identify(u, y, period, order=9).reason
+    assert 'order 9 must be an integer within 1..6' in identify(u, y, period, order=9).reason
+    assert 'order 2.5 must be an integer' in identify(u, y, period, order=2.5).reason
+    assert 'block rows must be an integer >= 2, got 1' in identify(u, y, period, block_rows=1).reason
+    assert 'largest order searched must be an integer >= 1' in identify(u, y, period, max_order=0).reason

@@ -26,6 +26,7 @@ DISTRIBUTION_TO_KEY = {
     'ruckig': 'python3-ruckig-pip',  # the ROS package ruckig is the C++ library only
     'mcap': 'python3-mcap-pip',
     'nfoursid': 'python3-nfoursid-pip',
+    'pandas': 'python3-pandas',
     'mcap-ros2-support': 'mcap-ros2-support',  # rosdep's key for it has no python3- prefix
     'pytest': 'python3-pytest',
     'rosbags': 'python3-rosbags-pip',
@@ -44,6 +45,7 @@ ROSDISTRO_KEYS = {
     'trajectory_msgs', 'diagnostic_msgs', 'launch', 'launch_ros', 'pinocchio',
     'python3-numpy', 'python3-scipy', 'python3-yaml', 'python3-matplotlib', 'mcap-ros2-support',
     'python3-pytest', 'python3-rosbags-pip', 'python3-setuptools', 'python3-hypothesis',
+    'python3-pandas',     # rosdep/python.yaml at 000730dc (ubuntu: [python3-pandas])
 }
 
 

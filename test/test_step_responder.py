@@ -30,6 +30,18 @@ def test_each_step_is_computed_once_and_resends_get_the_cached_answer(answerer):
     assert a.answered_step == 0 and not a.waiting
 
 
+def test_a_step_counts_as_answered_only_once_its_answer_went_out(answerer):
+    """has_answered: what a node's per-step input streams use to drop readings of steps
+    already answered (hw_sim's re-sends) — step 0 is not answered before its answer."""
+    a, inputs = answerer
+    assert not a.has_answered(0)
+    a.on_state(0, 'state 0', now=0.0)
+    assert not a.has_answered(0)                     # waiting for its inputs
+    inputs['ready'].add(0)
+    a.poke()
+    assert a.has_answered(0) and not a.has_answered(1)
+
+
 def test_older_stamps_are_ignored(answerer):
     a, inputs = answerer
     inputs['ready'].update(range(5))

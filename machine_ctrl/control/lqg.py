@@ -16,14 +16,19 @@ machine_ctrl/identification/subspace.py), as plain numeric functions and one con
   biquad by the bilinear transform pre-warped at its centre.
 
 All of it is linear and deterministic; :class:`LqgController` runs it step by step.
+:func:`design` answers with a status and a reason (a model it cannot control, a notch it
+cannot place), never an exception.
 """
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_discrete_are
+from scipy.linalg import LinAlgError, solve_discrete_are
+
+from machine_ctrl.control.filters import Biquad, tustin
 
 Q_WEIGHT, R_WEIGHT = 1.0, 2.5          # Q = I, R = 2.5, Sörnmo section 2.5
 # assumed: the disturbance state drifts with a variance per sample of 1 % of the measurement
@@ -58,10 +63,13 @@ def lq_gains(phi, gamma, c, d: float, period: float, q: float = Q_WEIGHT, r: flo
 
 
 def reference_gain(phi, gamma, c, d: float, feedback) -> float:
-    """l_r with unit static gain of y/r for u = -L x + l_r r (module doc)."""
+    """l_r with unit static gain of y/r for u = -L x + l_r r (module doc); ValueError when
+    that loop has no static gain to scale."""
     n = phi.shape[0]
     closed = np.linalg.solve(np.eye(n) - phi + np.outer(gamma, feedback), gamma)
     static = float(c @ closed + d * (1.0 - feedback @ closed))
+    if not (math.isfinite(static) and abs(static) > 1e-12):
+        raise ValueError(f'the loop without integral action has static gain {static:g}')
     return 1.0 / static
 
 
@@ -82,31 +90,55 @@ def kalman_gain(phi, c, process, measurement, cross, drift: float = DISTURBANCE_
     return ((a @ p @ ce + se[:, 0]) / (ce @ p @ ce + r))
 
 
+class Status(enum.Enum):
+    OK = 'ok'
+    FAILED = 'failed'
+
+
+@dataclass(frozen=True)
+class LqgResult:
+    status: Status
+    reason: str
+    design: LqgDesign | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.status is Status.OK
+
+
 def design(phi, gamma, c, d: float, period: float, process, measurement, cross,
-           q: float = Q_WEIGHT, r: float = R_WEIGHT) -> LqgDesign:
+           q: float = Q_WEIGHT, r: float = R_WEIGHT) -> LqgResult:
+    """The module doc's controller for the model and its noise covariances, or the reason why not."""
     phi, gamma, c = np.asarray(phi, float), np.asarray(gamma, float).reshape(-1), np.asarray(c, float).reshape(-1)
-    feedback, integral = lq_gains(phi, gamma, c, d, period, q, r)
-    return LqgDesign(phi, gamma, c, float(d), period, feedback, integral,
-                     reference_gain(phi, gamma, c, d, feedback), kalman_gain(phi, c, process, measurement, cross))
+    if not (q > 0 and r > 0 and period > 0):
+        return LqgResult(Status.FAILED, f'weights and period must be positive, got Q = {q}, R = {r}, h = {period}')
+    try:
+        feedback, integral = lq_gains(phi, gamma, c, d, period, q, r)
+        lr = reference_gain(phi, gamma, c, d, feedback)
+        kalman = kalman_gain(phi, c, process, measurement, cross)
+    except (LinAlgError, ValueError, ZeroDivisionError) as exc:
+        return LqgResult(Status.FAILED, f'no LQG design for this model: {" ".join(str(exc).split()) or type(exc).__name__}')
+    if not (math.isfinite(lr) and np.isfinite(feedback).all() and np.isfinite(kalman).all()):
+        return LqgResult(Status.FAILED, 'no LQG design for this model: the gains are not finite')
+    return LqgResult(Status.OK, '', LqgDesign(phi, gamma, c, float(d), period, feedback, integral, lr, kalman))
 
 
-def notch(frequency: float, period: float, depth: float = 0.0, width: float = 0.5):
-    """(b, a) of the biquad (s^2 + 2 depth zeta w s + w^2) / (s^2 + 2 zeta w s + w^2),
-    zeta = width / 2, by the bilinear transform pre-warped at w = 2 pi `frequency`: gain
-    `depth` at the centre (0: a zero), 1 at DC and far from it."""
-    w = 2 * math.pi * frequency
-    k = w / math.tan(w * period / 2)               # pre-warping: the centre maps exactly
-    zeta = width / 2
-    num = np.array([k * k + 2 * depth * zeta * w * k + w * w, 2 * (w * w - k * k), k * k - 2 * depth * zeta * w * k + w * w])
-    den = np.array([k * k + 2 * zeta * w * k + w * w, 2 * (w * w - k * k), k * k - 2 * zeta * w * k + w * w])
-    return num / den[0], den / den[0]
+def notch(frequency: float, period: float, depth: float = 0.0, width: float = 0.5) -> Biquad:
+    """The biquad (s^2 + 2 depth zeta w s + w^2) / (s^2 + 2 zeta w s + w^2), zeta = width / 2,
+    by the bilinear transform pre-warped at w = 2 pi `frequency` (control/filters.py): gain
+    `depth` at the centre (0: a zero), 1 at DC and far from it. ValueError for a centre outside
+    (0, Nyquist)."""
+    if not 0.0 < frequency < 0.5 / period:
+        raise ValueError(f'notch at {frequency!r} Hz: must lie within (0, {0.5 / period:g}) Hz, the Nyquist band')
+    w, zeta = 2 * math.pi * frequency, width / 2
+    return tustin([1.0, 2 * depth * zeta * w, w * w], [1.0, 2 * zeta * w, w * w], period, prewarp=w)
 
 
 class LqgController:
     """The LQG law of a design, one step per sample: `step(r, y)` -> u (module doc), the
-    reference through an optional notch (b, a)."""
+    reference through an optional notch (a Biquad)."""
 
-    def __init__(self, design_: LqgDesign, reference_notch=None):
+    def __init__(self, design_: LqgDesign, reference_notch: Biquad | None = None):
         self.design, self.notch = design_, reference_notch
         self.reset()
 
@@ -114,21 +146,12 @@ class LqgController:
         n = self.design.phi.shape[0]
         self.estimate = np.zeros(n + 1)            # [x^, x^e]
         self.integral = 0.0
-        self._notch_in, self._notch_out = [0.0, 0.0], [0.0, 0.0]
-
-    def _filtered(self, r: float) -> float:
-        if self.notch is None:
-            return r
-        b, a = self.notch
-        x1, x2 = self._notch_in
-        y1, y2 = self._notch_out
-        y = b[0] * r + b[1] * x1 + b[2] * x2 - a[1] * y1 - a[2] * y2
-        self._notch_in, self._notch_out = [r, x1], [y, y1]
-        return y
+        if self.notch is not None:
+            self.notch.reset()
 
     def step(self, r: float, y: float) -> float:
         g = self.design
-        r = self._filtered(r)
+        r = r if self.notch is None else self.notch.step(r)
         n = g.phi.shape[0]
         x = self.estimate[:n]
         u = float(-g.feedback @ x - g.integral_gain * self.integral + g.reference_gain * r)

@@ -40,6 +40,10 @@ class StepAnswerer:
     def answered_step(self) -> int:
         return self.answered[0] if self.answered else 0
 
+    def has_answered(self, step: int) -> bool:
+        """Whether `step` (or a later one) has been answered: its inputs are no longer needed."""
+        return self.answered is not None and step <= self.answered[0]
+
     @property
     def waiting(self) -> bool:
         return self.pending is not None

@@ -23,7 +23,7 @@ in tens of ms):
   other way once the cut ends (the thesis's simulation: 180 nm), and the largest following
   error of the cut, motion and force together (measured: 266 nm). The deviation is the
   difference of two runs with the same seed, with and without the force (the noise cancels
-  exactly); the loop's column is its periodic steady state from the budget's force response
+  to within the ADC's and the DAC's quantization); the loop's column is its periodic steady state from the budget's force response
   at the harmonics of 100 Hz (an FFT of the force, no time stepping);
 * beam integrator (section 8.5.3, Table 8-4: R = 100 mm, L = 2 mm, 120 rpm, 5 um/rev) at
   r = 25 mm (the 50 mm workpiece): the largest following error, at the cell borders (the

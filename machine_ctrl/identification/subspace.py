@@ -116,7 +116,13 @@ def select_order(singular_values, max_order: int = MAX_ORDER) -> int:
     return int(np.argmax(ratios)) + 1
 
 
-def _problem(u: np.ndarray, y: np.ndarray, period: float, block_rows: int) -> str:
+def _problem(u: np.ndarray, y: np.ndarray, period: float, block_rows: int, order, max_order: int) -> str:
+    if not (isinstance(block_rows, int) and block_rows >= 2):
+        return f'block rows must be an integer >= 2, got {block_rows!r}'
+    if order is not None and not (isinstance(order, int) and 1 <= order <= block_rows):
+        return f'order {order!r} must be an integer within 1..{block_rows} (the block rows)'
+    if order is None and not (isinstance(max_order, int) and max_order >= 1):
+        return f'the largest order searched must be an integer >= 1, got {max_order!r}'
     if u.ndim != 1 or y.ndim != 1 or len(u) != len(y):
         return f'input and output must be two series of one length, got shapes {u.shape} and {y.shape}'
     if not (math.isfinite(period) and period > 0):
@@ -125,8 +131,10 @@ def _problem(u: np.ndarray, y: np.ndarray, period: float, block_rows: int) -> st
         return 'input or output holds NaN or inf'
     if len(u) < 10 * block_rows:
         return f'{len(u)} samples: at least {10 * block_rows} are needed for {block_rows} block rows'
-    if np.ptp(u) == 0 or np.ptp(y) == 0:
-        return 'the input or the output is constant: nothing to identify'
+    for name, raw in (('input', u), ('output', y)):      # what is left once mean and trend are removed
+        scale = float(np.abs(raw).max())
+        if scale == 0.0 or np.std(signal.detrend(raw)) <= 1e-9 * scale:
+            return f'the {name} is constant or a straight line: nothing to identify once its mean and trend are removed'
     return ''
 
 
@@ -151,9 +159,7 @@ def identify(u, y, period: float, order: int | None = None, block_rows: int = BL
     (section 2.3), N4SID with `block_rows`, the order given or selected from the singular
     values (:func:`select_order`), VAF on the detrended data."""
     u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
-    problem = _problem(u, y, period, block_rows)
-    if not problem and order is not None and not 1 <= order <= block_rows:
-        problem = f'order {order} must be within 1..{block_rows} (the block rows)'
+    problem = _problem(u, y, period, block_rows, order, max_order)
     if problem:
         return Identification(Status.BAD_DATA, problem)
     import pandas as pd                      # nfoursid takes a DataFrame

@@ -309,6 +309,11 @@ class MachineConfig:
     def axis_names(self) -> tuple[str, ...]:
         return tuple(a.name for a in self.axes)
 
+    @property
+    def accelerometer_axes(self) -> tuple[AxisConfig, ...]:
+        """The axes with an accelerometer on their moving mass (plant.accelerometer)."""
+        return tuple(a for a in self.axes if a.plant is not None and a.plant.accelerometer is not None)
+
     def axis(self, name: str) -> AxisConfig:
         for a in self.axes:
             if a.name == name:
@@ -531,8 +536,8 @@ def _plant_problem(axis: AxisConfig, period: float) -> str:
         if plant.friction or plant.resonance or plant.force_noise:
             return 'friction, resonance and force_noise are not modelled for a voice_coil drive'
         white = plant.sensor_noise_density
-        if white is not None and (white.corner or white.peak is not None):
-            return 'sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak)'
+        if white is not None and (white.corner or white.peak is not None or white.rolloff):
+            return 'sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak, no rolloff)'
         if plant.ground_vibration is not None and not plant.ground_vibration.rolloff:
             return ('ground_vibration needs a rolloff (rad/s): the root\'s velocity drives the flexure\'s damper, '
                     'and a displacement flat to infinite frequency has none')

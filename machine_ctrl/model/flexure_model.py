@@ -17,8 +17,9 @@ accelerometer's (through its conditioning low-pass, section 7.5.1), each the res
 unit white noise; a force F on m12 (the cutting force dF of Eq. 7-7) enters as F / m12.
 The ground vibration x_g moves the flexure's root (m3 of Eqs. 5-4..5-7 is the ground, as in
 machine_ctrl/experiments/fts_budget.py's G_g = (c2 s + k2) G): x_g is its filter's output
-(Eq. 6-8 form, with the config's roll-off, so x_g' is finite), the sensor reads x1 as in the
-budget (the frame's motion at the sensor is not modelled apart).
+(Eq. 6-8 form, with the config's roll-off, so x_g' is finite). assumed: the sensor reads x1
+as the budget has it (its mount's own motion with the ground is not modelled apart; the thesis
+does not say where the capacitive sensor's target and probe sit relative to the ground path).
 """
 from __future__ import annotations
 
@@ -76,8 +77,6 @@ class FlexureModel:
     accelerometer: int | None
     current_noise: slice
     core: int
-
-
 
 
 def _add_filter(a: np.ndarray, b_w: np.ndarray, column: int, noise: NoiseConfig | None, start: int):

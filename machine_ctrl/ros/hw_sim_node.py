@@ -100,7 +100,7 @@ class HwSimNode(Node):
         self.pub_state = self.create_publisher(JointState, contract.JOINT_STATES.name, ros_io.STEP_QOS)
         # one sensor_msgs/Imu per accelerometer and step, while subscribed (a servo with the
         # acceleration loop, a recorder; a lock-step re-send of the state re-sends them too)
-        self.accelerometer_axes = [(i, a) for i, a in enumerate(self.machine.axes) if a.plant and a.plant.accelerometer]
+        self.accelerometer_axes = [(self.machine.axes.index(a), a) for a in self.machine.accelerometer_axes]
         self.pub_acceleration = (self.create_publisher(Imu, contract.ACCELEROMETERS.name, ros_io.STEP_QOS)
                                  if self.accelerometer_axes else None)
         self.pub_true = self.create_publisher(JointState, contract.TRUE_JOINT_STATES.name, ros_io.STEP_QOS)

@@ -64,7 +64,9 @@ def accelerometer_message(stamp: Time, axis, reading: float) -> Imu:
     """sensor_msgs/Imu of `axis`'s accelerometer (contract.ACCELEROMETERS): frame_id the link
     the axis moves, linear_acceleration the reading (m/s^2) along the joint axis in that frame;
     no orientation and no angular velocity (covariance element 0 = -1, REP 145), the linear
-    acceleration's covariance unknown (zeros)."""
+    acceleration's covariance unknown (zeros). The reader's projection back onto the axis
+    (:func:`accelerometer_reading`) gives the reading bit for bit when the joint axis is x, y
+    or z of its link (every machine here); an oblique axis only to rounding."""
     msg = Imu()
     msg.header.stamp, msg.header.frame_id = stamp, axis.link
     msg.orientation_covariance[0] = msg.angular_velocity_covariance[0] = -1.0

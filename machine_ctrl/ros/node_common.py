@@ -216,6 +216,9 @@ class StepResponder:
     def answered_step(self) -> int:
         return self.core.answered_step
 
+    def has_answered(self, step: int) -> bool:
+        return self.core.has_answered(step)
+
     @property
     def waiting(self) -> bool:
         return self.core.waiting

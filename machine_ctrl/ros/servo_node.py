@@ -63,7 +63,6 @@ class ServoNode(StepNode):
         self.accelerometer_axes = [self.machine.axis(a) for a in self.servo.uses_acceleration]
         self.acceleration_slots = [self.axes.index(a.name) for a in self.accelerometer_axes]
         self.accelerations = StepInput(contract.ACCELEROMETERS.name)
-        self.machine_accelerometers = [a for a in self.machine.axes if a.plant and a.plant.accelerometer]
 
         self.make_buffer(self.axes)
         self.encoder = JointStateEncoder(self.axes)
@@ -122,12 +121,12 @@ class ServoNode(StepNode):
         """One axis's reading of one step; the step's readings are complete with every axis's."""
         try:
             step = self.clock.step(msg.header.stamp)
-            axis, value = ros_io.accelerometer_reading(msg, self.machine_accelerometers)
+            axis, value = ros_io.accelerometer_reading(msg, self.machine.accelerometer_axes)
         except ros_io.InvalidMessage as exc:
             self.rejections.add('accelerations', str(exc))
             return
-        if all(a.name != axis for a in self.accelerometer_axes):
-            return                          # another node's axis
+        if all(a.name != axis for a in self.accelerometer_axes) or self.responder.has_answered(step):
+            return                          # another node's axis, or a re-send of a step already answered
         readings = self.accelerations.pending.get(step, {})
         readings[axis] = value
         self.accelerations.put(step, readings)
@@ -195,7 +194,15 @@ class ServoNode(StepNode):
                   **{g.name: getattr(self.servo.servo(g.axis).law.gains, g.gain) for g in self.gains}}
         self.pub_diag.publish(ros_io.diagnostics(
             self.clock.stamp(step), self.get_name(), DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
-            'reference underrun' if self.buffer.underruns else 'ok', values))
+            self.problem_text(), values))
+
+    def problem_text(self) -> str:
+        """The status message: what went wrong so far, or 'ok'."""
+        problems = [f'{count} {what}' for count, what in (
+            (self.buffer.underruns, 'reference underruns'), (self.offsets.missing, 'steps without offsets'),
+            (self.accelerations.missing, 'steps without accelerometer readings'),
+            (self.rejections.count, 'rejected messages')) if count]
+        return '; '.join(problems) or 'ok'
 
 
 class StepInput:
@@ -210,9 +217,16 @@ class StepInput:
         self.missing = 0                   # steps left unanswered for want of this input
         self.lost_step: int | None = None  # the newest such step
 
+    # assumed: 10,000 steps (1 s at 10 kHz) is far more than lock-step lets a stream run ahead
+    # (hw_sim waits for every answer); a stream that does (paced hw_sim before any reference
+    # arrives) keeps only its newest steps
+    WINDOW = 10_000
+
     def put(self, step: int, value) -> None:
         self.pending[step] = value
         self.started = True
+        if len(self.pending) > self.WINDOW:
+            del self.pending[next(iter(self.pending))]        # the oldest put
 
     def take(self, step: int):
         """The value of `step` (None if it has none), dropping it and every older one."""
