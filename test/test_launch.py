@@ -155,46 +155,50 @@ def send_goal_and_follow(env, namespace: str, launch: Launch, goal: str, subscri
     return seen
 
 
+def side_by_side(*calls):
+    """Independent waits of `ros2 topic echo` processes (call = (function, *args)) run at once:
+    each waits on discovery and a message, not on the others; their results in order (the
+    first failure is raised)."""
+    with concurrent.futures.ThreadPoolExecutor(len(calls)) as pool:
+        futures = [pool.submit(call[0], *call[1:]) for call in calls]
+        return [future.result() for future in futures]
+
+
 @pytest.fixture
 def cli_env(ros_env):
     return {**ros_env, 'PATH': f'{BIN}{os.pathsep}{os.environ.get("PATH", "")}', 'PYTHONUNBUFFERED': '1'}
 
 
-def test_launch_in_a_namespace_moves_records_and_stops_cleanly_on_ctrl_c(cli_env, tmp_path):
-    bag = tmp_path / 'bag'
-    launch = Launch(cli_env, tmp_path / 'launch.log', 'machine:=trt_5axis', 'namespace:=mill2', f'record:={bag}')
-    try:
-        wait_ready(cli_env, '/mill2', launch)
-        echo_until(cli_env, '/mill2/robot_description', 'std_msgs/msg/String', lambda m: '<robot' in m['data'],
-                   launch, 60.0)
-        # 2 subscribers: the trajectory node and the recorder
-        statuses = send_goal_and_follow(cli_env, '/mill2', launch, '{joint_names: [x], points: [{positions: [0.01]}]}', 2)
-        assert statuses == [1, 2, 4], statuses         # accepted, executing, succeeded
-        status, seconds = launch.interrupt()
-    finally:
-        launch.close()
+def assert_ended_cleanly(launch: Launch, status: int, nodes: int) -> None:
+    """Exit status 0 and every node process launched (at least `nodes`) finished cleanly."""
     text = launch.text()
-    print(f'launch ended {seconds:.2f} s after Ctrl-C (status {status})')
     assert status == 0, text[-3000:]
     assert 'Traceback' not in text and 'KeyboardInterrupt' not in text, text[-3000:]
     started = [line for line in text.splitlines() if 'process started with pid' in line]
     finished = [line for line in text.splitlines() if 'process has finished cleanly' in line]
     died = [line for line in text.splitlines() if 'process has died' in line]
-    assert len(started) >= 5, text[-3000:]      # hw_sim, servo, trajectory, contour_error, recorder
+    assert len(started) >= nodes, text[-3000:]
     assert not died and len(finished) == len(started), text[-3000:]
-    with Bag(bag) as recorded:                        # the indexed reader: summary and metadata present
-        assert recorded.topics['/mill2/joint_states'].count > 0
-        assert recorded.custom_data['machine_ctrl.namespace'] == '/mill2'
 
 
-def test_two_machines_in_two_namespaces_run_side_by_side(cli_env, tmp_path):
+def test_two_machines_in_two_namespaces_run_side_by_side_one_records_and_both_stop_cleanly_on_ctrl_c(
+        cli_env, tmp_path):
+    """Two launches in one ROS domain: mill1 (micromill_9axis) and mill2 (trt_5axis, recording).
+    Each graph is alone in its namespace (nothing in the root, each clock heard by its own
+    graph only); a goal to mill1 reaches mill1 only; mill2 publishes its robot_description,
+    moves with a goal of its own and records it; Ctrl-C ends every node of both cleanly,
+    mill2's bag closed. (One start-up of the two graphs for what were two tests: a launch in
+    a namespace with a recording, and two machines side by side.)"""
+    bag = tmp_path / 'bag'
     mill1 = Launch(cli_env, tmp_path / 'mill1.log', 'machine:=micromill_9axis', 'namespace:=mill1')
-    mill2 = Launch(cli_env, tmp_path / 'mill2.log', 'machine:=trt_5axis', 'namespace:=mill2')
+    mill2 = Launch(cli_env, tmp_path / 'mill2.log', 'machine:=trt_5axis', 'namespace:=mill2', f'record:={bag}')
     try:
-        for launch, ns in ((mill1, '/mill1'), (mill2, '/mill2')):
-            wait_ready(cli_env, ns, launch)
-        states1 = echo_until(cli_env, '/mill1/joint_states', 'sensor_msgs/msg/JointState', bool, mill1, 60.0, False)
-        states2 = echo_until(cli_env, '/mill2/joint_states', 'sensor_msgs/msg/JointState', bool, mill2, 60.0, False)
+        side_by_side((wait_ready, cli_env, '/mill1', mill1), (wait_ready, cli_env, '/mill2', mill2))
+        _, states1, states2 = side_by_side(
+            (echo_until, cli_env, '/mill2/robot_description', 'std_msgs/msg/String', lambda m: '<robot' in m['data'],
+             mill2, 60.0),
+            (echo_until, cli_env, '/mill1/joint_states', 'sensor_msgs/msg/JointState', bool, mill1, 60.0, False),
+            (echo_until, cli_env, '/mill2/joint_states', 'sensor_msgs/msg/JointState', bool, mill2, 60.0, False))
         assert states1['name'] == ['x_c', 'y_c', 'z_c', 'x_f', 'y_f', 'z_f', 'a_f', 'b_f', 'c_f']
         assert states2['name'] == ['x', 'y', 'z', 'a', 'c']
         topics = ros2(cli_env, 'topic', 'list').split()
@@ -208,12 +212,22 @@ def test_two_machines_in_two_namespaces_run_side_by_side(cli_env, tmp_path):
         other = echo_until(cli_env, '/mill2/trajectory/goal_status', 'action_msgs/msg/GoalStatusArray',
                            lambda m: True, mill2, 60.0)
         assert not other.get('status_list'), other            # the goal went to mill1 only
-        for launch in (mill1, mill2):
-            status, _ = launch.interrupt()
-            assert status == 0, launch.text()[-3000:]
+        # mill2's own goal: 2 subscribers, the trajectory node and the recorder
+        statuses = send_goal_and_follow(cli_env, '/mill2', mill2, '{joint_names: [x], points: [{positions: [0.01]}]}',
+                                        2)
+        assert statuses == [1, 2, 4], statuses         # accepted, executing, succeeded
+        status2, seconds = mill2.interrupt()
+        status1, _ = mill1.interrupt()
     finally:
         mill1.close()
         mill2.close()
+    print(f'mill2 launch ended {seconds:.2f} s after Ctrl-C (status {status2})')
+    assert_ended_cleanly(mill2, status2, 5)       # hw_sim, servo, trajectory, contour_error, recorder
+    assert status1 == 0, mill1.text()[-3000:]
+    with Bag(bag) as recorded:                        # the indexed reader: summary and metadata present
+        assert recorded.topics['/mill2/joint_states'].count > 0
+        assert recorded.custom_data['machine_ctrl.namespace'] == '/mill2'
+        assert not [t for t in recorded.topics if t.startswith('/mill1/')], list(recorded.topics)   # its own only
 
 
 def _diagnostic_values(message) -> dict:

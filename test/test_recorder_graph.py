@@ -176,12 +176,25 @@ def live(micromill, ros_env, tmp_path_factory):
             rclpy.try_shutdown()
     published = {topic: msgs for topic, msgs in log.messages.items() if topic in TOPICS}
     print(f'recorder pause: {pause}')
-    return bag, published, output, pause
+    yield bag, published, output, pause
+    _TEXTS.clear()
 
 
 def _stamp_ns(msg) -> int:
     stamp = msg.clock if hasattr(msg, 'clock') else msg.header.stamp
     return stamp.sec * 10**9 + stamp.nanosec
+
+
+_TEXTS = {}     # id(message) -> (message, repr(message)): the published messages' texts, made once
+
+
+def _text(msg) -> str:
+    """repr(msg) (every field, floats exactly) of a published message, computed once per
+    message: three tests compare the same ~10^5 messages by it."""
+    entry = _TEXTS.get(id(msg))
+    if entry is None or entry[0] is not msg:          # (the message is kept: its id is not reused)
+        entry = _TEXTS[id(msg)] = (msg, repr(msg))
+    return entry[1]
 
 
 def _expected(published, recorded_reprs):
@@ -195,7 +208,7 @@ def _expected(published, recorded_reprs):
         recorded = collections.Counter(recorded_reprs[topic])
         keep = []
         for publisher in dict.fromkeys(p for p, _ in entries):
-            texts = [(repr(m), m) for p, m in entries if p == publisher]
+            texts = [(_text(m), m) for p, m in entries if p == publisher]
             seen = collections.Counter()
             start = len(texts)
             while start > 0 and seen[texts[start - 1][0]] < recorded[texts[start - 1][0]]:
@@ -266,7 +279,7 @@ def test_run_is_at_least_two_seconds_and_every_message_is_recorded(live, readbac
     assert set(recorded) == set(TOPICS)
     for topic, msgs in expected.items():
         assert len(recorded[topic]) == len(msgs), topic                    # count == published
-        assert collections.Counter(reprs[topic]) == collections.Counter(map(repr, msgs)), topic
+        assert collections.Counter(reprs[topic]) == collections.Counter(map(_text, msgs)), topic
         # before the recorder was matched hw_sim held step 0 (min_subscribers): what went out
         # unrecorded is step 0's (its re-sends and the answers to them, however many the
         # start-up took), never a later step
@@ -318,7 +331,7 @@ def _step(stamp):
 
 def test_decoded_values_equal_what_was_published(readback):
     header, summary, messages, metadata, recorded, reprs, expected = readback
-    by_repr = {topic: {repr(m): m for m in msgs} for topic, msgs in expected.items()}
+    by_repr = {topic: {_text(m): m for m in msgs} for topic, msgs in expected.items()}
     position = collections.Counter()
     for topic, data, decoded in messages:
         text = reprs[topic][position[topic]]
@@ -376,14 +389,19 @@ def test_rosbags_reads_the_same_topics_counts_and_messages(live, readback):
     assert decoded == {topic: len(msgs) for topic, msgs in published.items()}
 
 
-def test_analysis_of_the_recording_matches_the_offline_run(live, micromill):
+@pytest.fixture(scope='module')
+def live_analysis(live):
+    """machine_ctrl.recording.analysis of the live bag (read, not changed, by two tests)."""
+    from machine_ctrl.recording import analysis
+    return analysis.analyse(analysis.load(live[0]))
+
+
+def test_analysis_of_the_recording_matches_the_offline_run(live_analysis, micromill):
     """The graph is bit-identical to the offline runner, so the analysis of the bag must
     give the offline run's errors (computed here with plain numpy)."""
-    from machine_ctrl.recording import analysis
     from hw_sim.offline import run
     from trajectory.contours import circle
-    bag, _, _, _ = live
-    result = analysis.analyse(analysis.load(bag))
+    result = live_analysis
     assert result['first_step'] == 0 and result['steps'] == result['last_step'] + 1 >= STEPS
     reference, _ = circle(micromill)
     offline = run(micromill, reference, steps=result['steps'])
@@ -394,22 +412,30 @@ def test_analysis_of_the_recording_matches_the_offline_run(live, micromill):
             {'mean': np.abs(e).mean(), 'max': np.abs(e).max(), 'rms': np.sqrt((e * e).mean())}, rel=1e-12, abs=1e-18)
 
 
-def test_replay_into_a_fresh_recording_gives_the_same_analysis(live, micromill, ros_supervisor, tmp_path):
+def test_replay_into_a_fresh_recording_gives_the_same_analysis(live, live_analysis, micromill, ros_supervisor,
+                                                                tmp_path):
     from machine_ctrl.recording import analysis
     from machine_ctrl.recording.bag import Bag
     from machine_ctrl.recording.replay import clock_ns
     bag, _, _, _ = live
     copy = tmp_path / 'replayed'
     topics = {t: TOPICS[t] for t in ('/joint_states', '/reference', '/clock')}
+    times = [time.monotonic()]
     ros_supervisor.start('recorder2', _recorder_argv(copy, topics, micromill.yaml_path))
     ros_supervisor.wait_for_line('recorder2', 'recording to', timeout=60)
+    times.append(time.monotonic())
     ros_supervisor.start('replay', [sys.executable, '-m', 'machine_ctrl.app.cli', 'replay', str(bag), '--rate', '2',
                                     '--topics', *topics, '--wait-for-subscribers', '1'])
     assert ros_supervisor.wait('replay', timeout=240) == 0, ros_supervisor['replay'].tail()
+    times.append(time.monotonic())
     ros_supervisor.stop('recorder2')
     assert ros_supervisor['recorder2'].returncode == 0
-    live_result = analysis.public(analysis.analyse(analysis.load(bag)))
+    times.append(time.monotonic())
+    live_result = analysis.public(live_analysis)          # a new dict: the fixture's is not changed
     replayed = analysis.public(analysis.analyse(analysis.load(copy)))
+    times.append(time.monotonic())
+    print('replay phases, s: recorder up %.1f, replay %.1f, recorder stop %.1f, analysis %.1f'
+          % tuple(b - a for a, b in zip(times, times[1:])))
     live_result.pop('source')
     replayed.pop('source')
     assert replayed == live_result
