@@ -349,8 +349,9 @@ TRAJECTORY = NodeParameters('trajectory_node', (
                   f'({contract.TRAJECTORY_REFERENCE.name} when compensation sits between)', required=True),
     # the freeform cut that contract.FREEFORM starts (trajectory/freeform.py; Ding Ch. 8): read at the call
     ParameterSpec('freeform.surface', STRING, 'sinusoidal_grid', description='surface: sinusoidal_grid (Ding '
-                  'Table 8-5), beam_integrator (Table 8-4) or the path of a CSV surface table (x, y, height in m); '
-                  f'live: read by {contract.FREEFORM.name}', required=True, live=True),
+                  'Table 8-5), beam_integrator (Table 8-4), micro_lens_array (Table 8-3) or the path of a CSV '
+                  f'surface table (x, y, height in m); live: read by {contract.FREEFORM.name}', required=True,
+                  live=True),
     ParameterSpec('freeform.spindle_speed', DOUBLE, 2 * math.pi, 'rad/s', 'spindle speed (default 60 rpm, Ding '
                   f'Table 8-5); live: read by {contract.FREEFORM.name}', low=0.0, low_open=True, live=True),
     ParameterSpec('freeform.feed_per_rev', DOUBLE, 5e-6, 'm', 'radial feed per revolution, towards the centre '

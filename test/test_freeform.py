@@ -151,10 +151,22 @@ def test_a_freeform_program_enters_the_cut_under_way_plays_it_and_stops_at_rest(
     assert_within_limits(fts_lathe, whole.position)
 
 
+def test_the_micro_lens_array_is_the_100_hz_sine_of_table_8_3_slaved_to_the_spindle(fts_lathe):
+    """Section 8.5.2, Table 8-3: at 16 rpm, 375 lenslets per revolution make W a 100 Hz sine of
+    the nominal 5 um, computed from the commanded spindle angle."""
+    cut = freeform_reference(fts_lathe, surface_named('micro_lens_array'),
+                             Turning(16 * 2 * math.pi / 60, 0.0, 10e-3, 0.03), lead=0.0)
+    assert cut.ok, cut.reason
+    t = np.arange(len(cut.reference)) * fts_lathe.control_period
+    w = cut.reference.position[:, fts_lathe.axis_names.index('w')] - fts_lathe.home[fts_lathe.axis_names.index('w')]
+    assert np.abs(w - 5e-6 * np.sin(2 * math.pi * 100.0 * t)).max() < 1e-12
+
+
 def test_surfaces_by_name_or_table_and_a_refused_cut_gives_the_reason(fts_lathe, tmp_path):
     assert isinstance(surface_named('sinusoidal_grid'), SinusoidalGrid)
     assert isinstance(surface_named('beam_integrator'), BeamIntegrator)
-    with pytest.raises(ValueError, match=r"^surface 'spiral': a name \(sinusoidal_grid, beam_integrator\) or a "
+    with pytest.raises(ValueError, match=r"^surface 'spiral': a name \(sinusoidal_grid, beam_integrator, "
+                                         r"micro_lens_array\) or a "
                                          r'\.csv surface table$'):
         surface_named('spiral')
     with pytest.raises(SurfaceTableError):

@@ -12,6 +12,8 @@ Surfaces (height h in m at workpiece coordinates x, y in m):
 * :class:`SinusoidalGrid` — section 8.5.4, Table 8-5: A_x sin(2 pi x/lambda_x) + A_y sin(2 pi y/lambda_y);
 * :class:`BeamIntegrator` — section 8.5.3, Table 8-4 and its script: a square array (pitch L)
   of spherical cups of radius R, h = R - sqrt(R^2 - rho^2) in each cell's local coordinates;
+* :class:`MicroLensArray` — section 8.5.2, Table 8-3: the micro-lenslet ring, the fast axis a
+  sine in the spindle angle, h = A sin(n atan2(y, x)), n lenslets per revolution;
 * :class:`SurfaceTable` — any surface as a table of heights on a regular x-y grid (a CSV
   file: x, y, height per row), bilinear between the nodes.
 
@@ -28,7 +30,8 @@ lands on the surface (still slaved to the spindle angle and radius, its height f
 cut; the lead-out (faded out); a time-optimal stop. The fast axis never moves with the slow
 axes' entry or stop, so its stroke holds whatever the spindle needs to get up to speed; what
 the trajectory node runs for a freeform goal. :func:`surface_named`
-reads a surface by name (``sinusoidal_grid``, ``beam_integrator``: the thesis's) or CSV path.
+reads a surface by name (``sinusoidal_grid``, ``beam_integrator``, ``micro_lens_array``: the
+thesis's) or CSV path.
 
 :func:`freeform_reference` returns a :class:`FreeformResult` (status, reason, reference):
 a surface that leaves the fast axis's stroke, a feed that crosses the spindle centre, a
@@ -80,6 +83,21 @@ class BeamIntegrator:
         local_x = x - np.floor(x / pitch) * pitch - pitch / 2
         local_y = y - np.floor(y / pitch) * pitch - pitch / 2
         return self.radius - np.sqrt(self.radius ** 2 - (local_x ** 2 + local_y ** 2))
+
+
+@dataclass(frozen=True)
+class MicroLensArray:
+    """Ding section 8.5.2, Table 8-3 (defaults): the fast axis moves as a sine of the spindle
+    angle, `per_revolution` periods per turn, and the tool cuts the material at the far end of
+    each stroke (depth of cut half the amplitude), one lenslet per period. 100 Hz at the 16 rpm
+    of Table 8-3 is 375 per revolution; the amplitude is the text's nominal 5 um (Table 8-3
+    prints 10 um: seed-notes.md). The height is the commanded motion; the surface cut is its
+    envelope above the depth of cut."""
+    amplitude: float = 5e-6
+    per_revolution: int = 375
+
+    def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return self.amplitude * np.sin(self.per_revolution * np.arctan2(y, x))
 
 
 @dataclass(frozen=True)
@@ -274,7 +292,8 @@ def _landing(n: int, led: int) -> np.ndarray:
     return weight
 
 
-SURFACES = {'sinusoidal_grid': SinusoidalGrid, 'beam_integrator': BeamIntegrator}   # the thesis's, by name
+SURFACES = {'sinusoidal_grid': SinusoidalGrid, 'beam_integrator': BeamIntegrator,      # the thesis's, by name
+            'micro_lens_array': MicroLensArray}
 LEAD = 0.02     # s, assumed: the fast axis lands on the surface and lifts off over 20 ms (module doc)
 JUNCTION_SCALE = 0.98   # the entry and stop at 98 % of the limits: sampled across their junctions with the
                         # cut (at speed) the jerk would otherwise read up to ~1 % over (test_freeform.py)

@@ -46,7 +46,7 @@ def register(subparsers) -> None:
     move.set_defaults(run=cmd_move)
     cut = subparsers.add_parser('freeform', help='a spindle-slaved freeform cut (Ding Ch. 8) on the running graph, '
                                 'followed: the trajectory node\'s freeform.* parameters, then its freeform service')
-    cut.add_argument('surface', nargs='?', help='sinusoidal_grid, beam_integrator or a CSV surface table '
+    cut.add_argument('surface', nargs='?', help='sinusoidal_grid, beam_integrator, micro_lens_array or a CSV surface table '
                      '(default: the node\'s freeform.surface)')
     for flag, name, text in (('--rpm', 'spindle_speed', 'spindle speed, rpm'),
                              ('--feed-per-rev', 'feed_per_rev', 'radial feed per revolution, m'),
