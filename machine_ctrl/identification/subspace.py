@@ -21,6 +21,7 @@ never repaired.
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from dataclasses import dataclass
 
@@ -138,6 +139,7 @@ def _problem(u: np.ndarray, y: np.ndarray, period: float, block_rows: int, order
     return ''
 
 
+@functools.cache
 def _n4sid_class():
     """nfoursid's NFourSID with its observability decomposition by the economy SVD (module doc;
     test/test_identification.py checks it against the library's own)."""
