@@ -31,6 +31,7 @@ from hypothesis import strategies as st
 
 from machine_ctrl import contract
 from machine_ctrl.model.config import load_machine
+from trajectory.axis_limits import unlimited_range
 
 MACHINE = load_machine('micromill_9axis')
 PERIOD_NS = contract.StepClock.of(MACHINE).period_ns
@@ -619,9 +620,10 @@ GOAL_DEFECTS = ('no names', 'duplicate', 'unknown', 'no points', 'length', 'non-
 
 def _beyond(axis: str):
     """A position of `axis` it does not accept: outside its stroke, or beyond the range
-    float rounding allows on an unlimited axis (2048 rad on c_f)."""
+    float rounding allows on an unlimited axis (axis_limits.unlimited_range: 2^31 rad on c_f)."""
     a = MACHINE.axis(axis)
-    low, high = a.stroke if a.stroke else (-2048.0, 2048.0)
+    bound = unlimited_range(a, MACHINE.control_period)
+    low, high = a.stroke if a.stroke else (-bound, bound)
     return st.one_of(st.floats(1e-3, 1e3).map(lambda d: high + d), st.floats(1e-3, 1e3).map(lambda d: low - d),
                      st.sampled_from((1e308, -1e308)))
 
@@ -630,7 +632,7 @@ def _beyond(axis: str):
 def joint_goals(draw):
     """Axis goals (a subset of the axes, 1..4 points inside the strokes, times all zero or
     increasing) with one or two of the README's refusals: no names, a duplicate or unknown
-    name, no points, a length mismatch, NaN/inf, outside the stroke / beyond +-2048 rad,
+    name, no points, a length mismatch, NaN/inf, outside the stroke / beyond the range of c_f,
     a negative, non-increasing or too long (> 2^20 control steps) time_from_start."""
     names = draw(st.lists(st.sampled_from(AXES), min_size=1, max_size=len(AXES), unique=True))
     k = draw(st.integers(1, 4))

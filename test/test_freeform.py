@@ -6,6 +6,7 @@ import json
 import math
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import pytest
 from limit_checks import assert_within_limits
 from trajectory.freeform import (BeamIntegrator, FreeformStatus, SinusoidalGrid, SurfaceTableError, Turning,
                                  freeform_program, freeform_reference, read_surface_table, surface_named)
-from trajectory.moves import AxisState
+from trajectory.moves import AxisState, home
 
 RPM = 2 * math.pi / 60
 
@@ -151,6 +152,26 @@ def test_a_freeform_program_enters_the_cut_under_way_plays_it_and_stops_at_rest(
     assert_within_limits(fts_lathe, whole.position)
 
 
+def test_a_lathe_cuts_again_from_wherever_its_spindle_stopped_and_goes_home(fts_lathe):
+    """A cut at 120 rpm leaves c a turn and more from home; the next cut starts there, either
+    where the spindle stands (start_angle = its angle) or back at 0, and home unwinds it,
+    every motion within the limits as sampled at 5 µs."""
+    turning = Turning(120 * RPM, 5e-6, 1e-3, 0.4)
+    first = freeform_program(fts_lathe, SinusoidalGrid(), turning, AxisState.at_rest(fts_lathe.home))
+    assert first.ok, first.reason
+    end = tuple(first.reference.position[-1])
+    angle = end[fts_lathe.axis_names.index('c')]
+    assert angle > 2 * math.pi
+    for start_angle in (angle, 0.0):
+        again = freeform_program(fts_lathe, SinusoidalGrid(), replace(turning, start_angle=start_angle),
+                                 AxisState.at_rest(end))
+        assert again.ok, again.reason
+        assert_within_limits(fts_lathe, again.reference.position)
+    back = home(fts_lathe, AxisState.at_rest(end))
+    np.testing.assert_allclose(back.position[-1], fts_lathe.home, rtol=0, atol=1e-12)
+    assert_within_limits(fts_lathe, back.position)
+
+
 def test_the_micro_lens_array_is_the_100_hz_sine_of_table_8_3_slaved_to_the_spindle(fts_lathe):
     """Section 8.5.2, Table 8-3: at 16 rpm, 375 lenslets per revolution make W a 100 Hz sine of
     the nominal 5 um, computed from the commanded spindle angle."""
@@ -222,5 +243,6 @@ def test_the_default_cut_stays_inside_every_stroke_and_limit(fts_lathe):
     column = result.reference.position[:, fts_lathe.axis_names.index('w')]
     assert w.stroke[0] <= column.min() and column.max() <= w.stroke[1]
     first, end = result.cut
-    assert not column[:first - int(round(0.02 / fts_lathe.control_period))].any()      # home through the entry
+    entry = column[:first - int(round(0.02 / fts_lathe.control_period))]
+    assert np.abs(entry).max() < 1e-18      # home through the entry (Ruckig's 1e-21 m residual, spread)
     assert_within_limits(fts_lathe, result.reference.position)

@@ -1,11 +1,13 @@
 """Ruckig point-to-point moves: exact goals, limits kept when sampled at the control
 period, continuity from a moving start, smooth stop, refused goals."""
+import math
+
 import numpy as np
 import pytest
-from limit_checks import assert_within_limits
+from limit_checks import assert_within_limits, rounding_error
 
 from trajectory.axis_limits import unlimited_range
-from trajectory.moves import AxisState, home, move_to, smooth_stop, through_waypoints
+from trajectory.moves import AxisState, home, move_to, move_to_state, smooth_stop, through_waypoints, validate_goal
 
 GOAL = [0.01, -0.02, 0.03, 5e-5, -4e-5, 2e-5, 0.001, -0.002, 1.0]
 
@@ -55,22 +57,56 @@ def test_home_returns_to_home(micromill):
     (GOAL[:3] + [2e-4] + GOAL[4:], r'x_f at 0.0002 m, outside its stroke \[-0.0001, 0.0001\] m by 100 µm'),
     (GOAL[:7] + [-0.01] + GOAL[8:], r'b_f at -0.01 rad, outside its stroke \[-0.00872665, 0.00872665\] rad '
                                     r'by 1.27 mrad'),
-    # c_f is unlimited: ulp(q) <= 0.001 x 2000 rad/s³ x (100 µs)³ / 4 = 5e-13 rad up to 2^11 rad
-    (GOAL[:8] + [2049.0], r'c_f at 2049 rad, beyond ±2048 rad \(326 turns\), the range of its unlimited axis'),
+    # c_f is unlimited: ulp(q) <= 0.001 x 2 pi rad/s x 100 µs = 6.3e-7 rad up to 2^31 rad
+    (GOAL[:8] + [2.2e9], r'c_f at 2\.2e\+09 rad, beyond ±2\.14748e\+09 rad \(341782638 turns\), the range of '
+                         r'its unlimited axis'),
 ])
 def test_bad_goals_are_refused(micromill, goal, message):
     with pytest.raises(ValueError, match=message):
         move_to(micromill, goal)
 
 
-def test_the_unlimited_range_is_where_float64_resolves_the_jerk_at_the_control_period(micromill, trt):
+def test_the_unlimited_range_is_where_float64_resolves_the_velocity_at_the_control_period(micromill, trt,
+                                                                                         fts_lathe):
+    # micromill c_f: 0.001 x 2 pi rad/s x 100 µs = 6.28e-7 rad lies in [ulp of [2^31, 2^32), ulp of [2^32, 2^33))
     c_f = micromill.axes[micromill.axis_names.index('c_f')]
-    assert unlimited_range(c_f, micromill.control_period) == 2048.0
-    # trt_5axis c: 0.001 x 2000 rad/s³ x (1 ms)³ / 4 = 5e-10 rad = ulp of [2^21, 2^22)
+    assert unlimited_range(c_f, micromill.control_period) == 2.0**31
+    assert np.spacing(2.0**31) <= 6.28e-7 < np.spacing(2.0**32)
+    # trt_5axis c: 0.001 x 6 rad/s x 1 ms = 6e-6 rad = between the ulps of [2^34, 2^35) and [2^35, 2^36)
     c = trt.axes[trt.axis_names.index('c')]
-    assert unlimited_range(c, trt.control_period) == 2.0**21
-    assert np.spacing(2.0**21) <= 5e-10 < np.spacing(2.0**22)
-    move_to(micromill, GOAL[:8] + [-2048.0], minimum_duration=0.0, start=AxisState.at_rest(GOAL[:8] + [-2047.0]))
+    assert unlimited_range(c, trt.control_period) == 2.0**34
+    assert np.spacing(2.0**34) <= 6e-6 < np.spacing(2.0**35)
+    # fts_lathe c: 0.001 x 125.66 rad/s x 5.01 µs = 6.30e-7 rad: 2^31 as well
+    spindle = fts_lathe.axes[fts_lathe.axis_names.index('c')]
+    assert unlimited_range(spindle, fts_lathe.control_period) == 2.0**31
+    validate_goal(micromill, GOAL[:8] + [-2.0**31])          # the edge itself is accepted
+
+
+def test_the_rounding_bound_holds_for_an_exactly_known_motion_far_from_zero():
+    """A cubic q = q0 + j t³ / 6 has the third difference j T³ exactly; its float64 samples at
+    q0 = 1e4 rad (computed in exact rationals, then rounded once) differ from it by no more
+    than rounding_error(3, ..., ulps=1/2) (rounding alone), and come within a factor 4 of it."""
+    from fractions import Fraction
+    period, jerk, q0 = Fraction(5, 10**6), Fraction(2000), Fraction(10**4)
+    exact = [q0 + jerk * (k * period) ** 3 / 6 for k in range(400)]
+    rounded = np.array([float(q) for q in exact])
+    third = np.diff(rounded, 3) / float(period) ** 3
+    error = np.abs(third - float(jerk)).max()
+    bound = rounding_error(3, 1e4 + 1.0, float(period), ulps=0.5)
+    assert error <= bound
+    assert error > bound / 4
+
+
+def test_a_spindle_moves_to_any_angle_a_turn_away_and_back_home(fts_lathe):
+    """fts_lathe's c at 5 µs: a quarter turn, then 100 rad (16 turns) and home again, each
+    within the limits as sampled (what a servo sees, with float64's rounding of the angle)."""
+    names = fts_lathe.axis_names
+    quarter = [math.pi / 2 if n == 'c' else 0.0 for n in names]
+    far = [100.0 if n == 'c' else 0.0 for n in names]
+    for start, goal in ((fts_lathe.home, quarter), (quarter, far), (far, fts_lathe.home)):
+        reference = move_to(fts_lathe, goal, start=AxisState.at_rest(start))
+        np.testing.assert_allclose(reference.position[-1], goal, rtol=0, atol=1e-12)
+        assert_within_limits(fts_lathe, reference.position)
 
 
 def test_stop_that_cannot_end_inside_the_stroke_is_refused(micromill):
@@ -100,7 +136,7 @@ EARLIEST = 4 * (1e-3 / (2 * 100.0)) ** (1 / 3)
      r'earliest time_from_start 0.5684 s'),                  # 0.5 s + the 68.4 ms of EARLIEST
     (['x_c'], [[1e-3]], [1e6], r'point 0: time_from_start 1e\+06 s is beyond the 104.858 s a joint goal may last '
                                r'\(1048576 control steps\)'),
-    (['c_f'], [[1e9]], [0.0], r'point 0: c_f at 1e\+09 rad, beyond ±2048 rad \(326 turns\)'),
+    (['c_f'], [[1e10]], [0.0], r'point 0: c_f at 1e\+10 rad, beyond ±2\.14748e\+09 rad \(341782638 turns\)'),
     # 2000 rad at the 2 pi rad/s limit of c_f: > 318 s
     (['c_f'], [[2000.0]], [0.0], r'point 0: the joint goal would last 31\d\.\d+ s up to it, beyond the 104.858 s'),
     (['x_f'], [[5e-4]], [0.0], r'point 0: x_f at 0.0005 m, outside its stroke \[-0.0001, 0.0001\] m by 400 µm'),
@@ -121,3 +157,14 @@ def test_a_joint_goal_at_its_earliest_time_runs_and_arrives_then(micromill):
         through_waypoints(micromill, [0.0] * 9, ['x_c'], [[1e-3]], [0.0683])
     later = through_waypoints(micromill, [0.0] * 9, ['x_c'], [[1e-3], [2e-3]], [t, t + 0.1])
     assert len(later) - 1 == 685 + 1000                  # each point at its time
+
+
+def test_a_move_ruckig_fails_to_solve_is_refused_naming_the_axis(fts_lathe):
+    """Ruckig raises (RuckigError) where it finds no profile: here fts_lathe's w from 0.55 pm to
+    a state under way 0.44 µm away (a cut's first row without a lead-in). The move is refused
+    as any other, with the axis, not with Ruckig's dump of its input."""
+    start = AxisState.at_rest((7.417749063051994, 0.0009940971428500261, 0.0, 5.528630581073707e-13))
+    target = AxisState((7.417749063051994, 0.001, 0.0, -4.363647186335865e-07),
+                       (12.56637061435917, -1e-05, 0.0, 0.0004548856632746526), (0.0, 0.0, 0.0, -0.01081372245328538))
+    with pytest.raises(ValueError, match=r'^Ruckig cannot plan this move \(no profile in its step 1 for w\)$'):
+        move_to_state(fts_lathe, target, start, 0.98)

@@ -53,19 +53,22 @@ def outside_stroke(axis: AxisConfig, value: float, verb: str = 'at', where: str 
 def unlimited_range(axis: AxisConfig, period: float) -> float:
     """Largest |position| (rad) accepted on an axis without a stroke (a continuous rotary
     axis) sampled at the control `period` (s): the power of two 2^e up to which float64
-    positions keep the finite-difference jerk of the sampled references exact to the
-    tolerance of their limit check. Rounding q to float64 moves it by at most ulp(q)/2, the
-    third difference q[k+3] - 3 q[k+2] + 3 q[k+1] - q[k] by at most 4 ulp(q), so the jerk
-    estimate by (4 ulp / T³); below |q| = 2^e, ulp(q) <= 2^(e-52) <= (TOLERANCE - 1) j_max T³ / 4.
-    The micromill's c_f (2000 rad/s³, 100 µs): 2^11 = 2048 rad (326 turns); trt_5axis's c
-    (2000 rad/s³, 1 ms): 2^21 rad."""
-    ulp = (TOLERANCE - 1.0) * axis.limits.jerk * period**3 / 4.0
+    keeps the velocity a servo estimates from consecutive positions exact to the tolerance
+    of the limit check. Rounding q to float64 moves it by at most ulp(q)/2, the difference
+    q[k+1] - q[k] by at most ulp(q), the velocity by ulp / T; below |q| = 2^e,
+    ulp(q) <= 2^(e-52) <= (TOLERANCE - 1) v_max T. Higher differences (acceleration, jerk)
+    carry the same rounding, amplified by 1/T^n (test/limit_checks.py allows for it).
+    The micromill's c_f (2 pi rad/s, 100 µs) and fts_lathe's c (125.7 rad/s, 5.01 µs):
+    2^31 rad; trt_5axis's c (6 rad/s, 1 ms): 2^34 rad. Each lies far beyond what one goal
+    can travel (moves.MAX_GOAL_STEPS), so the range refuses absurd values, never the turns
+    a spindle makes in a cut: a lathe cuts again from wherever its spindle stopped."""
+    ulp = (TOLERANCE - 1.0) * axis.limits.velocity * period
     return math.ldexp(1.0, math.floor(math.log2(ulp)) + 52)
 
 
 def outside_range(axis: AxisConfig, value: float, period: float) -> str:
-    """'c_f at 1e+09 rad, beyond ±2048 rad (326 turns), the range of its unlimited axis
-    ...'; '' when `value` is within unlimited_range (or the axis has a stroke)."""
+    """'c_f at 1e+10 rad, beyond ±2.14748e+09 rad (341782638 turns), the range of its
+    unlimited axis ...'; '' when `value` is within unlimited_range (or the axis has a stroke)."""
     if axis.stroke is not None:
         return ''
     bound = unlimited_range(axis, period)
@@ -73,4 +76,4 @@ def outside_range(axis: AxisConfig, value: float, period: float) -> str:
         return ''
     return (f'{axis.name} at {value:.6g} {axis.unit}, beyond ±{bound:g} {axis.unit} '
             f'({bound / (2 * math.pi):.0f} turns), the range of its unlimited axis (float64 '
-            'positions resolve its jerk limit at the control period only within it)')
+            'positions resolve its velocity limit at the control period only within it)')

@@ -29,7 +29,13 @@ its radius and feed with the fast axis at rest at its home; a lead-in over which
 lands on the surface (still slaved to the spindle angle and radius, its height faded in); the
 cut; the lead-out (faded out); a time-optimal stop. The fast axis never moves with the slow
 axes' entry or stop, so its stroke holds whatever the spindle needs to get up to speed; what
-the trajectory node runs for a freeform goal. :func:`surface_named`
+the trajectory node runs for a freeform goal. It starts from wherever the machine stands: a
+second cut from where the first stopped (the spindle a few turns on, the slide inside its
+start radius) either continues at the spindle's angle (``start_angle`` = its angle) or turns
+back to the angle asked for; the spindle's range is that of any unlimited axis
+(axis_limits.unlimited_range). The entry ends where Ruckig's precision lets it (~1e-12 of
+the target away from home) and the residual is spread over it (_land_on), so the junction
+with the cut carries no step. :func:`surface_named`
 reads a surface by name (``sinusoidal_grid``, ``beam_integrator``, ``micro_lens_array``: the
 thesis's) or CSV path.
 
@@ -281,15 +287,42 @@ def freeform_reference(machine: MachineConfig, surface, turning: Turning, spindl
     return FreeformResult(FreeformStatus.OK, '', reference, peaks)
 
 
+def _smoothstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The septic smoothstep s = 35x^4 - 84x^5 + 70x^6 - 20x^7 on [0, 1] and its first two
+    derivatives in x: 0 to 1 with zero slope up to the third derivative at both ends."""
+    s = x ** 4 * (35 - 84 * x + 70 * x * x - 20 * x ** 3)
+    ds = 140 * x ** 3 * (1 - x) ** 3
+    dds = 420 * x ** 2 * (1 - x) ** 2 * (1 - 2 * x)
+    return s, ds, dds
+
+
 def _landing(n: int, led: int) -> np.ndarray:
-    """1 over n rows but the first and last `led`, which rise from 0 and fall to 0 by the septic
-    smoothstep 35x^4 - 84x^5 + 70x^6 - 20x^7 (zero slope to the third derivative at both ends)."""
+    """1 over n rows but the first and last `led`, which rise from 0 and fall to 0 by the
+    septic smoothstep (_smoothstep)."""
     weight = np.ones(n)
     if led:
-        x = np.arange(led) / led
-        ramp = x ** 4 * (35 - 84 * x + 70 * x * x - 20 * x ** 3)
+        ramp = _smoothstep(np.arange(led) / led)[0]
         weight[:led], weight[n - led:] = ramp, ramp[::-1]
     return weight
+
+
+def _land_on(entry: Reference, target: Reference) -> None:
+    """Make the entry end exactly on the cut's first row. Ruckig ends within its own
+    precision of a target (~1e-12 m or rad from a start away from home), not on it: a jump of
+    2e-12 m between two rows 5 µs apart reads 1.6e4 m/s³ of jerk. The residual is spread over
+    the whole entry by the septic smoothstep (its jerk: the residual x 52.5 / duration³,
+    ~1e-10 m/s³ for a 0.3 s entry), velocity and acceleration with it; the last row is then
+    the cut's own."""
+    n = len(entry)
+    residual = target.position[0] - entry.position[-1]
+    duration = (n - 1) * entry.period
+    if n > 1 and residual.any():
+        s, ds, dds = _smoothstep(np.arange(n) / (n - 1))
+        entry.position += s[:, None] * residual
+        entry.velocity += ds[:, None] * (residual / duration)
+        entry.acceleration += dds[:, None] * (residual / duration ** 2)
+    for name in ('position', 'velocity', 'acceleration'):
+        getattr(entry, name)[-1] = getattr(target, name)[0]
 
 
 SURFACES = {'sinusoidal_grid': SinusoidalGrid, 'beam_integrator': BeamIntegrator,      # the thesis's, by name
@@ -330,8 +363,7 @@ def freeform_program(machine: MachineConfig, surface, turning: Turning, start: A
     except ValueError as exc:
         return FreeformResult(FreeformStatus.EXCEEDS_LIMITS, f'no entry into or stop out of the cut: {exc}', None,
                               cut.peaks)
-    for name in ('position', 'velocity', 'acceleration'):      # Ruckig ends on the first row up to rounding:
-        getattr(entry, name)[-1] = getattr(ref, name)[0]       # the cut's own row is the one played
+    _land_on(entry, ref)
     whole = moves.concatenate([entry, ref, stop])
     if len(whole) > 2 * moves.MAX_GOAL_STEPS:
         return FreeformResult(FreeformStatus.INVALID_INPUT, f'entry, cut and stop take {len(whole)} control steps, '

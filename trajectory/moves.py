@@ -14,10 +14,11 @@ earliest they can), a goal longer than MAX_GOAL_STEPS.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
-from ruckig import (ControlInterface, DurationDiscretization, InputParameter, Result, Ruckig,
+from ruckig import (ControlInterface, DurationDiscretization, InputParameter, Result, Ruckig, RuckigError,
                     Trajectory)
 
 from machine_ctrl.model.config import MachineConfig
@@ -85,7 +86,13 @@ def _calculate(machine: MachineConfig, inp: InputParameter) -> Trajectory:
     """Ruckig's trajectory for `inp`; ValueError when Ruckig cannot plan it."""
     otg = Ruckig(len(machine.axes), machine.control_period)
     trajectory = Trajectory(len(machine.axes))
-    result = otg.calculate(inp, trajectory)
+    try:
+        result = otg.calculate(inp, trajectory)
+    except RuckigError as exc:      # Ruckig raises on inputs it fails to solve numerically
+        dof = re.search(r'step (\d), dof: (\d+)', str(exc))
+        where = (f' (no profile in its step {dof[1]} for {machine.axis_names[int(dof[2])]})'
+                 if dof and int(dof[2]) < len(machine.axes) else '')
+        raise ValueError(f'Ruckig cannot plan this move{where}') from None
     if result not in (Result.Working, Result.Finished):
         raise ValueError(f'Ruckig cannot plan this move: {result}')
     return trajectory
