@@ -109,13 +109,15 @@ def test_a_bad_surface_table_is_refused_naming_the_row(tmp_path, text, problem):
         read_surface_table(tmp_path / 'missing.csv')
 
 
-def test_the_experiment_prints_each_cut_beside_the_seed_and_the_loop():
+def test_the_experiment_prints_each_cut_beside_the_seed_and_the_loop(tmp_path):
     """The simulated cuts against the linear loop's prediction for the same plant and gains
     (the 100 Hz lenslet amplitude within 1 %), and the figures within the issue's 30 % or
-    with the reason printed."""
-    result = subprocess.run([sys.executable, '-m', 'machine_ctrl.app.cli', 'experiment', 'fts-freeform', '--json'],
-                            capture_output=True, text=True, timeout=300)
+    with the reason printed; --plots writes its PNG."""
+    result = subprocess.run([sys.executable, '-m', 'machine_ctrl.app.cli', 'experiment', 'fts-freeform', '--json',
+                             '--plots', str(tmp_path)], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
+    png = tmp_path / 'fts_freeform.png'
+    assert f'wrote {png}' in result.stderr and png.read_bytes().startswith(b'\x89PNG')
     rows = {r['name']: r for r in json.loads(result.stdout)['rows']}
     lenslet = rows['lenslet 100 Hz overshoot, tool / command']
     assert 10 ** (lenslet['ours'] / 20) == pytest.approx(10 ** (lenslet['predicted'] / 20), rel=0.01)

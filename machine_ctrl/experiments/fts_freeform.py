@@ -44,7 +44,7 @@ import numpy as np
 
 from hw_sim import offline
 from machine_ctrl.experiments import fts_budget
-from machine_ctrl.experiments.seed_rows import print_table, seed_row
+from machine_ctrl.experiments.seed_rows import print_table, save_figure, seed_row, two_panels
 from machine_ctrl.model.config import MachineConfig, load_machine
 from trajectory.freeform import BeamIntegrator, SinusoidalGrid, Turning, axis_sine, freeform_reference
 
@@ -65,6 +65,7 @@ THESIS = {
     'lenslet_following_nm': 266.0,          # section 5.7.5, Fig. 5-19: measured largest following error
 }
 LENSLET_HZ, LENSLET_AMPLITUDE = 100.0, 5e-6   # Table 8-3; the text's 5 um nominal amplitude (seed-notes.md)
+PLOT_PERIODS = 3                              # lenslet periods in the plot
 LENSLET_DEPTH = LENSLET_AMPLITUDE / 2         # m: "depth of cut ... half of the sinusoidal amplitude" (section 8.5.2)
 
 
@@ -164,7 +165,9 @@ def _lenslet_force_rows(machine: MachineConfig, reference, free) -> tuple[list, 
              f'{_loop(machine, LENSLET_HZ)["S"] * LENSLET_AMPLITUDE / NM:.0f} nm of following error; the thesis '
              'measured with its own set-up (mass and gains of Ch. 8 not stated)'),
     ]
-    return rows, {'force_peak_n': float(level), 'deviation_lag_ms': float(lag * 1e3)}
+    last = int(round(PLOT_PERIODS / (LENSLET_HZ * period)))      # the plot's window: the last periods
+    return rows, {'force_peak_n': float(level), 'deviation_lag_ms': float(lag * 1e3), 'plot_first_row': len(shape) - last,
+                  'deviation': dev[-last:], 'force': level * shape[-last:], 'loop': loop}
 
 
 def reproduce(machine: MachineConfig | None = None) -> dict:
@@ -188,7 +191,7 @@ def reproduce(machine: MachineConfig | None = None) -> dict:
         r20 = 20.0 * grid.wavelength_x / (60 * RPM)
         centre = freeform_reference(machine, grid, Turning(60 * RPM, 5e-6, r20, 0.25))
         ref, measured, _, _ = _settled(_run(machine, _reference(centre)), w)
-        runs['grid_20hz'] = {'radius_m': r20, 'w_peaks': centre.peaks['w']}
+        runs['grid_20hz'] = {'radius_m': r20, 'w_peaks': centre.peaks['w'], 'following': ref - measured}
         rows.append(_row('grid max following error at <= 20 Hz', THESIS['grid_20hz_following_nm'],
                          float(np.abs(ref - measured).max()) / NM, 'nm',
                          _loop(machine, 20.0)['S'] * 2 * grid.amplitude_x / NM,
@@ -219,6 +222,7 @@ def reproduce(machine: MachineConfig | None = None) -> dict:
                          'the feed position); Fig. 8-15 shows one segment'))
     except ValueError as exc:
         return {'status': 'failed', 'reason': str(exc)}
+    runs['period'] = period
     return {'status': 'ok', 'reason': '', 'machine': machine.name, 'rows': rows, 'runs': runs}
 
 
@@ -245,6 +249,38 @@ def format_table(result: dict) -> str:
                  '(|T| for p-v and overshoot; |S| x 2 A, both waves at 20 Hz in phase, an upper bound, for the 20 Hz '
                  "following error; the lenslet force's periodic steady state from its harmonics)")
     return '\n'.join(lines)
+
+
+def plots(result: dict, directory) -> list[str]:
+    """fts_freeform.png: the lenslet's force and the deviation it causes over its last periods,
+    beside the loop's periodic steady state (Fig. 5-19); the grid's following error where
+    its waves are 20 Hz (Ch. 8)."""
+    if result.get('status') != 'ok':
+        return []
+    runs = result['runs']
+    period = runs['period']
+    plt, fig, (ax, axg) = two_panels(directory)
+    force = runs['lenslet_force']
+    t = np.arange(len(force['deviation'])) * period * 1e3
+    ax.plot(t, force['deviation'] / NM, lw=0.8, label='simulated deviation (with - without force)')
+    loop = force['loop']                     # one period from the sine's zero phase (lenslet_steady_state)
+    rows = force['plot_first_row'] + np.arange(len(t))
+    at = ((rows * period * LENSLET_HZ) % 1.0 * len(loop)).astype(int) % len(loop)
+    ax.plot(t, loop[at] / NM, '--', lw=0.8, label='loop: periodic steady state')
+    ax.set_xlim(t[0], t[-1])
+    ax.set_xlabel('time [ms]')
+    ax.set_ylabel('deviation of W [nm]')
+    ax.set_title('lenslet, 100 Hz, cutting force (Fig. 5-19)', fontsize=9)
+    axf = ax.twinx()
+    axf.plot(t, force['force'], color='tab:gray', lw=0.6)
+    axf.set_ylabel('force [N]', color='tab:gray')
+    ax.legend(fontsize=7, loc='lower left')
+    following = runs['grid_20hz']['following']
+    axg.plot(np.arange(len(following)) * period * 1e3, following / NM, lw=0.6)
+    axg.set_xlabel('time [ms]')
+    axg.set_ylabel('following error of W [nm]')
+    axg.set_title(f'sinusoidal grid at r = {runs["grid_20hz"]["radius_m"] * 1e3:.2f} mm (20 Hz waves)', fontsize=9)
+    return [save_figure(plt, fig, directory, 'fts_freeform.png', wspace=0.36)]   # room for the force axis
 
 
 def main(argv=None) -> int:

@@ -2,7 +2,7 @@
 runner, machine_ctrl.experiments and compensation/), one subcommand each; progress on stderr.
 
 * ``midrange [--json]`` (Sörnmo Table 3.1), ``fts-budget [--json] [--plots DIR]`` (Ding
-  section 5.7), ``fts-freeform [--json]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
+  section 5.7), ``fts-freeform [--json] [--plots DIR]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
   [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / fts_budget /
   fts_freeform / fts_identify, seed | ours | ratio.
 * ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR] [--steps N]``: thesis section 6.3 /
@@ -56,7 +56,8 @@ SEED_TABLES = (
      'write the PSD/CAS and bandwidth-sweep PNGs (the spectra are not in --json)'),
     ('fts-freeform', 'fts_freeform', 'reproduce',
      'Ding Ch. 8: spindle-slaved freeform cuts on fts_lathe (grid, lenslet, beam integrator), offline at 199.6 kHz',
-     None),
+     "write fts_freeform.png: the lenslet's force and W's deviation beside the loop (Fig. 5-19), the 20 Hz grid's "
+     'following error'),
     ('fts-h2', 'fts_h2', 'reproduce',
      "Ding Ch. 6: the H2-optimal law against the PID on fts_lathe's W at 20 kHz, offline with all noise",
      'write fts_h2.png: |y/r| of both laws and their following-error spectra (Fig. 6-12)'),
