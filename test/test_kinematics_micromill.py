@@ -123,3 +123,23 @@ def test_jacobian_rank_and_task_jacobian(micromill_kin, configurations):
 def test_wrong_configuration_length_is_rejected(micromill_kin):
     with pytest.raises(ValueError, match='expected 9 axis positions'):
         micromill_kin.forward(np.zeros(8))
+
+
+def test_the_pinocchio_configuration_puts_each_axis_in_its_joint_s_slot(micromill_kin):
+    """Each one-value joint's slot (model.joints[...].idx_q) holds its axis position as given,
+    the continuous c_f's two slots cos and sin of its angle; the vector handed out is the
+    caller's own (a later call does not change it)."""
+    import math
+    q = np.array([0.01, -0.02, 0.03, 5e-5, -5e-5, 2e-5, 0.004, -0.003, 0.7])
+    configuration = micromill_kin.pin_configuration(q)
+    model = micromill_kin.model
+    for name, value in zip(micromill_kin.axis_names, q):
+        joint = model.joints[model.getJointId(name)]
+        if joint.nq == 1:
+            assert configuration[joint.idx_q] == value
+        else:
+            assert tuple(configuration[joint.idx_q:joint.idx_q + 2]) == (math.cos(value), math.sin(value))
+    kept = configuration.copy()
+    micromill_kin.forward_and_jacobian(-q)
+    micromill_kin.pin_configuration(2 * q)
+    assert np.array_equal(configuration, kept)

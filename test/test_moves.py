@@ -98,11 +98,11 @@ def test_the_rounding_bound_holds_for_an_exactly_known_motion_far_from_zero():
 
 
 def test_a_spindle_moves_to_any_angle_a_turn_away_and_back_home(fts_lathe):
-    """fts_lathe's c at 5 µs: a quarter turn, then 100 rad (16 turns) and home again, each
-    within the limits as sampled (what a servo sees, with float64's rounding of the angle)."""
+    """fts_lathe's c at 5 µs: a quarter turn, then on to 20 rad (three turns) and home again,
+    each within the limits as sampled (what a servo sees, with float64's rounding of the angle)."""
     names = fts_lathe.axis_names
     quarter = [math.pi / 2 if n == 'c' else 0.0 for n in names]
-    far = [100.0 if n == 'c' else 0.0 for n in names]
+    far = [20.0 if n == 'c' else 0.0 for n in names]
     for start, goal in ((fts_lathe.home, quarter), (quarter, far), (far, fts_lathe.home)):
         reference = move_to(fts_lathe, goal, start=AxisState.at_rest(start))
         np.testing.assert_allclose(reference.position[-1], goal, rtol=0, atol=1e-12)

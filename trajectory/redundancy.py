@@ -201,14 +201,14 @@ class Resolution:
 def _basis(o: np.ndarray) -> np.ndarray:
     """Same basis as machine_ctrl.model.kinematics.orientation_basis (written out: np.cross on
     3-vectors costs more than the rest of the rate evaluation)."""
-    ox, oy, oz = o
+    ox, oy, oz = o.tolist()
     if abs(ox) < 0.9:       # helper e_x: e1 = o x e_x
-        e1 = np.array([0.0, oz, -oy])
+        a, b, c = 0.0, oz, -oy
     else:                   # helper e_y: e1 = o x e_y
-        e1 = np.array([-oz, 0.0, ox])
-    e1 /= math.sqrt(e1 @ e1)
-    e2 = np.array([oy * e1[2] - oz * e1[1], oz * e1[0] - ox * e1[2], ox * e1[1] - oy * e1[0]])
-    return np.column_stack((e1, e2))
+        a, b, c = -oz, 0.0, ox
+    norm = math.sqrt(np.array((a, b, c)) @ np.array((a, b, c)))     # numpy's dot, as before
+    a, b, c = a / norm, b / norm, c / norm
+    return np.array(((a, oy * c - oz * b), (b, oz * a - ox * c), (c, ox * b - oy * a)))
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -239,6 +239,7 @@ class _Resolver:
                 half.append(0.5 * (stroke[1] - stroke[0]))
                 scale.append(half[-1])
         self.limited = np.array(limited, int)
+        self.limited_axes = self.active[self.limited]   # the same axes, indexed in the full q
         self.centre, self.half = np.array(centre), np.array(half)
         self.scale = np.array(scale)
         self.rank = 5
@@ -274,13 +275,14 @@ class _Resolver:
         mu = self.settings.damping_max * (1.0 - w / w0) ** 2 if w < w0 else 0.0
         return (vt[:r].T * (sig / (sig * sig + mu))) @ u[:, :r].T
 
-    def grad_h(self, q_active):
-        """Exact gradient of H = sum u²/(1-u²) (the cost whose gradient Eq. 3.20 prints)."""
+    def grad_h(self, q):
+        """Exact gradient of H = sum u²/(1-u²) (the cost whose gradient Eq. 3.20 prints) over
+        the active axes, at the full axis positions q."""
         g = np.zeros(len(self.active))
         if len(self.limited):
-            u = (q_active[self.limited] - self.centre) / self.half
+            u = (q[self.limited_axes] - self.centre) / self.half
             # a stage outside the stroke would flip the barrier's sign: clip just inside
-            u = np.clip(u, -1.0 + 1e-9, 1.0 - 1e-9)
+            u = np.minimum(np.maximum(u, -1.0 + 1e-9), 1.0 - 1e-9)
             g[self.limited] = 2.0 * u / (self.half * (1.0 - u * u) ** 2)
         return g
 
@@ -294,15 +296,22 @@ class _Resolver:
         dqa = jsharp @ np.concatenate((dpd, b.T @ dod))
         beta = self.settings.beta
         if beta:
-            grad = self.grad_h(q[self.active])
+            grad = self.grad_h(q)
             dqa -= beta * (grad - jsharp @ (jt @ grad))
-        g0 = np.zeros_like(q)
-        g0[self.active] = dqa
+        if self.every_axis:
+            g0 = dqa
+        else:
+            g0 = np.zeros_like(q)
+            g0[self.active] = dqa
         g = g0
         if self.settings.drift_gain:
             error = np.concatenate((pd - p, b.T @ (od - o)))
-            g = g0.copy()
-            g[self.active] += jsharp @ (self.settings.drift_gain * error)
+            drift = jsharp @ (self.settings.drift_gain * error)
+            if self.every_axis:
+                g = g0 + drift
+            else:
+                g = g0.copy()
+                g[self.active] += drift
         return g, g0
 
     # --- Newton solves ----------------------------------------------------------------
@@ -315,7 +324,8 @@ class _Resolver:
             task = self.task(q)
             p, o, b, jt = task
             e = np.concatenate((pd - p, b.T @ (od - o)))
-            ep, eo = float(np.linalg.norm(pd - p)), _angle(o, od)
+            d = pd - p
+            ep, eo = math.sqrt(d.dot(d)), _angle(o, od)     # np.linalg.norm's own formula
             if (ep <= tolerance and eo <= tolerance) or it == iterations:
                 break
             if weighted:    # stroke-weighted least norm: each axis in proportion to its stroke

@@ -107,18 +107,25 @@ class SepticInterpolant:
         """d^order q / ds^order (order 0..3) at s (M,) -> (M, axes); s is clipped to the nodes."""
         if order not in (0, 1, 2, 3):
             raise ValueError(f'derivative order must be 0..3, got {order!r}')
+        return self.evaluate_orders(s, (order,))[0]
+
+    def evaluate_orders(self, s, orders) -> list[np.ndarray]:
+        """:meth:`evaluate` for each of `orders` at the same s, the interval of each s found once."""
         s = np.atleast_1d(np.asarray(s, float))
         n = np.clip(np.searchsorted(self.s, s, side='right') - 1, 0, len(self.s) - 2)
         h = self._h[n]
         u = ((np.clip(s, self.s[0], self.s[-1]) - self.s[n]) / h)[:, None]
         c = self._coef[n]                                                       # (M, 8, axes)
-        value = np.zeros((len(s), c.shape[2]))
-        for k in range(7, order - 1, -1):                                       # Horner in u
-            factor = math.perm(k, order)
-            value = value * u + factor * c[:, k, :]
-        if order == 0:
-            value = value - c[:, 0, :] + self.q[n]     # c_0 = 0 exactly; q[n] added unrounded
-        return value / h[:, None] ** order
+        values = []
+        for order in orders:
+            value = np.zeros((len(s), c.shape[2]))
+            for k in range(7, order - 1, -1):                                   # Horner in u
+                factor = math.perm(k, order)
+                value = value * u + factor * c[:, k, :]
+            if order == 0:
+                value = value - c[:, 0, :] + self.q[n]     # c_0 = 0 exactly; q[n] added unrounded
+            values.append(value / h[:, None] ** order)
+        return values
 
 
 @dataclass(frozen=True)
@@ -175,13 +182,18 @@ class TimeLaw:
         lo, hi = self.u_nodes[i], self.u_nodes[i + 1]
         frac = (t - self.t_nodes[i]) / (self.t_nodes[i + 1] - self.t_nodes[i])
         u = lo + frac * (hi - lo)
-        for _ in range(8):
-            residual = self.t_nodes[i] + self._integral(lo, u) - t
-            u_new = np.clip(u - residual * self.rate(u), lo, hi)
-            done = np.max(np.abs(u_new - u)) <= 1e-16
-            u = u_new
-            if done:
+        start = self.t_nodes[i]
+        moving = np.arange(len(u))          # an entry whose step left it unchanged is a fixed point:
+        for _ in range(8):                  # only the others are stepped again (the same numbers)
+            now = u[moving]
+            residual = start + self._integral(lo, now) - t
+            u_new = np.clip(now - residual * self.rate(now), lo, hi)
+            step = u_new - now
+            u[moving] = u_new
+            if np.max(np.abs(step)) <= 1e-16:
                 break
+            left = step != 0.0
+            moving, lo, hi, t, start = moving[left], lo[left], hi[left], t[left], start[left]
         return u
 
     def feed(self, s):
@@ -301,9 +313,7 @@ def sample_profile(interpolant: SepticInterpolant, feed_s, feed_b, limits, perio
     sdot, sddot = sdot / stretch, sddot / stretch**2
     sdot[0] = sdot[-1] = sddot[0] = sddot[-1] = 0.0
     s = d + interpolant.s[0]
-    q = interpolant.evaluate(s, 0)
-    dq = interpolant.evaluate(s, 1)
-    ddq = interpolant.evaluate(s, 2)
+    q, dq, ddq = interpolant.evaluate_orders(s, (0, 1, 2))
     ratios, need = _ratios(q, period, *_limit_arrays(limits))
     reference = Reference(tuple(axis_names), period, q, dq * sdot[:, None],
                           ddq * sdot[:, None] ** 2 + dq * sddot[:, None])

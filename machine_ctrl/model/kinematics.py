@@ -73,6 +73,14 @@ class Kinematics:
                               f'the machine {self.n} axes')
         self._gather, self._circle_axes = gather, tuple(circle_axes)
         self._v_index = np.array(v_index, int)
+        # the configuration filled in place (no list round trip per call): the slots of the
+        # one-value joints and their axes, and (axis, cos slot, sin slot) of each circle joint
+        self._linear_slots = np.flatnonzero(gather < self.n)
+        self._linear_axes = gather[self._linear_slots]
+        self._circle_slots = tuple((i, int(np.flatnonzero(gather == self.n + 2 * j)[0]),
+                                    int(np.flatnonzero(gather == self.n + 2 * j + 1)[0]))
+                                   for j, i in enumerate(circle_axes))
+        self._configuration_buffer = np.zeros(self.model.nq)
 
     @classmethod
     def from_config(cls, machine: MachineConfig) -> Kinematics:
@@ -85,14 +93,21 @@ class Kinematics:
 
     def pin_configuration(self, q) -> np.ndarray:
         """Pinocchio configuration vector (length model.nq) for axis positions q (length n)."""
+        return self._configuration(q).copy()
+
+    def _configuration(self, q) -> np.ndarray:
+        """pin_configuration in the kinematics' own buffer (overwritten by the next call):
+        for the Pinocchio calls of forward and forward_and_jacobian, which read it at once."""
         values = np.asarray(q, dtype=float)
         if values.shape != (self.n,):
             raise ValueError(f'expected {self.n} axis positions ({" ".join(self.axis_names)}), '
                              f'got shape {values.shape}')
-        extended = values.tolist()
-        for i in self._circle_axes:
-            extended += (math.cos(extended[i]), math.sin(extended[i]))
-        return np.array(extended).take(self._gather)
+        buffer = self._configuration_buffer
+        buffer[self._linear_slots] = values[self._linear_axes]
+        for axis, cos_slot, sin_slot in self._circle_slots:
+            angle = float(values[axis])
+            buffer[cos_slot], buffer[sin_slot] = math.cos(angle), math.sin(angle)
+        return buffer
 
     def _placements(self) -> tuple[pin.SE3, pin.SE3]:
         return (pin.updateFramePlacement(self.model, self.data, self._frame_w),
@@ -100,20 +115,20 @@ class Kinematics:
 
     def tool_pose(self, q) -> np.ndarray:
         """Homogeneous transform ^wT_t (4 x 4): tool-tip frame in the workpiece frame."""
-        pin.forwardKinematics(self.model, self.data, self.pin_configuration(q))
+        pin.forwardKinematics(self.model, self.data, self._configuration(q))
         w, t = self._placements()
         return w.actInv(t).homogeneous
 
     def forward(self, q) -> tuple[np.ndarray, np.ndarray]:
         """Tool-tip position P (m) and unit tool axis O, in the workpiece frame."""
-        pin.forwardKinematics(self.model, self.data, self.pin_configuration(q))
+        pin.forwardKinematics(self.model, self.data, self._configuration(q))
         w, t = self._placements()
         pose = w.actInv(t)
         return pose.translation, pose.rotation[:, 2]
 
     def forward_and_jacobian(self, q) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """P, O and the analytic 6 x n Jacobian d[P; O]/dq (thesis Eq. 3.13)."""
-        pin.computeJointJacobians(self.model, self.data, self.pin_configuration(q))
+        pin.computeJointJacobians(self.model, self.data, self._configuration(q))
         w, t = self._placements()
         relative = (pin.getFrameJacobian(self.model, self.data, self._frame_t, _WORLD)
                     - pin.getFrameJacobian(self.model, self.data, self._frame_w, _WORLD))
