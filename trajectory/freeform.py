@@ -310,9 +310,9 @@ def _land_on(entry: Reference, target: Reference) -> None:
     """Make the entry end exactly on the cut's first row. Ruckig ends within its own
     precision of a target (~1e-12 m or rad from a start away from home), not on it: a jump of
     2e-12 m between two rows 5 µs apart reads 1.6e4 m/s³ of jerk. The residual is spread over
-    the whole entry by the septic smoothstep (its jerk: the residual x 52.5 / duration³,
-    ~1e-10 m/s³ for a 0.3 s entry), velocity and acceleration with it; the last row is then
-    the cut's own."""
+    the whole entry by the septic smoothstep (its jerk: at most the residual x 52.5 /
+    duration³, 4e-9 m/s³ for 2e-12 m over a 0.3 s entry), velocity and acceleration with it;
+    the last row is then the cut's own."""
     n = len(entry)
     residual = target.position[0] - entry.position[-1]
     duration = (n - 1) * entry.period
