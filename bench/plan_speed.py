@@ -23,7 +23,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-BASELINE = '8cf7d73'        # the commit before the [5/8] planning trims
+BASELINE = '8cf7d73'        # before the [5/8] planning trims (the one commit between touched a test only)
 CASES = (('helix', None), ('spiral', None), ('helix', 1.0))
 
 # one plan in a fresh process of the tree on sys.path[0]: its figures and a digest of the references
@@ -50,7 +50,9 @@ print(json.dumps({'planning': result.planning_time, 'resolve': resolve_time, 'pa
 def run(tree: Path, name: str, feed) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
     out = subprocess.run([sys.executable, '-c', CHILD, name, str(feed)], cwd=tree, env=env,
-                         capture_output=True, text=True, check=True)
+                         capture_output=True, text=True)
+    if out.returncode:
+        raise SystemExit(f'plan {name} in {tree} failed:\n{out.stderr}')
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -61,8 +63,10 @@ def main():
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp) / 'baseline'
-        subprocess.run(['git', '-C', str(ROOT), 'worktree', 'add', '--detach', str(base), args.baseline],
-                       check=True, capture_output=True)
+        added = subprocess.run(['git', '-C', str(ROOT), 'worktree', 'add', '--detach', str(base), args.baseline],
+                               capture_output=True, text=True)
+        if added.returncode:
+            raise SystemExit(f'no baseline {args.baseline}: {added.stderr.strip()}')
         try:
             for name, feed in CASES:
                 label = f'plan {name}' + (f' --feed {feed:g}' if feed else '')

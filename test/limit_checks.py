@@ -14,7 +14,8 @@ def rounding_error(order: int, magnitude, period: float, ulps: float = SAMPLE_UL
     """Bound on the error that `ulps` x ulp(|q|) on each position up to |q| = `magnitude` (one
     per axis, or an array) puts into the `order`-th difference over period^order: the n-th
     difference sums 2^n positions, 2^n ulps ulp / T^n. At the micromill's strokes and 100 µs
-    it is below 1e-6 of every limit; at a spindle's 7 rad and 5 µs about 6 % of its jerk."""
+    it is ~2e-6 of a limit at most; at a spindle's 7 rad and 5 µs about 6 % of its jerk, so
+    such checks go with :func:`assert_reference_within_limits`."""
     return 2.0 ** order * ulps * np.spacing(np.abs(magnitude)) / period ** order
 
 
@@ -26,3 +27,15 @@ def assert_within_limits(machine, positions, tolerance=1.001):
         peak = np.abs(np.diff(positions, order, axis=0)).max(axis=0) / t**order
         bound = tolerance * limit + rounding_error(order, magnitude, t)
         assert (peak <= bound).all(), f'{name}: peak / limit {peak / limit}'
+
+
+def assert_reference_within_limits(machine, reference, tolerance=1.001):
+    """The reference's own velocity and acceleration (Ruckig's, not differenced positions)
+    and the jerk from the acceleration's steps within the limits: no position rounding in
+    them, so they stay sharp where the positions are large (a spindle turns after turns)."""
+    t = machine.control_period
+    for name, values in (('velocity', reference.velocity), ('acceleration', reference.acceleration),
+                         ('jerk', np.diff(reference.acceleration, axis=0) / t)):
+        limit = np.array([getattr(a.limits, name) for a in machine.axes])
+        peak = np.abs(values).max(axis=0)
+        assert (peak <= tolerance * limit).all(), f'{name}: peak / limit {peak / limit}'

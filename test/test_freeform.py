@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from limit_checks import assert_within_limits
+from limit_checks import assert_reference_within_limits, assert_within_limits
 from trajectory.freeform import (BeamIntegrator, FreeformStatus, SinusoidalGrid, SurfaceTableError, Turning,
                                  freeform_program, freeform_reference, read_surface_table, surface_named)
 from trajectory.moves import AxisState, home
@@ -174,6 +174,7 @@ def test_a_lathe_cuts_again_from_wherever_its_spindle_stopped_and_goes_home(fts_
     back = home(fts_lathe, AxisState.at_rest(end))
     np.testing.assert_allclose(back.position[-1], fts_lathe.home, rtol=0, atol=1e-12)
     assert_within_limits(fts_lathe, back.position)
+    assert_reference_within_limits(fts_lathe, back)
 
 
 def test_the_micro_lens_array_is_the_100_hz_sine_of_table_8_3_slaved_to_the_spindle(fts_lathe):

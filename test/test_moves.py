@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from limit_checks import assert_within_limits, rounding_error
+from limit_checks import assert_reference_within_limits, assert_within_limits, rounding_error
 
 from trajectory.axis_limits import unlimited_range
 from trajectory.moves import AxisState, home, move_to, move_to_state, smooth_stop, through_waypoints, validate_goal
@@ -107,6 +107,21 @@ def test_a_spindle_moves_to_any_angle_a_turn_away_and_back_home(fts_lathe):
         reference = move_to(fts_lathe, goal, start=AxisState.at_rest(start))
         np.testing.assert_allclose(reference.position[-1], goal, rtol=0, atol=1e-12)
         assert_within_limits(fts_lathe, reference.position)
+        assert_reference_within_limits(fts_lathe, reference)
+
+
+def test_a_move_far_out_on_an_unlimited_axis_is_planned_relative_to_its_start(micromill):
+    """c_f a turn on from 2^30 rad (inside its 2^31 rad range): Ruckig plans the distance to
+    go, not the 1e9 rad (where it found no profile before), and the velocity from consecutive
+    positions stays within 0.1 % of the limit with no allowance: what the range promises."""
+    start = GOAL[:8] + [2.0**30]
+    goal = GOAL[:8] + [2.0**30 + 2 * math.pi]
+    reference = move_to(micromill, goal, start=AxisState.at_rest(start))
+    column = reference.position[:, 8]
+    assert column[0] == 2.0**30 and abs(column[-1] - goal[8]) <= np.spacing(2.0**30)
+    velocity = np.abs(np.diff(column)).max() / micromill.control_period
+    assert velocity <= 1.001 * micromill.axis('c_f').limits.velocity
+    assert_reference_within_limits(micromill, reference)
 
 
 def test_stop_that_cannot_end_inside_the_stroke_is_refused(micromill):
@@ -166,5 +181,5 @@ def test_a_move_ruckig_fails_to_solve_is_refused_naming_the_axis(fts_lathe):
     start = AxisState.at_rest((7.417749063051994, 0.0009940971428500261, 0.0, 5.528630581073707e-13))
     target = AxisState((7.417749063051994, 0.001, 0.0, -4.363647186335865e-07),
                        (12.56637061435917, -1e-05, 0.0, 0.0004548856632746526), (0.0, 0.0, 0.0, -0.01081372245328538))
-    with pytest.raises(ValueError, match=r'^Ruckig cannot plan this move \(no profile in its step 1 for w\)$'):
+    with pytest.raises(ValueError, match=r'^Ruckig cannot plan this move \(Ruckig found no profile for w in its step 1\)$'):
         move_to_state(fts_lathe, target, start, 0.98)

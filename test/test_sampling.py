@@ -195,4 +195,3 @@ def test_the_time_law_inverse_equals_plain_newton_on_every_entry_bit_for_bit():
         if done:
             break
     assert np.array_equal(law.u_at(t), u)
-

@@ -56,8 +56,12 @@ def unlimited_range(axis: AxisConfig, period: float) -> float:
     keeps the velocity a servo estimates from consecutive positions exact to the tolerance
     of the limit check. Rounding q to float64 moves it by at most ulp(q)/2, the difference
     q[k+1] - q[k] by at most ulp(q), the velocity by ulp / T; below |q| = 2^e,
-    ulp(q) <= 2^(e-52) <= (TOLERANCE - 1) v_max T. Higher differences (acceleration, jerk)
-    carry the same rounding, amplified by 1/T^n (test/limit_checks.py allows for it).
+    ulp(q) <= 2^(e-52) <= (TOLERANCE - 1) v_max T. Differenced twice or three times
+    (acceleration, jerk) the positions carry 2^(n-1) ulp / T^n of rounding, which grows with
+    |q|: on fts_lathe's c at 5.01 µs it reaches 0.1 % of the acceleration limit from about
+    2^11 rad on and of the jerk limit from 0.25 rad on (test/limit_checks.py allows for it).
+    The references' own velocity and acceleration, which the servos feed forward, carry none
+    of it: moves are planned relative to their start on these axes (moves._Motion).
     The micromill's c_f (2 pi rad/s, 100 µs) and fts_lathe's c (125.7 rad/s, 5.01 µs):
     2^31 rad; trt_5axis's c (6 rad/s, 1 ms): 2^34 rad. Each lies far beyond what one goal
     can travel (moves.MAX_GOAL_STEPS), so the range refuses absurd values, never the turns

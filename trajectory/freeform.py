@@ -27,8 +27,9 @@ order; one-sided at the ends).
 time-optimal jerk-limited entry (Ruckig) that brings the spindle up to speed and the slide to
 its radius and feed with the fast axis at rest at its home; a lead-in over which the fast axis
 lands on the surface (still slaved to the spindle angle and radius, its height faded in); the
-cut; the lead-out (faded out); a time-optimal stop. The fast axis never moves with the slow
-axes' entry or stop, so its stroke holds whatever the spindle needs to get up to speed; what
+cut; the lead-out (faded out); a time-optimal stop. The fast axis stays at its home through
+the slow axes' entry and stop (to Ruckig's ~1e-21 m residual), so its stroke holds whatever
+the spindle needs to get up to speed; what
 the trajectory node runs for a freeform goal. It starts from wherever the machine stands: a
 second cut from where the first stopped (the spindle a few turns on, the slide inside its
 start radius) either continues at the spindle's angle (``start_angle`` = its angle) or turns
@@ -306,15 +307,21 @@ def _landing(n: int, led: int) -> np.ndarray:
     return weight
 
 
-def _land_on(entry: Reference, target: Reference) -> None:
+def _land_on(machine: MachineConfig, entry: Reference, target: Reference) -> None:
     """Make the entry end exactly on the cut's first row. Ruckig ends within its own
-    precision of a target (~1e-12 m or rad from a start away from home), not on it: a jump of
-    2e-12 m between two rows 5 µs apart reads 1.6e4 m/s³ of jerk. The residual is spread over
+    precision of a target (~1e-12 m or rad from a start away from home), not on it: a step of
+    2e-12 m between two rows 5 µs apart reads up to 3.2e4 m/s³ of jerk (2 x step / T³). The residual is spread over
     the whole entry by the septic smoothstep (its jerk: at most the residual x 52.5 /
     duration³, 4e-9 m/s³ for 2e-12 m over a 0.3 s entry), velocity and acceleration with it;
-    the last row is then the cut's own."""
+    the last row is then the cut's own. ValueError for a residual beyond RUCKIG_PRECISION."""
     n = len(entry)
     residual = target.position[0] - entry.position[-1]
+    off = np.abs(residual) > RUCKIG_PRECISION * np.maximum(1.0, np.abs(target.position[0]))
+    if off.any():                            # not Ruckig's precision: something else is wrong
+        k = int(np.argmax(off))
+        axis = machine.axes[k]
+        raise ValueError(f'the entry ends {amount(residual[k], axis.unit)} away from the cut on {axis.name}, '
+                         f"beyond Ruckig's precision ({RUCKIG_PRECISION:g} x max(1, |position|))")
     duration = (n - 1) * entry.period
     if n > 1 and residual.any():
         s, ds, dds = _smoothstep(np.arange(n) / (n - 1))
@@ -328,6 +335,9 @@ def _land_on(entry: Reference, target: Reference) -> None:
 SURFACES = {'sinusoidal_grid': SinusoidalGrid, 'beam_integrator': BeamIntegrator,      # the thesis's, by name
             'micro_lens_array': MicroLensArray}
 LEAD = 0.02     # s, assumed: the fast axis lands on the surface and lifts off over 20 ms (module doc)
+# Ruckig reaches a target within ~1e-12 (relative to max(1, |position|)) from a start away
+# from home (measured: 2e-12 m on x from 0.994 mm); assumed: 1e-9 bounds it with room.
+RUCKIG_PRECISION = 1e-9
 JUNCTION_SCALE = 0.98   # the entry and stop at 98 % of the limits: sampled across their junctions with the
                         # cut (at speed) the jerk would otherwise read up to ~1 % over (test_freeform.py)
 
@@ -360,10 +370,10 @@ def freeform_program(machine: MachineConfig, surface, turning: Turning, start: A
     try:
         entry = moves.move_to_state(machine, into, start, JUNCTION_SCALE)
         stop = moves.smooth_stop(machine, out_of, JUNCTION_SCALE)
+        _land_on(machine, entry, ref)
     except ValueError as exc:
         return FreeformResult(FreeformStatus.EXCEEDS_LIMITS, f'no entry into or stop out of the cut: {exc}', None,
                               cut.peaks)
-    _land_on(entry, ref)
     whole = moves.concatenate([entry, ref, stop])
     if len(whole) > 2 * moves.MAX_GOAL_STEPS:
         return FreeformResult(FreeformStatus.INVALID_INPUT, f'entry, cut and stop take {len(whole)} control steps, '

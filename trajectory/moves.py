@@ -82,31 +82,52 @@ def _input(machine: MachineConfig, start: AxisState, scale: float) -> InputParam
     return inp
 
 
-def _calculate(machine: MachineConfig, inp: InputParameter) -> Trajectory:
-    """Ruckig's trajectory for `inp`; ValueError when Ruckig cannot plan it."""
+@dataclass(frozen=True)
+class _Motion:
+    """A Ruckig trajectory planned relative to `offset`: each unlimited axis's start position
+    (0 for the others), so Ruckig computes with the distance to go, never with a spindle's
+    thousands of radians; sampling adds the offset back, one rounding per sample."""
+    trajectory: Trajectory
+    offset: np.ndarray
+    unlimited: np.ndarray           # indices of the axes without a stroke
+
+
+def _calculate(machine: MachineConfig, inp: InputParameter) -> _Motion:
+    """Ruckig's trajectory for `inp` (positions made relative to the start on unlimited
+    axes); ValueError when Ruckig cannot plan it."""
+    unlimited = np.array([i for i, a in enumerate(machine.axes) if a.stroke is None], int)
+    offset = np.zeros(len(machine.axes))
+    offset[unlimited] = np.asarray(inp.current_position)[unlimited]
+    if unlimited.size:
+        inp.current_position = (np.asarray(inp.current_position) - offset).tolist()
+        if inp.control_interface == ControlInterface.Position:
+            inp.target_position = (np.asarray(inp.target_position) - offset).tolist()
     otg = Ruckig(len(machine.axes), machine.control_period)
     trajectory = Trajectory(len(machine.axes))
     try:
         result = otg.calculate(inp, trajectory)
     except RuckigError as exc:      # Ruckig raises on inputs it fails to solve numerically
-        dof = re.search(r'step (\d), dof: (\d+)', str(exc))
-        where = (f' (no profile in its step {dof[1]} for {machine.axis_names[int(dof[2])]})'
+        dof = re.search(r'step (\d),? (?:in )?dof: (\d+)', str(exc))
+        where = (f' (Ruckig found no profile for {machine.axis_names[int(dof[2])]} in its step {dof[1]})'
                  if dof and int(dof[2]) < len(machine.axes) else '')
         raise ValueError(f'Ruckig cannot plan this move{where}') from None
     if result not in (Result.Working, Result.Finished):
         raise ValueError(f'Ruckig cannot plan this move: {result}')
-    return trajectory
+    return _Motion(trajectory, offset, unlimited)
 
 
-def _steps(machine: MachineConfig, trajectory: Trajectory) -> int:
-    return int(round(trajectory.duration / machine.control_period))
+def _steps(machine: MachineConfig, motion: _Motion) -> int:
+    return int(round(motion.trajectory.duration / machine.control_period))
 
 
-def _sample(machine: MachineConfig, trajectory: Trajectory) -> Reference:
+def _sample(machine: MachineConfig, motion: _Motion) -> Reference:
     """The trajectory sampled at the control period; ValueError if it leaves a stroke."""
+    trajectory = motion.trajectory
     _check_extrema(machine, trajectory)
-    samples = [trajectory.at_time(k * machine.control_period) for k in range(_steps(machine, trajectory) + 1)]
+    samples = [trajectory.at_time(k * machine.control_period) for k in range(_steps(machine, motion) + 1)]
     position, velocity, acceleration = (np.array([s[i] for s in samples]) for i in range(3))
+    if motion.unlimited.size:
+        position[:, motion.unlimited] += motion.offset[motion.unlimited]
     return Reference(machine.axis_names, machine.control_period, position, velocity, acceleration)
 
 
@@ -115,6 +136,7 @@ def _plan(machine: MachineConfig, inp: InputParameter) -> Reference:
 
 
 def _check_extrema(machine: MachineConfig, trajectory: Trajectory) -> None:
+    """The strokes of the limited axes (their positions are planned as they are)."""
     for axis, extrema in zip(machine.axes, trajectory.position_extrema):
         problem = outside_stroke(axis, extrema.min, 'would reach') or outside_stroke(axis, extrema.max, 'would reach')
         if problem:
@@ -177,19 +199,20 @@ def through_waypoints(machine: MachineConfig, start, names, points, times) -> Re
             goals.append(validate_goal(machine, position))
         except ValueError as exc:
             raise ValueError(f'point {i}: {exc}') from None
-    trajectories, state, previous, steps = [], AxisState.at_rest(start), 0.0, 0
+    motions, state, previous, steps = [], AxisState.at_rest(start), 0.0, 0
     for i, (goal, t) in enumerate(zip(goals, times)):
-        trajectory = _calculate(machine, _move_input(machine, goal, state, 1.0, (t - previous) if timed else 0.0))
-        if timed and max(trajectory.independent_min_durations) > t - previous:
-            raise ValueError(f'point {i}: ' + _too_early(machine, state.position, goal, t, previous, trajectory))
-        steps += _steps(machine, trajectory)
+        motion = _calculate(machine, _move_input(machine, goal, state, 1.0, (t - previous) if timed else 0.0))
+        if timed and max(motion.trajectory.independent_min_durations) > t - previous:
+            raise ValueError(f'point {i}: ' + _too_early(machine, state.position, goal, t, previous,
+                                                         motion.trajectory))
+        steps += _steps(machine, motion)
         if steps > MAX_GOAL_STEPS:
             raise ValueError(f'point {i}: the joint goal would last {steps * machine.control_period:.6g} s '
                              f'up to it, beyond the {longest:g} s a joint goal may last '
                              f'({MAX_GOAL_STEPS} control steps)')
-        trajectories.append(trajectory)
+        motions.append(motion)
         state, previous = AxisState.at_rest(goal), t
-    return concatenate([_sample(machine, trajectory) for trajectory in trajectories])
+    return concatenate([_sample(machine, motion) for motion in motions])
 
 
 def _too_early(machine: MachineConfig, start, goal, t: float, previous: float, trajectory: Trajectory) -> str:

@@ -105,12 +105,13 @@ class SepticInterpolant:
 
     def evaluate(self, s, order: int = 0) -> np.ndarray:
         """d^order q / ds^order (order 0..3) at s (M,) -> (M, axes); s is clipped to the nodes."""
-        if order not in (0, 1, 2, 3):
-            raise ValueError(f'derivative order must be 0..3, got {order!r}')
         return self.evaluate_orders(s, (order,))[0]
 
     def evaluate_orders(self, s, orders) -> list[np.ndarray]:
         """:meth:`evaluate` for each of `orders` at the same s, the interval of each s found once."""
+        for order in orders:
+            if order not in (0, 1, 2, 3):
+                raise ValueError(f'derivative order must be 0..3, got {order!r}')
         s = np.atleast_1d(np.asarray(s, float))
         n = np.clip(np.searchsorted(self.s, s, side='right') - 1, 0, len(self.s) - 2)
         h = self._h[n]
@@ -176,8 +177,9 @@ class TimeLaw:
         return half * np.sum(_GL_W / self.rate(nodes), axis=1)
 
     def u_at(self, t) -> np.ndarray:
-        """u with t(u) = t (scale 1), by Newton's method from the bracketing feed nodes."""
-        t = np.clip(np.asarray(t, float), 0.0, self.duration)
+        """u with t(u) = t (scale 1, t an array or a number: an array of u either way), by
+        Newton's method from the bracketing feed nodes."""
+        t = np.clip(np.atleast_1d(np.asarray(t, float)), 0.0, self.duration)
         i = np.clip(np.searchsorted(self.t_nodes, t, side='right') - 1, 0, len(self.t_nodes) - 2)
         lo, hi = self.u_nodes[i], self.u_nodes[i + 1]
         frac = (t - self.t_nodes[i]) / (self.t_nodes[i + 1] - self.t_nodes[i])

@@ -44,7 +44,7 @@ def save_figure(plt, fig, directory, name: str, wspace: float = 0.22) -> str:
     """Write `fig` as DIRECTORY/NAME (the seed tables' layout and resolution; `wspace`
     between the panels), close it; the path."""
     import os
-    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.11, top=0.94, wspace=wspace)
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.11, top=0.96, wspace=wspace)
     path = os.path.join(directory, name)
     fig.savefig(path, dpi=80)
     plt.close(fig)
