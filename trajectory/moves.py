@@ -5,7 +5,10 @@ goals, return home, and a smooth stop (feed hold) from any state.
 Every move starts from the machine's current state (position, velocity, acceleration of
 each axis) and respects each axis's velocity, acceleration and jerk limits from the
 machine config (optionally scaled down). Durations are whole control periods (Ruckig's
-discrete duration), so the last sample is exactly the goal, at rest. Refused with a reason
+discrete duration), so the last sample is the goal, at rest, to Ruckig's precision (~1e-12
+m or rad from a start away from home; a caller that joins a move to a given row closes that
+gap, as freeform._land_on does). On an unlimited axis a move is planned relative to its
+start (_Motion), so Ruckig never computes with a spindle's accumulated turns. Refused with a reason
 naming the axis (ValueError): a goal outside its stroke (by how much) or, on an unlimited
 axis, beyond its range (axis_limits.unlimited_range), a stop that cannot end inside the
 strokes; for joint goals also the point: a time_from_start the axes cannot meet (with the
