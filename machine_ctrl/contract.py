@@ -89,8 +89,11 @@ READY_QOS = Qos(depth=1, transient_local=True, liveliness_lease=LIVELINESS_LEASE
 PROGRESS_QOS = Qos(depth=1, transient_local=True, liveliness_lease=RECORDER_LIVELINESS_LEASE)
 # /clock for timers and tools (the per-step nodes take time from the stamps they answer).
 CLOCK_READER_QOS = Qos(depth=10)
-# /diagnostics: every node, 1 Hz and at once on a fault.
-DIAGNOSTICS_QOS = Qos(depth=10)
+# /diagnostics: every node, 1 Hz and at once on a fault; the trajectory node also on each
+# status change and each goal's change (its reason). The writer keeps 100 so that such a
+# burst does not overwrite a goal's entry before a reader under load has it (a reliable
+# keep-last writer drops what it overwrites).
+DIAGNOSTICS_QOS = Qos(depth=100)
 DIAGNOSTICS_READER_QOS = Qos(depth=50)
 
 

@@ -61,7 +61,14 @@ class Client(MachineClient):
         return goal_id, self.goal_state(goal_id), self.goal_entries.get(goal_id, {}).get('reason', '')
 
     def wait_goal(self, stamp, states, check):
-        self.wait(lambda: self.goal(stamp)[1] in states, f'the goal {states}', GUARD, check)
+        """Wait until the goal is in one of `states`; an ended goal also until its /diagnostics
+        entry (the reason) says so: it travels on another topic than the goal status, so it
+        may come after it."""
+        def reached():
+            goal_id, state, _ = self.goal(stamp)
+            return state in states and (state not in TERMINAL
+                                        or self.goal_entries.get(goal_id, {}).get('status') == state)
+        self.wait(reached, f'the goal {states}', GUARD, check)
         return self.goal(stamp)
 
 
@@ -104,6 +111,30 @@ def client(micromill, graph, ros_env):
         yield c
 
 
+@pytest.fixture(autouse=True)
+def recovered(micromill, graph, client):
+    """Each test starts from a whole graph at rest: what a failed test left behind (a node
+    stopped or gone, a goal under way, the override low, the machine faulted) is undone
+    first, so that one failure does not fail the tests after it."""
+    for name in specs(micromill):
+        if graph[name].running():
+            graph[name].signal_group(signal.SIGCONT)
+        else:
+            graph[name].stopping = True
+            restart(graph, micromill, name)
+    client.wait(lambda: client.trajectory_alive and client.status().get('state') is not None,
+                'the trajectory node', GUARD, graph.check)
+    if client.status().get('state') not in ('idle', 'fault'):
+        client.call(contract.STOP.name)
+    if client.status().get('feed_override_setting') != '1.0':
+        client.set_feed_override(1.0)
+        client.wait(lambda: client.status().get('feed_override_setting') == '1.0', 'the override', GUARD,
+                    graph.check)
+    client.wait(lambda: client.status().get('state') in ('idle', 'fault'), 'idle or faulted', GUARD, graph.check)
+    if client.status().get('state') == 'fault' or client.diag('hw_sim', 'fault'):
+        reset(client, graph)
+
+
 def kill(graph, name):
     """SIGKILL node `name` (its process group) and wait until it is gone."""
     graph[name].stopping = True                   # its end is expected: graph.check() stays quiet
@@ -138,14 +169,12 @@ STEP_NODES = ('servo_coarse', 'servo_fine', 'dual_stage')
 RESETS = 3
 
 
-def reset_and_move(client, graph, axis='x_c', still=True):
-    """/hw_sim/reset once every step node answers the step hw_sim holds, the trajectory idle,
-    the machine stepping, nothing moving (`still`; else the stop of the aborted goal may
-    still play out); then a new goal succeeds. A reset restarts the held step's
-    command_timeout: nodes still catching up after a stall can miss it (seen on a loaded
-    machine), and hw_sim faults again naming them — then, as an operator would, the reset is
-    repeated once they answer (README "Faults"), at most RESETS times."""
-    held = client.truth.copy()
+def reset(client, graph):
+    """/hw_sim/reset once every step node answers the step hw_sim holds, until the trajectory
+    node is idle and the machine steps. A reset restarts the held step's command_timeout:
+    nodes still catching up after a stall can miss it (seen on a loaded machine), and hw_sim
+    faults again naming them — then, as an operator would, the reset is repeated once they
+    answer (README "Faults"), at most RESETS times."""
     for _ in range(RESETS):
         client.wait(lambda: client.diag('hw_sim', 'step') != '' and all(
             client.diag(n, 'answered_step') == client.diag('hw_sim', 'step') for n in STEP_NODES),
@@ -160,6 +189,13 @@ def reset_and_move(client, graph, axis='x_c', still=True):
             break
     else:
         pytest.fail(f'hw_sim faulted after each of {RESETS} resets: {client.diag("hw_sim", "fault")}')
+
+
+def reset_and_move(client, graph, axis='x_c', still=True):
+    """:func:`reset`, then nothing has moved (`still`; else the stop of the aborted goal may
+    still play out) and a new goal succeeds."""
+    held = client.truth.copy()
+    reset(client, graph)
     i = client.machine.axis_names.index(axis)
     assert not still or abs(client.truth[i] - held[i]) < 1e-6    # the aborted goal's axis: no goal, no motion
     stamp, target = slow_goal(client, axis, 10e-6 if axis.endswith('_f') else 0.5e-3, 0.0)

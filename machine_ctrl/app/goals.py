@@ -8,8 +8,10 @@ import sys
 import time
 
 # s (wall) to wait for a finished goal's /diagnostics entry (its reason, its label), which
-# travels on another topic than the goal status
-REASON_WAIT = 2.0
+# travels on another topic than the goal status. assumed: 10 s; it normally follows within
+# milliseconds, but a machine under load may delay it by seconds (only a lost entry waits
+# this long, and the outcome is then shown without its reason)
+REASON_WAIT = 10.0
 
 
 def goal_outcome(client, stamp, goal_id: str | None = None) -> tuple[str | None, str | None]:
