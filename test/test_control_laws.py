@@ -92,3 +92,26 @@ def test_notch_sits_on_its_frequency():
     f = 1992.0 / (2 * math.pi)
     depth = abs(discrete_response(LeadLagController(gains, T), [f])[0])
     assert depth == pytest.approx(0.02 / 0.3, rel=0.02)              # |N(j omega)| = zeta_num / zeta_den
+
+
+def test_bilinear_is_tustins_substitution_worked_by_hand():
+    """filters.bilinear against the substitution s = 2 fs (z - 1)/(z + 1) multiplied out by
+    hand for a second-order section (coefficients of z^2, z, 1), and against
+    scipy.signal.bilinear where scipy does not drop a small leading coefficient."""
+    from scipy import signal
+    from machine_ctrl.control.filters import bilinear
+    n, d, fs = (2.0, 3.0e3, 5.0e6), (1.0, 4.0e2, 9.0e6), 2.0e4
+    k = 2.0 * fs
+
+    def by_hand(c):
+        return np.array([c[0] * k * k + c[1] * k + c[2], 2.0 * (c[2] - c[0] * k * k), c[0] * k * k - c[1] * k + c[2]])
+    b, a = bilinear(n, d, fs)
+    np.testing.assert_allclose(b, by_hand(n) / by_hand(d)[0], rtol=1e-12)
+    np.testing.assert_allclose(a, by_hand(d) / by_hand(d)[0], rtol=1e-12)
+    for num, den in ((n, d), ((1.0, 50.0), (1.0, 500.0)), ((7.0,), (1.0, 30.0, 1e4))):
+        expected = signal.bilinear(num, den, fs)
+        assert all(np.array_equal(x, y) for x, y in zip(bilinear(num, den, fs), expected))
+    # scipy takes a numerator of 1e-15 s for no numerator at all; here it stays
+    assert bilinear((1e-15, 0.0), (1.0, 1.0), fs)[0][0] > 0.0
+    with pytest.raises(ValueError, match='vanishes at s = 2 fs'):
+        bilinear((1.0,), (1.0, -k), fs)

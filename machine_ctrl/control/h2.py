@@ -46,7 +46,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg, signal
+from scipy import linalg
 
 from machine_ctrl.control.h2_synthesis import GeneralizedPlant, H2Result, H2Status, StateSpace, h2_synthesis
 from machine_ctrl.control.law import Parameter, gains_change_problem, retune_checked
@@ -139,6 +139,7 @@ def h2_design(axis: AxisConfig, gains: H2Gains, period: float) -> H2Design:
     if not result.ok:
         return H2Design(result.status, f'axis {axis.name}: {result.reason}', p)
     k = _balanced(result.controller)
+    from scipy import signal      # here: a servo without an h2 law need not import it (~0.8 s)
     ad, bd, cd, dd, _ = signal.cont2discrete((k.a, k.b, k.c, k.d), period, method='bilinear')
     discrete = StateSpace(ad, bd, cd, dd)
     if _sampled_loop_radius(axis, discrete, period) >= 1.0:

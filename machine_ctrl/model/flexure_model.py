@@ -26,7 +26,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
 from scipy.linalg import expm
 
 from machine_ctrl.model.config import AxisConfig, NoiseConfig
@@ -55,6 +54,7 @@ def noise_filter(noise: NoiseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
         num, den = num * noise.rolloff, np.polymul(den, [1.0, noise.rolloff])
     if len(den) == 1:
         return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[noise.density]])
+    from scipy import signal      # here: hw_sim of a machine without flexures need not import it (~0.8 s)
     return tuple(np.atleast_2d(m) for m in signal.tf2ss(num, den))
 
 
