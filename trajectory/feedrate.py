@@ -38,7 +38,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.optimize import linprog
 
 
 @dataclass(frozen=True)
@@ -150,6 +149,7 @@ def optimize_feed(s, dq, ddq, dddq, limits: FeedLimits, iterations: int = 8,
                 jerk_rhs += [np.full(n - 2, limits.jerk[i])] * 2
         a_ub = sparse.vstack(rows + jerk_rows, format='csr')
         b_ub = np.concatenate(rhs + jerk_rhs)
+        from scipy.optimize import linprog   # here: a node that only imports this need not (~0.8 s)
         result = linprog(cost, A_ub=a_ub, b_ub=b_ub, bounds=bounds, method='highs')
         if result.status != 0:
             raise ValueError(f'feed optimization failed: {result.message}')

@@ -59,7 +59,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
@@ -422,6 +421,7 @@ class PoseSolver:
         turns = [turn * (np.arange(len(first)) == k)
                  for k in np.flatnonzero(np.isinf(self.upper)) for turn in (0.5 * np.pi, np.pi, -0.5 * np.pi)]
         starts = [first] + [first + turn for turn in turns]
+        from scipy.optimize import least_squares   # here: a node that only imports this need not (~0.8 s)
         best = None
         for x0 in starts:
             # dogbox: ~10 evaluations here where scipy's default trust region takes hundreds
