@@ -143,7 +143,7 @@ class PositionOnly:
 def test_the_servo_picks_laws_through_the_registry_alone(micromill, monkeypatch):
     """Replacing a registry entry is all it takes: no other code branches on the name (and an
     entry without friction feed-forward gets none, though the axis configures one)."""
-    monkeypatch.setitem(LAWS, 'ppi', LawEntry(PositionOnly, PPIGains))
+    monkeypatch.setitem(LAWS, 'ppi', LawEntry(__name__, 'PositionOnly', PPIGains))
     servo = AxisServo(micromill.axis('x_c'), micromill.control_period, law='ppi')
     assert isinstance(servo.law, PositionOnly) and servo.friction is None
     k_p = micromill.axis('x_c').control.ppi.position_gain

@@ -9,30 +9,33 @@ its gains in the config schema; no other code branches on a law's name.
 """
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 
 from machine_ctrl.control.law import ControlLaw
-from machine_ctrl.control.h2 import H2Controller
-from machine_ctrl.control.lead_lag import LeadLagController
-from machine_ctrl.control.pid import PIDController
-from machine_ctrl.control.ppi import PPIController
-from machine_ctrl.control.sliding_mode import SlidingModeController
 from machine_ctrl.model.config import AxisConfig, H2Gains, LeadLagGains, PIDGains, PPIGains, SlidingModeGains
 
 
 @dataclass(frozen=True)
 class LawEntry:
-    law: type                           # implements ControlLaw
-    gains: type                         # the dataclass of its gains section
+    module: str                         # the module of the class implementing ControlLaw,
+    name: str                           # imported at first use: a servo process imports the
+    gains: type                         # laws its axes run only (h2's scipy.linalg is ~0.3 s)
     friction_feedforward: bool = False  # the servo adds the LuGre feed-forward, when configured
+
+    @property
+    def law(self) -> type:
+        """The class implementing ControlLaw."""
+        return getattr(importlib.import_module(self.module), self.name)
 
 
 LAWS: dict[str, LawEntry] = {
-    'sliding_mode': LawEntry(SlidingModeController, SlidingModeGains, friction_feedforward=True),
-    'ppi': LawEntry(PPIController, PPIGains, friction_feedforward=True),
-    'lead_lag': LawEntry(LeadLagController, LeadLagGains),
-    'pid': LawEntry(PIDController, PIDGains),
-    'h2': LawEntry(H2Controller, H2Gains),
+    'sliding_mode': LawEntry('machine_ctrl.control.sliding_mode', 'SlidingModeController', SlidingModeGains,
+                             friction_feedforward=True),
+    'ppi': LawEntry('machine_ctrl.control.ppi', 'PPIController', PPIGains, friction_feedforward=True),
+    'lead_lag': LawEntry('machine_ctrl.control.lead_lag', 'LeadLagController', LeadLagGains),
+    'pid': LawEntry('machine_ctrl.control.pid', 'PIDController', PIDGains),
+    'h2': LawEntry('machine_ctrl.control.h2', 'H2Controller', H2Gains),
 }
 
 
