@@ -42,6 +42,15 @@ def test_frf_bandwidths(micromill):
     assert abs(bw['x_dual'] / bw['x_f'] - 1) <= 0.2
 
 
+def test_runs_in_other_processes_give_the_same_numbers(micromill):
+    """experiments/parallel.py: the contouring runs and the frf points computed in two
+    processes equal those computed here one after another, bit for bit."""
+    here = experiments.contouring(micromill, 'square', steps=2000, workers=1)
+    assert experiments.contouring(micromill, 'square', steps=2000, workers=2) == here
+    frequencies = [20.0, 300.0]
+    assert experiments.frf(micromill, frequencies, workers=2) == experiments.frf(micromill, frequencies, workers=1)
+
+
 def test_experiment_command_json_is_one_object():
     """The CLI wiring, on the first 3000 steps of the square (both modes and their at-rest
     runs; the whole square runs in test_square_artefact.py)."""
@@ -61,13 +70,14 @@ def test_experiment_command_json_is_one_object():
     assert data['steps'] == 3000
 
 
-def test_steps_must_be_a_whole_number_and_only_for_the_contours(capsys):
+def test_steps_and_jobs_must_be_whole_numbers_and_steps_only_for_the_contours(capsys):
     from machine_ctrl.app import cli
-    for bad in ('0', '-5', '2.5', 'many'):
-        with pytest.raises(SystemExit) as info:
-            cli.build_parser().parse_args(['experiment', 'square', '--steps', bad])
-        assert info.value.code == 2
-        assert f"argument --steps: must be a whole number > 0, got '{bad}'" in capsys.readouterr().err
+    for option in ('--steps', '--jobs'):
+        for bad in ('0', '-5', '2.5', 'many'):
+            with pytest.raises(SystemExit) as info:
+                cli.build_parser().parse_args(['experiment', 'square', option, bad])
+            assert info.value.code == 2
+            assert f"argument {option}: must be a whole number > 0, got '{bad}'" in capsys.readouterr().err
     exe = str(Path(sys.executable).parent / 'machine-ctrl')
     result = subprocess.run([exe, 'experiment', 'frf', '--steps', '10'], capture_output=True, text=True, timeout=120)
     assert result.returncode != 0 and '--steps is for circle and square' in result.stderr

@@ -301,7 +301,9 @@ def test_every_goal_has_an_id_and_its_lifecycle_on_the_goal_status(micromill, gr
     assert entry['stamp'] == f'{stamp.sec}.{stamp.nanosec:09d}'
     running = [{kv.key: kv.value for kv in st.values} for st in client.statuses[n:] if st.message == 'running']
     assert running and all(v['goal_id'] == goal_id and v['feed'] == '0.01' for v in running)
-    assert client.status()['goal_id'] == ''                   # idle: no active goal
+    # idle: no active goal (the status travels on its own topic: it may come after the goal status)
+    client.wait_states(n, ['running', 'idle'], check=graph.check)
+    assert client.status()['goal_id'] == ''
 
     # a refused goal is a goal too: aborted, the reason on /diagnostics
     stamp = client.send_goal(['x_f'], [[0.5e-3]])

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from machine_ctrl.experiments import parallel
 from machine_ctrl.model.config import MachineConfig
 from hw_sim.offline import run
 from machine_ctrl.model.reference import Reference
@@ -97,35 +98,49 @@ RUN_LABELS = ('smc', 'smc_at_rest', 'dsfd', 'dsfd_at_rest')     # contouring's r
 
 
 def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | None = None,
-               on_run=None) -> dict:
+               on_run=None, workers: int | None = None) -> dict:
     """For kind 'circle' or 'square': {'smc': stats, 'dsfd': stats} (encoder-measured, um, as
     the thesis measured), plus 'true' {'smc', 'dsfd'} (against the simulator's true
     positions), 'at_rest' {'smc', 'dsfd'} (encoder-measured, machine holding the start point
     for as long, same mode and noise), 'noise_floor' {'smc': [keys], 'dsfd': [keys]} (the
     statistics no larger than their at-rest value, see noise_floor: not results),
-    'encoder_count_um' and 'steps'. `on_run(label, reference, record)` is called after each
-    run: 'smc', 'smc_at_rest', 'dsfd', 'dsfd_at_rest' (:data:`RUN_LABELS`), e.g. to write it
-    as a bag (``machine-ctrl experiment circle|square --record DIR`` does)."""
+    'encoder_count_um' and 'steps'. The four runs — 'smc', 'smc_at_rest', 'dsfd',
+    'dsfd_at_rest' (:data:`RUN_LABELS`) — go in up to `workers` processes (default: the
+    available CPUs; the same numbers, experiments/parallel.py); `progress(label, steps,
+    steps)` as each is done, in that order, and `on_run(label, reference, record)`, e.g. to
+    write it as a bag (``machine-ctrl experiment circle|square --record DIR`` does)."""
     reference, contour = getattr(contours, kind)(machine)
     steps = len(reference) if steps is None else steps
     rest_reference = at_rest(reference)
     count_um = encoder_count(machine) * 1e6
+    runs = [(label, dual, ref, twin) for label, dual in (('smc', False), ('dsfd', True))
+            for ref, twin in ((reference, False), (rest_reference, True))]
+    names = [f'{label} at rest' if twin else label for label, _, _, twin in runs]
+    done = None if progress is None else (lambda i: progress(f'{kind} {names[i]}', steps, steps))
+    outcomes = parallel.run_all(_contour_run, [(machine, ref, dual, steps, contour, on_run is not None)
+                                               for _, dual, ref, _ in runs], workers, done)
     result = {'true': {}, 'at_rest': {}, 'noise_floor': {}, 'encoder_count_um': count_um, 'steps': steps}
-    for label, dual in (('smc', False), ('dsfd', True)):
-        for ref, name, twin in ((reference, label, False), (rest_reference, f'{label} at rest', True)):
-            report = None if progress is None else (lambda k, n, name=name: progress(f'{kind} {name}', k, n))
-            record = run(machine, ref, dual_stage=dual, steps=steps, progress=report)
-            if record.fault:
-                raise RuntimeError(f'{kind} {name}: the simulated machine faulted: {record.fault}')
-            if twin:
-                result['at_rest'][label] = contour_statistics(record, rest_reference, contour)
-            else:
-                result[label] = contour_statistics(record, reference, contour)
-                result['true'][label] = contour_statistics(record, reference, contour, source='true')
-            if on_run is not None:
-                on_run(name.replace(' ', '_'), ref, record)
+    for (label, _, ref, twin), name, (fault, measured, true, record) in zip(runs, names, outcomes):
+        if fault:
+            raise RuntimeError(f'{kind} {name}: the simulated machine faulted: {fault}')
+        if twin:
+            result['at_rest'][label] = measured
+        else:
+            result[label], result['true'][label] = measured, true
+        if on_run is not None:
+            on_run(name.replace(' ', '_'), ref, record)
+    for label in ('smc', 'dsfd'):
         result['noise_floor'][label] = noise_floor(result[label], result['at_rest'][label], count_um)
     return result
+
+
+def _contour_run(machine: MachineConfig, reference: Reference, dual_stage: bool, steps: int,
+                 contour: contours.Contour, keep: bool):
+    """One run of :func:`contouring`: (fault, measured statistics, true statistics, the
+    record if `keep`)."""
+    record = run(machine, reference, dual_stage=dual_stage, steps=steps)
+    return (record.fault, contour_statistics(record, reference, contour),
+            contour_statistics(record, reference, contour, source='true'), record if keep else None)
 
 
 COARSE_AMPLITUDE = 50e-6   # m: large against presliding (~4 um) so friction does not dominate
@@ -160,32 +175,47 @@ def _lock_in(signal: np.ndarray, phase: np.ndarray) -> complex:
     return 2.0 * np.mean(signal * np.exp(-1j * phase))
 
 
-def frequency_response(machine: MachineConfig, channels: list[FrfChannel], frequencies, dual_stage: bool,
-                       settle_cycles=4, measure_cycles=6, progress=None) -> dict[str, np.ndarray]:
-    """|output/reference| per channel at each frequency (all channels excited at once)."""
+def frequency_response(machine: MachineConfig, groups: list[tuple[list[FrfChannel], bool]], frequencies,
+                       settle_cycles=4, measure_cycles=6, progress=None, workers: int | None = None
+                       ) -> dict[str, np.ndarray]:
+    """|output/reference| per channel at each frequency, for each group of (channels, with
+    the dual-stage coupling on?) — a group's channels excited at once; the runs in up to
+    `workers` processes (default: the available CPUs; the same numbers,
+    experiments/parallel.py), `progress('frf', done, runs)` as they come in."""
+    jobs = [(machine, channels, f, dual_stage, settle_cycles, measure_cycles)
+            for channels, dual_stage in groups for f in frequencies]
+    done = None if progress is None else (lambda i: progress('frf', i + 1, len(jobs)))
+    rows = iter(parallel.run_all(_frf_point, jobs, workers, done))
+    gains = {}
+    for channels, _ in groups:
+        group = [next(rows) for _ in frequencies]
+        gains.update({c.name: np.array([row[k] for row in group]) for k, c in enumerate(channels)})
+    return gains
+
+
+def _frf_point(machine: MachineConfig, channels: list[FrfChannel], f: float, dual_stage: bool,
+               settle_cycles: int, measure_cycles: int) -> list[float]:
+    """One run of :func:`frequency_response`: each channel's gain at `f` Hz."""
     fs = 1.0 / machine.control_period
-    gains = {c.name: [] for c in channels}
     index = {n: i for i, n in enumerate(machine.axis_names)}
-    for j, f in enumerate(frequencies):
-        period_steps = fs / f
-        steps = int(round((settle_cycles + measure_cycles) * period_steps))
-        t = np.arange(steps) / fs
-        pos = np.tile(np.asarray(machine.home, float), (steps, 1))
-        for c in channels:
-            pos[:, index[c.axis]] += c.amplitude * np.sin(2 * math.pi * f * t)
-        reference = Reference(machine.axis_names, machine.control_period, pos, np.zeros_like(pos), np.zeros_like(pos))
-        record = run(machine, reference, dual_stage=dual_stage, feedforward=False)
-        if record.fault:
-            raise RuntimeError(f'frf at {f:g} Hz: the simulated machine faulted: {record.fault}')
-        start = int(round(settle_cycles * period_steps))
-        phase = 2 * math.pi * f * t[start:]
-        for c in channels:
-            output = sum(record.measured[start:, index[a]] for a in c.outputs)
-            output = output - sum(machine.home[index[a]] for a in c.outputs)
-            gains[c.name].append(abs(_lock_in(output, phase)) / c.amplitude)
-        if progress is not None:
-            progress('frf', j + 1, len(frequencies))
-    return {name: np.array(values) for name, values in gains.items()}
+    period_steps = fs / f
+    steps = int(round((settle_cycles + measure_cycles) * period_steps))
+    t = np.arange(steps) / fs
+    pos = np.tile(np.asarray(machine.home, float), (steps, 1))
+    for c in channels:
+        pos[:, index[c.axis]] += c.amplitude * np.sin(2 * math.pi * f * t)
+    reference = Reference(machine.axis_names, machine.control_period, pos, np.zeros_like(pos), np.zeros_like(pos))
+    record = run(machine, reference, dual_stage=dual_stage, feedforward=False)
+    if record.fault:
+        raise RuntimeError(f'frf at {f:g} Hz: the simulated machine faulted: {record.fault}')
+    start = int(round(settle_cycles * period_steps))
+    phase = 2 * math.pi * f * t[start:]
+    gains = []
+    for c in channels:
+        output = sum(record.measured[start:, index[a]] for a in c.outputs)
+        output = output - sum(machine.home[index[a]] for a in c.outputs)
+        gains.append(abs(_lock_in(output, phase)) / c.amplitude)
+    return gains
 
 
 def bandwidth(frequencies, gains) -> float | None:
@@ -200,12 +230,11 @@ def bandwidth(frequencies, gains) -> float | None:
     return float(math.exp(math.log(f0) + w * (math.log(f1) - math.log(f0))))
 
 
-def frf(machine: MachineConfig, frequencies=None, progress=None) -> dict:
+def frf(machine: MachineConfig, frequencies=None, progress=None, workers: int | None = None) -> dict:
     frequencies = np.geomspace(5.0, 1500.0, 30) if frequencies is None else np.asarray(frequencies, float)
     alone, coupled = frf_channels(machine)
-    responses = frequency_response(machine, alone, frequencies, dual_stage=False, progress=progress)
-    if coupled:
-        responses.update(frequency_response(machine, coupled, frequencies, dual_stage=True, progress=progress))
+    groups = [(alone, False)] + ([(coupled, True)] if coupled else [])
+    responses = frequency_response(machine, groups, frequencies, progress=progress, workers=workers)
     return {'frequencies_hz': frequencies.tolist(),
             'gain': {name: g.tolist() for name, g in responses.items()},
             'bandwidth_hz': {name: bandwidth(frequencies, g) for name, g in responses.items()}}

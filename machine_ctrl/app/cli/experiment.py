@@ -95,6 +95,9 @@ def register(subparsers) -> None:
         parser.add_argument('--record', metavar='DIR',
                             help=('also write each run as a bag, DIR/smc and DIR/dsfd' if name != 'frf'
                                   else argparse.SUPPRESS))     # frf: refused with one line, as before
+        parser.add_argument('--jobs', type=_whole_number, metavar='N',
+                            help='run the independent simulations in up to N processes (default: the '
+                                 'available CPUs; the same numbers whatever N)')
         parser.add_argument('--steps', type=_whole_number, metavar='N',
                             help=('run only the first N control steps of the contour (and of its at-rest '
                                   'twins): a quick look; the table then describes that part only'
@@ -199,7 +202,8 @@ def _print_frf(machine: str, result: dict) -> None:
         f'{n}={"n/a" if b is None else f"{b:.1f}"}' for n, b in result['bandwidth_hz'].items()))
 
 
-def contouring(machine, kind: str, progress=None, steps: int | None = None, record_dir=None) -> dict:
+def contouring(machine, kind: str, progress=None, steps: int | None = None, record_dir=None,
+               workers: int | None = None) -> dict:
     """machine_ctrl.experiments.tracking.contouring; with `record_dir`, each run is also
     written as a bag, <record_dir>/<label> (tracking.RUN_LABELS), right after it ran."""
     from machine_ctrl.experiments import tracking
@@ -207,7 +211,7 @@ def contouring(machine, kind: str, progress=None, steps: int | None = None, reco
         from machine_ctrl.ros.run_bag import write_run_bag     # imports rclpy: only when recording
         write_run_bag(Path(record_dir) / label, machine, reference, record, f'experiment {kind} {label}')
     return tracking.contouring(machine, kind, progress=progress, steps=steps,
-                               on_run=None if record_dir is None else write_bag)
+                               on_run=None if record_dir is None else write_bag, workers=workers)
 
 
 def cmd_experiment(args) -> int:
@@ -226,14 +230,15 @@ def cmd_experiment(args) -> int:
         return error('experiment', '--steps is for circle and square')
     if args.name == 'frf':
         from machine_ctrl.experiments import tracking
-        result = tracking.frf(machine, progress=progress)
+        result = tracking.frf(machine, progress=progress, workers=args.jobs)
         if args.json:
             print(json.dumps({'bandwidth_hz': result['bandwidth_hz'],
                               'frequencies_hz': result['frequencies_hz'], 'gain': result['gain']}))
         else:
             _print_frf(machine.name, result)
         return 0
-    result = contouring(machine, args.name, progress=progress, steps=args.steps, record_dir=args.record)
+    result = contouring(machine, args.name, progress=progress, steps=args.steps, record_dir=args.record,
+                        workers=args.jobs)
     if args.json:
         print(json.dumps(contouring_json(result)))
     else:
