@@ -175,7 +175,9 @@ def test_node_publishes_the_offline_core_and_marks_the_joins(trt, reference, ros
                        'the contour node with the reference', ros_supervisor)
         ros_supervisor.start_nodes(specs)
         collector.wait(lambda: all(k in collector.tip for k in range(steps))
-                       and len(collector.orientation_magnitude) >= steps, f'{steps} contour errors', ros_supervisor)
+                       and len(collector.orientation_magnitude) >= steps and len(collector.tip_magnitude) >= steps
+                       and all(k in collector.states for k in range(steps)),   # each topic: its own pace
+                       f'{steps} contour errors and the states they came from', ros_supervisor)
         # /diagnostics: its counts cover the steps up to estimated_step; wait for one at or past
         # `steps` whose steps are all here
         found = []

@@ -40,7 +40,7 @@ def test_a_killed_compensation_aborts_the_goal_naming_it_the_servos_hold_and_goa
     lost = ('compensation lost: no sign of life within its 2 s liveliness lease (killed, stopped or hung); '
             'the reference does not reach the servos')
     assert (state, reason) == ('aborted', lost)
-    assert client.status()['reference_lost'] == lost
+    client.wait(lambda: client.status().get('reference_lost') == lost, 'the status naming it', GUARD, graph.check)
     # the servos run out of reference and hold its last row: the machine stands, no fault
     client.wait(lambda: int(client.diag('servo_coarse', 'reference_underruns', '0')) > 0, 'an underrun', GUARD,
                 graph.check)

@@ -260,6 +260,10 @@ def test_a_killed_servo_is_respawned_and_a_reset_continues(cli_env, tmp_path):
                    launch, READY_TIMEOUT, latched=False)
         answer = ros2(cli_env, 'service', 'call', '/mill3/hw_sim/reset', 'std_srvs/srv/Trigger')
         assert 'success=True' in answer, answer
+        # the trajectory node leaves its fault once hw_sim's healthy /diagnostics reach it: a
+        # goal sent before that is refused
+        echo_until(cli_env, '/mill3/trajectory/status', 'diagnostic_msgs/msg/DiagnosticStatus',
+                   lambda m: m.get('message') == 'idle', launch, READY_TIMEOUT)
         goal = '{joint_names: [y], points: [{positions: [0.005]}]}'
         assert send_goal_and_follow(cli_env, '/mill3', launch, goal, 1) == [1, 2, 4]
         status, _ = launch.interrupt()

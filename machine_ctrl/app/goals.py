@@ -66,7 +66,10 @@ def follow_goal(client, publish, timeout: float, out=sys.stdout, known_id=None) 
             return 1
         time.sleep(0.05)
     entry = _entry(client, goal_id, state)
-    reason = entry.get('reason') or client.status().get('last_rejection', '') or state
+    if entry.get('status') == state:
+        reason = entry.get('reason') or state
+    else:               # not the status's last_rejection: it may be another goal's
+        reason = f'{state} (its reason did not come within {REASON_WAIT:g} s)'
     if state == 'succeeded':
         print(f'done: {entry.get("label") or client.status().get("motion", "")} (goal {goal_id})', file=out)
         return 0
