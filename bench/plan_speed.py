@@ -14,15 +14,11 @@ change). No timing asserts.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import statistics
-import subprocess
-import sys
-import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from baseline import ROOT, child_json, worktree
+
 BASELINE = '8cf7d73'        # before the [5/8] planning trims (the one commit between touched a test only)
 CASES = (('helix', None), ('spiral', None), ('helix', 1.0))
 
@@ -48,12 +44,7 @@ print(json.dumps({'planning': result.planning_time, 'resolve': resolve_time, 'pa
 
 
 def run(tree: Path, name: str, feed) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    out = subprocess.run([sys.executable, '-c', CHILD, name, str(feed)], cwd=tree, env=env,
-                         capture_output=True, text=True)
-    if out.returncode:
-        raise SystemExit(f'plan {name} in {tree} failed:\n{out.stderr}')
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return child_json(tree, CHILD, name, str(feed), what=f'plan {name}')
 
 
 def main():
@@ -61,34 +52,24 @@ def main():
     ap.add_argument('--runs', type=int, default=3)
     ap.add_argument('--baseline', default=BASELINE, help=f'git revision to compare with (default {BASELINE})')
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        base = Path(tmp) / 'baseline'
-        added = subprocess.run(['git', '-C', str(ROOT), 'worktree', 'add', '--detach', str(base), args.baseline],
-                               capture_output=True, text=True)
-        if added.returncode:
-            raise SystemExit(f'no baseline {args.baseline}: {added.stderr.strip()}')
-        try:
-            for name, feed in CASES:
-                label = f'plan {name}' + (f' --feed {feed:g}' if feed else '')
-                results = {'baseline': [], 'this tree': []}
-                for _ in range(args.runs):
-                    for which, tree in (('baseline', base), ('this tree', ROOT)):
-                        r = run(tree, name, feed)
-                        results[which].append(r)
-                        print(f'{label} [{which}]: planning {r["planning"]:.3f} s, resolve {r["resolve"]:.3f} s, '
-                              f'{r["passes"]} passes, {r["samples"]} samples, traversal {r["traversal"]:.4f} s',
-                              flush=True)
-                med = {w: (statistics.median(r['planning'] for r in rs), statistics.median(r['resolve'] for r in rs))
-                       for w, rs in results.items()}
-                same = {r['digest'] for r in results['baseline']} == {r['digest'] for r in results['this tree']}
-                print(f'{label}: median planning {med["baseline"][0]:.3f} -> {med["this tree"][0]:.3f} s '
-                      f'({med["baseline"][0] / med["this tree"][0]:.2f}x), resolve {med["baseline"][1]:.3f} -> '
-                      f'{med["this tree"][1]:.3f} s ({med["baseline"][1] / med["this tree"][1]:.2f}x); references '
-                      + ('bit-identical' if same else 'DIFFER'), flush=True)
-        finally:
-            subprocess.run(['git', '-C', str(ROOT), 'worktree', 'remove', '--force', str(base)], check=False,
-                           capture_output=True)
-
+    with worktree(args.baseline) as base:
+        for name, feed in CASES:
+            label = f'plan {name}' + (f' --feed {feed:g}' if feed else '')
+            results = {'baseline': [], 'this tree': []}
+            for _ in range(args.runs):
+                for which, tree in (('baseline', base), ('this tree', ROOT)):
+                    r = run(tree, name, feed)
+                    results[which].append(r)
+                    print(f'{label} [{which}]: planning {r["planning"]:.3f} s, resolve {r["resolve"]:.3f} s, '
+                          f'{r["passes"]} passes, {r["samples"]} samples, traversal {r["traversal"]:.4f} s',
+                          flush=True)
+            med = {w: (statistics.median(r['planning'] for r in rs), statistics.median(r['resolve'] for r in rs))
+                   for w, rs in results.items()}
+            same = {r['digest'] for r in results['baseline']} == {r['digest'] for r in results['this tree']}
+            print(f'{label}: median planning {med["baseline"][0]:.3f} -> {med["this tree"][0]:.3f} s '
+                  f'({med["baseline"][0] / med["this tree"][0]:.2f}x), resolve {med["baseline"][1]:.3f} -> '
+                  f'{med["this tree"][1]:.3f} s ({med["baseline"][1] / med["this tree"][1]:.2f}x); references '
+                  + ('bit-identical' if same else 'DIFFER'), flush=True)
 
 if __name__ == '__main__':
     main()
