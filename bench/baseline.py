@@ -40,3 +40,13 @@ def child_json(tree: Path, code: str, *args: str, what: str = 'the measurement')
     if out.returncode:
         raise SystemExit(f'{what} in {tree} failed:\n{out.stderr}')
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def alternate(runs: int, baseline: Path, measure) -> dict[str, list]:
+    """{'baseline': [...], 'this tree': [...]}: `measure(which, tree)` `runs` times in each tree,
+    alternating run by run so that both see the same machine load; `measure` may print."""
+    results = {'baseline': [], 'this tree': []}
+    for _ in range(runs):
+        for which, tree in (('baseline', baseline), ('this tree', ROOT)):
+            results[which].append(measure(which, tree))
+    return results

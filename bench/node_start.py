@@ -12,7 +12,7 @@ import argparse
 import statistics
 from pathlib import Path
 
-from baseline import ROOT, child_json, worktree
+from baseline import alternate, child_json, worktree
 
 BASELINE = 'ab7fb23'        # before the import trims (scipy.signal, scipy.optimize, the law registry)
 NODES = ('hw_sim_node', 'servo_node', 'dual_stage_node', 'trajectory_node', 'contour_error_node')
@@ -38,10 +38,7 @@ def main():
     with worktree(args.baseline) as base:
         total = {'baseline': 0.0, 'this tree': 0.0}
         for node in NODES:
-            results = {'baseline': [], 'this tree': []}
-            for _ in range(args.runs):
-                for which, tree in (('baseline', base), ('this tree', ROOT)):
-                    results[which].append(measure(tree, node))
+            results = alternate(args.runs, base, lambda which, tree: measure(tree, node))
             med = {w: statistics.median(r['seconds'] for r in rs) for w, rs in results.items()}
             scipy = {w: rs[0]['scipy'] for w, rs in results.items()}
             for w in total:

@@ -17,7 +17,7 @@ import argparse
 import statistics
 from pathlib import Path
 
-from baseline import ROOT, child_json, worktree
+from baseline import alternate, child_json, worktree
 
 BASELINE = '8cf7d73'        # before the [5/8] planning trims (the one commit between touched a test only)
 CASES = (('helix', None), ('spiral', None), ('helix', 1.0))
@@ -55,14 +55,13 @@ def main():
     with worktree(args.baseline) as base:
         for name, feed in CASES:
             label = f'plan {name}' + (f' --feed {feed:g}' if feed else '')
-            results = {'baseline': [], 'this tree': []}
-            for _ in range(args.runs):
-                for which, tree in (('baseline', base), ('this tree', ROOT)):
-                    r = run(tree, name, feed)
-                    results[which].append(r)
-                    print(f'{label} [{which}]: planning {r["planning"]:.3f} s, resolve {r["resolve"]:.3f} s, '
-                          f'{r["passes"]} passes, {r["samples"]} samples, traversal {r["traversal"]:.4f} s',
-                          flush=True)
+
+            def measure(which, tree):
+                r = run(tree, name, feed)
+                print(f'{label} [{which}]: planning {r["planning"]:.3f} s, resolve {r["resolve"]:.3f} s, '
+                      f'{r["passes"]} passes, {r["samples"]} samples, traversal {r["traversal"]:.4f} s', flush=True)
+                return r
+            results = alternate(args.runs, base, measure)
             med = {w: (statistics.median(r['planning'] for r in rs), statistics.median(r['resolve'] for r in rs))
                    for w, rs in results.items()}
             same = {r['digest'] for r in results['baseline']} == {r['digest'] for r in results['this tree']}

@@ -90,7 +90,7 @@ PROGRESS_QOS = Qos(depth=1, transient_local=True, liveliness_lease=RECORDER_LIVE
 # /clock for timers and tools (the per-step nodes take time from the stamps they answer).
 CLOCK_READER_QOS = Qos(depth=10)
 # /diagnostics: every node, 1 Hz and at once on a fault; the trajectory node also on each
-# status change and each goal's change (its reason). The writer keeps 100 so that such a
+# status change and each goal's change (its reason). assumed: the writer keeps 100 so that such a
 # burst does not overwrite a goal's entry before a reader under load has it (a reliable
 # keep-last writer drops what it overwrites).
 DIAGNOSTICS_QOS = Qos(depth=100)

@@ -117,8 +117,8 @@ def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | No
             for ref, twin in ((reference, False), (rest_reference, True))]
     names = [f'{label} at rest' if twin else label for label, _, _, twin in runs]
     done = None if progress is None else (lambda i: progress(f'{kind} {names[i]}', steps, steps))
-    outcomes = parallel.run_all(_contour_run, [(machine, ref, dual, steps, contour, on_run is not None)
-                                               for _, dual, ref, _ in runs], workers, done)
+    outcomes = parallel.run_all(_contour_run, [(machine, ref, dual, steps, contour, not twin, on_run is not None)
+                                               for _, dual, ref, twin in runs], workers, done)
     result = {'true': {}, 'at_rest': {}, 'noise_floor': {}, 'encoder_count_um': count_um, 'steps': steps}
     for (label, _, ref, twin), name, (fault, measured, true, record) in zip(runs, names, outcomes):
         if fault:
@@ -135,12 +135,13 @@ def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | No
 
 
 def _contour_run(machine: MachineConfig, reference: Reference, dual_stage: bool, steps: int,
-                 contour: contours.Contour, keep: bool):
-    """One run of :func:`contouring`: (fault, measured statistics, true statistics, the
-    record if `keep`)."""
+                 contour: contours.Contour, true: bool, keep: bool):
+    """One run of :func:`contouring`: (fault, measured statistics, true statistics if `true`
+    else None, the record if `keep` else None)."""
     record = run(machine, reference, dual_stage=dual_stage, steps=steps)
     return (record.fault, contour_statistics(record, reference, contour),
-            contour_statistics(record, reference, contour, source='true'), record if keep else None)
+            contour_statistics(record, reference, contour, source='true') if true else None,
+            record if keep else None)
 
 
 COARSE_AMPLITUDE = 50e-6   # m: large against presliding (~4 um) so friction does not dominate
