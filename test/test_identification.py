@@ -2,10 +2,10 @@
 section 2.3): a known model's order and poles recovered from its own chirp data, the fit as
 VAF, bad data refused with the reason.
 
-The known models stand for the micro manipulator's axes of section 2.3 (orders 4 / 2 / 5 in
-x / y / z, the first eigenfrequency within 33-47 Hz in every axis, a second one in x and z,
-Fig. 2.5); their frequencies and dampings are assumed (the identified matrices are not
-printed). The data are made as the thesis made its own: a 10-60 Hz chirp at 1 kHz, output
+The known models are the simulated micro manipulator's axes of section 2.3
+(machine_ctrl/experiments/piezo_milling.py: orders 4 / 2 / 5 in x / y / z, the first
+eigenfrequency within 33-47 Hz in every axis, a second one in x and z, Fig. 2.5; their
+frequencies and dampings assumed, the identified matrices are not printed). The data are made as the thesis made its own: a 10-60 Hz chirp at 1 kHz, output
 noise, decimated six times to ~167 Hz."""
 import math
 
@@ -13,13 +13,12 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from machine_ctrl.experiments import piezo_milling
 from machine_ctrl.identification.subspace import Status, chirp, identify, select_order, vaf
 
 RATE_HZ, DECIMATION = 1000.0, 6          # Sörnmo section 2.3: 1 kHz, decimated six times
-# assumed modes (Hz, zeta) and z's real pole (Hz): Fig. 2.5's first eigenfrequency 33-47 Hz
-MODELS = {'x': ([(40.0, 0.03), (58.0, 0.05)], None),
-          'y': ([(38.0, 0.04)], None),
-          'z': ([(35.0, 0.03), (52.0, 0.05)], 20.0)}
+# the simulated axes' modes (Hz, zeta) and z's real pole (Hz), assumed in piezo_milling.AXES
+MODELS = {name: (axis.modes, axis.real_pole) for name, axis in piezo_milling.AXES.items()}
 
 
 def transfer(modes, real_pole_hz):

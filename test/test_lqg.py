@@ -1,5 +1,5 @@
 """The LQG law of Sörnmo section 2.4 (machine_ctrl/control/lqg.py; issue [4/8]) designed from
-a model identified from chirp data (test/test_identification.py's y axis: one mode at 38 Hz,
+a model identified from chirp data (test/test_identification.py's y axis: one mode at 47 Hz,
 assumed) and closed around the true plant at the identification's 167 Hz: stable, unit
 static gain, the resonance damped the more the lower R is (Fig. 2.10), and the reference
 notch at the eigenfrequency (section 2.5) removing it."""
@@ -14,7 +14,7 @@ from machine_ctrl.control.lqg import LqgController, design, notch
 from machine_ctrl.identification.subspace import identify
 from test_identification import MODELS, chirp_data, transfer
 
-MODE_HZ = MODELS['y'][0][0][0]                  # 38 Hz
+MODE_HZ = MODELS['y'][0][0][0]                  # 47 Hz
 
 
 @pytest.fixture(scope='module')

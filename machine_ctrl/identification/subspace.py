@@ -7,6 +7,8 @@ the singular values of the subspace step, and the fit reported as variance accou
     VAF = 100 (1 - var(y - y_model) / var(y))  %          (Johansson 1993, section 2.3)
 
 with y_model the identified model's simulated output for the same input (from rest).
+:func:`balanced` and :func:`resampled` carry a model (and its noise) to the balanced state
+basis and to another sample period, what a controller designed from it at its own rate needs.
 
 The subspace step is the `nfoursid` library's N4SID (PO-MOESP instrumental variables, QR,
 SVD; Van Overschee and De Moor 1994); this module prepares the data, selects the order and
@@ -27,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
+from scipy.linalg import expm, logm, solve_discrete_lyapunov
 
 # assumed: 6 block rows (past and future horizons) see up to 5 states, the seed's largest
 # order (z). More let N4SID place poles where a 10-60 Hz chirp gives no data: with 14 rows,
@@ -80,6 +83,49 @@ class NoiseCovariance:
     process: np.ndarray
     measurement: np.ndarray
     cross: np.ndarray
+
+
+def balanced(model: StateSpaceModel, noise: NoiseCovariance) -> tuple[StateSpaceModel, NoiseCovariance]:
+    """The same model and noise in its balanced realization: both Gramians equal and diagonal
+    (the Hankel singular values), each state weighted by its input-output energy. N4SID's state
+    basis is arbitrary; this one is unique up to the states' signs, so a weight on the states
+    (an LQ design's Q) means the same for every identification. ValueError for a model that is
+    not minimal (a Gramian not positive definite)."""
+    a, b, c = model.a, model.b, model.c
+    reach = solve_discrete_lyapunov(a, b @ b.T)
+    observe = solve_discrete_lyapunov(a.T, c.T @ c)
+    try:
+        factor = np.linalg.cholesky(reach)
+    except np.linalg.LinAlgError:
+        raise ValueError('the model is not minimal: its reachability Gramian is singular') from None
+    u, hankel, _ = np.linalg.svd(factor.T @ observe @ factor)
+    if not hankel[-1] > 0.0:
+        raise ValueError('the model is not minimal: a Hankel singular value is zero')
+    t = factor @ u @ np.diag(hankel ** -0.25)           # x = t x_balanced
+    ti = np.linalg.inv(t)
+    return (StateSpaceModel(ti @ a @ t, ti @ b, c @ t, model.d, model.period),
+            NoiseCovariance(ti @ noise.process @ ti.T, noise.measurement, ti @ noise.cross))
+
+
+def resampled(model: StateSpaceModel, noise: NoiseCovariance, period: float
+              ) -> tuple[StateSpaceModel, NoiseCovariance]:
+    """The model at another sample period, the same continuous system under a zero-order hold
+    (the matrix logarithm of the held model, then its exponential), in the same state basis;
+    the noise read as continuous white densities: process covariance x period ratio,
+    measurement / ratio, cross term unchanged. ValueError where no real logarithm exists (a
+    pole on the negative real axis: no continuous system sampled gives it)."""
+    n = model.order
+    held = np.zeros((n + 1, n + 1))
+    held[:n, :n], held[:n, n:], held[n, n] = model.a, model.b, 1.0
+    poles = model.poles()
+    if np.any((np.abs(poles.imag) < 1e-12) & (poles.real <= 0.0)):
+        raise ValueError('a pole on the negative real axis: the model is no sampled continuous system')
+    generator = np.real(logm(held)) / model.period
+    generator[n, :] = 0.0
+    out = expm(generator * period)
+    ratio = period / model.period
+    return (StateSpaceModel(out[:n, :n], out[:n, n:], model.c, model.d, period),
+            NoiseCovariance(noise.process * ratio, noise.measurement / ratio, noise.cross))
 
 
 @dataclass(frozen=True)

@@ -1,10 +1,11 @@
 """``machine-ctrl experiment NAME ...``: the experiments on the simulated machine (offline
 runner, machine_ctrl.experiments and compensation/), one subcommand each; progress on stderr.
 
-* ``midrange [--json]`` (Sörnmo Table 3.1), ``fts-budget [--json] [--plots DIR]`` (Ding
-  section 5.7), ``fts-freeform [--json] [--plots DIR]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
-  [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / fts_budget /
-  fts_freeform / fts_identify, seed | ours | ratio.
+* ``midrange [--json]`` (Sörnmo Table 3.1), ``piezo-milling [--json] [--plots DIR]`` (Sörnmo
+  Tables 2.1/2.2), ``deflection [--json] [--plots DIR]`` (Sörnmo Table 4.1), ``fts-budget [--json]
+  [--plots DIR]`` (Ding section 5.7), ``fts-freeform [--json] [--plots DIR]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
+  [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / piezo_milling / deflection /
+  fts_budget / fts_freeform / fts_identify, seed | ours | ratio.
 * ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR] [--steps N]``: thesis section 6.3 /
   Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}, "measured":
   {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "encoder_count_um": ...,
@@ -51,6 +52,13 @@ CONTOUR_DESCRIPTION = ('Sencer Figs. 9-10 on the simulated machines: the Frenet-
 SEED_TABLES = (
     ('midrange', 'midrange', 'table_3_1',
      'Sörnmo Table 3.1: adaptive mid-ranging (AIMC) vs MVPC, the simulation rows with their spread', None),
+    ('piezo-milling', 'piezo_milling', 'reproduce',
+     "Sörnmo Ch. 2, Tables 2.1/2.2: the piezo micro manipulator's axes identified from chirps, their LQG at 10 kHz "
+     "following the robot's deviation in milling, with vs without compensation",
+     'write piezo_milling.png: the profile errors along the cut and their spectra (Figs. 2.19-2.21)'),
+    ('deflection', 'deflection', 'reproduce',
+     "Sörnmo Ch. 4, Table 4.1: the robot's deflection in face milling compensated by force or position feedback",
+     'write deflection_table_4_1.png: the position errors, the force and the corrections (Figs. 4.6-4.7)'),
     ('fts-budget', 'fts_budget', 'reproduce',
      "Ding section 5.7: the fast tool servo's error budget (following vs real positioning error)",
      'write the PSD/CAS and bandwidth-sweep PNGs (the spectra are not in --json)'),
