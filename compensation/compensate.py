@@ -73,7 +73,7 @@ class Compensator:
     def __init__(self, machine: MachineConfig, model: ErrorKinematics, ideal: ErrorKinematics,
                  tolerance: float = TOLERANCE, max_iterations: int = MAX_ITERATIONS, beta: float = BETA):
         # the whole fine stage: every axis of the drive type of the dual-stage fine axes
-        fine_types = {machine.axis(p.fine).drive.type for p in machine.dual_stage}
+        fine_types = {machine.axis(name).drive.type for name in machine.fine_axes}
         self.fine_axes = tuple(a.name for a in machine.axes if a.drive.type in fine_types)
         if not self.fine_axes:
             raise ConfigError(f'{machine.yaml_path}: dual_stage: no fine stage to compensate with')

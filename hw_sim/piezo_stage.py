@@ -22,13 +22,16 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
+
+from machine_ctrl.model import modal
+from machine_ctrl.model.config import AxisConfig
 
 
 @dataclass(frozen=True)
 class PiezoAxisModel:
     """One axis: lightly damped modes (Hz, zeta), an optional real pole (Hz), the stroke (m,
-    half range) and the capacitive sensor's noise (m RMS per sample)."""
+    half range: where the command saturates) and the capacitive sensor's noise (m RMS per
+    sample)."""
     modes: tuple[tuple[float, float], ...]
     real_pole: float | None
     stroke: float
@@ -53,24 +56,18 @@ class PiezoAxisModel:
         return 2 * len(self.modes) + (self.real_pole is not None)
 
     def state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(A, B, C) of G(s), a cascade of the real pole and the modes, each stage's output
-        the next one's input; the last stage's position is the output."""
-        n = self.order
-        a, b, c = np.zeros((n, n)), np.zeros(n), np.zeros(n)
-        rows = []                       # (row of the stage's input, its gain, the stage's output state)
-        if self.real_pole is not None:  # x' = p (in - x)
-            p = 2 * math.pi * self.real_pole
-            a[0, 0] = -p
-            rows.append((0, p, 0))
-        for f, zeta in self.modes:      # x'' = w^2 (in - x) - 2 zeta w x'
-            i, w = 2 * len(rows) - (self.real_pole is not None), 2 * math.pi * f
-            a[i, i + 1], a[i + 1, i], a[i + 1, i + 1] = 1.0, -w * w, -2 * zeta * w
-            rows.append((i + 1, w * w, i))
-        b[rows[0][0]] = rows[0][1]
-        for (_, _, previous), (row, gain, _) in zip(rows, rows[1:]):
-            a[row, previous] += gain
-        c[rows[-1][2]] = 1.0
-        return a, b, c
+        """(A, B, C) of G(s) (machine_ctrl/model/modal.py)."""
+        return modal.state_space([(2 * math.pi * f, z) for f, z in self.modes],
+                                 None if self.real_pole is None else 2 * math.pi * self.real_pole)
+
+    @classmethod
+    def from_axis(cls, axis: AxisConfig) -> PiezoAxisModel:
+        """The model of a machine's piezo axis: plant.modes (rad/s), the drive's command limit as
+        the stroke, the sensor's noise."""
+        plant = axis.plant
+        return cls(tuple((m.omega / (2 * math.pi), m.zeta) for m in plant.modes),
+                   plant.real_pole / (2 * math.pi) if plant.real_pole else None,
+                   axis.drive.command_limit, plant.sensor_noise)
 
     def transfer_at(self, frequency: float) -> complex:
         """G(j 2 pi f)."""
@@ -86,22 +83,25 @@ class PiezoAxisModel:
 
 
 class PiezoAxis:
-    """The axis stepped at `period` with a zero-order-held command (m), from rest."""
+    """The axis stepped at `period` with a zero-order-held command (m), from rest at
+    `position` (its steady state for that command)."""
 
-    def __init__(self, model: PiezoAxisModel, period: float, rng: np.random.Generator):
-        a, b, c = model.state_space()
-        n = model.order
-        augmented = np.zeros((n + 1, n + 1))
-        augmented[:n, :n], augmented[:n, n] = a, b
-        held = expm(augmented * period)
-        self.phi, self.gamma, self.c = held[:n, :n], held[:n, n], c
+    def __init__(self, model: PiezoAxisModel, period: float, rng: np.random.Generator | None,
+                 position: float = 0.0):
+        self.a, self.b, self.c = model.state_space()
+        self.phi, self.gamma = modal.held(self.a, self.b, period)
         self.model, self.rng = model, rng
-        self.state = np.zeros(n)
+        self.state = -np.linalg.solve(self.a, self.b) * position
+        self.command = position
         self.saturated = 0              # samples whose command exceeded the stroke
 
     @property
     def position(self) -> float:
         return float(self.c @ self.state)
+
+    @property
+    def velocity(self) -> float:
+        return float(self.c @ (self.a @ self.state + self.b * self.command))
 
     def measure(self) -> float:
         """The capacitive sensor's reading of the position now."""
@@ -113,4 +113,5 @@ class PiezoAxis:
         if abs(command) > stroke:
             self.saturated += 1
             command = math.copysign(stroke, command)
+        self.command = command
         self.state = self.phi @ self.state + self.gamma * command

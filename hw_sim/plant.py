@@ -13,6 +13,8 @@ cheaper than numpy on tiny arrays, and results do not depend on how axes are gro
   an optional lightly damped resonance / anti-resonance pair (the flexibility the notch
   filters of Table 4.4 were designed against), or a voltage-normalized servo drive
   (Sencer Table 1). Exact zero-order-hold discretization.
+* :class:`PositionServoAxis` — a drive closing its own position loop (a robot joint), and
+  :class:`PiezoDriveAxis` — a piezo stage given by its modes (hw_sim/piezo_stage.py).
 * :class:`Sensor` — encoder / probe: additive Gaussian noise, quantization to the
   resolution, velocity by differentiating the quantized position (thesis Eq. 4.34).
 
@@ -25,10 +27,11 @@ import math
 import random
 
 import numpy as np
-from scipy.linalg import expm
 
-from machine_ctrl.model.config import AxisConfig
+from hw_sim.piezo_stage import PiezoAxis, PiezoAxisModel
 from machine_ctrl.control.lugre import StribeckCurve, bristle_rate
+from machine_ctrl.model import modal
+from machine_ctrl.model.config import AxisConfig
 
 
 def quantize(value: float, step: float) -> float:
@@ -115,12 +118,14 @@ class LinearAxis(_Actuator):
                           [0.0, 0.0, 0.0, 1.0],
                           [0.0, 0.0, -wr * wr, -2.0 * zr * wr]])
             bvec = np.array([0.0, c_u * self.gain / m, 0.0, self.gain])
+        self._hold(a, bvec, period, position)
+
+    def _hold(self, a, bvec, period: float, position: float) -> None:
+        """The exact zero-order-hold discretization of x' = a x + bvec u, at rest at `position`."""
         n = len(bvec)
-        augmented = np.zeros((n + 1, n + 1))
-        augmented[:n, :n], augmented[:n, n] = a, bvec
-        discrete = expm(augmented * period)               # exact zero-order hold
-        self._a = discrete[:n, :n].ravel().tolist()
-        self._b = discrete[:n, n].tolist()
+        phi, gamma = modal.held(a, bvec, period)
+        self._a = phi.ravel().tolist()
+        self._b = gamma.tolist()
         self._state = (position,) + (0.0,) * (n - 1)
         self._propagate = self._propagate2 if n == 2 else self._propagate4
 
@@ -148,6 +153,40 @@ class LinearAxis(_Actuator):
     def step(self, u: float) -> float:
         applied = self.apply(u)
         self._state = self._propagate(applied + self.disturbance())
+        return applied
+
+
+class PositionServoAxis(LinearAxis):
+    """A drive whose own controller closes the position loop (drive type position_servo: an
+    industrial robot's joint, Sörnmo section 2.4, "controlled by a conventional robot
+    controller"): x'' = w^2 (u - x) - 2 zeta w x' with u the position reference
+    (plant.servo), exact zero-order hold."""
+
+    def __init__(self, axis: AxisConfig, period: float, rng: random.Random, position: float = 0.0):
+        _Actuator.__init__(self, axis, rng)
+        w, zeta = axis.plant.servo.omega, axis.plant.servo.zeta
+        self._hold(np.array([[0.0, 1.0], [-w * w, -2.0 * zeta * w]]), np.array([0.0, w * w]), period, position)
+
+
+class PiezoDriveAxis(_Actuator):
+    """A piezo drive (drive type piezo): the stage of hw_sim/piezo_stage.py with the machine's
+    modes, its command saturated and quantized like every drive's."""
+
+    def __init__(self, axis: AxisConfig, period: float, rng: random.Random, position: float = 0.0):
+        super().__init__(axis, rng)
+        self.stage = PiezoAxis(PiezoAxisModel.from_axis(axis), period, None, position)
+
+    @property
+    def position(self) -> float:
+        return self.stage.position
+
+    @property
+    def velocity(self) -> float:
+        return self.stage.velocity
+
+    def step(self, u: float) -> float:
+        applied = self.apply(u)
+        self.stage.step(applied)
         return applied
 
 

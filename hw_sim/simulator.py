@@ -16,17 +16,22 @@ from typing import NamedTuple
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
 from hw_sim.flexure import Accelerometer, FlexureAxis
-from hw_sim.plant import FrictionAxis, LinearAxis, Sensor
+from hw_sim.plant import FrictionAxis, LinearAxis, PiezoDriveAxis, PositionServoAxis, Sensor
 from machine_ctrl.model.config import AxisConfig, MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 
 
 def make_plant(axis: AxisConfig, period: float, substeps: int, rng: random.Random, position: float = 0.0):
-    """The plant model of `axis`: a voice-coil flexure stage, a friction axis, or linear."""
+    """The plant model of `axis`: a voice-coil flexure stage, a robot joint's closed loop, a
+    piezo stage, a friction axis, or linear."""
     if axis.plant is None:
         raise ValueError(f'axis {axis.name}: no plant section in the machine config')
     if axis.drive.type == 'voice_coil':
         return FlexureAxis(axis, period, rng, position)
+    if axis.drive.type == 'position_servo':
+        return PositionServoAxis(axis, period, rng, position)
+    if axis.drive.type == 'piezo':
+        return PiezoDriveAxis(axis, period, rng, position)
     if axis.plant.friction is not None:
         return FrictionAxis(axis, period, substeps, rng, position)
     return LinearAxis(axis, period, rng, position)

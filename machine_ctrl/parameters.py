@@ -314,10 +314,11 @@ SERVO = NodeParameters('servo_node', (
                   'refused unless T (K_s/m_e + lambda) < 1); ppi position_gain, velocity_gain, velocity_integral_gain '
                   '(the integral is rescaled: bumpless); lead_lag none (its filter states belong to their coefficients); '
                   'pid proportional, integral, derivative (the integrator holds K_i * integral: bumpless); h2 none (each weight '
-                  'changes the whole design)',
+                  'changes the whole design); position_command velocity_lead (a feed-forward term without state); lqg none '
+                  '(each weight changes the whole design)',
                   default_text="the machine config's (axes.<axis>.control.<law>)",
                   constraint="as in the machine config: > 0 or >= 0; the law's conditions", live=True, template=True),
-    ParameterSpec('wait_for_offsets', BOOL, None, description='fine axes of a dual-stage pair wait for '
+    ParameterSpec('wait_for_offsets', BOOL, None, description='fine axes of a dual-stage coupling wait for '
                   f'{contract.DUAL_STAGE_OFFSETS.name} each step (no effect without fine axes)',
                   default_text='true when the node has fine axes'),
     INPUT_TIMEOUT,

@@ -22,6 +22,11 @@ def fts_lathe():
 
 
 @pytest.fixture(scope='session')
+def robot_piezo():
+    return load_machine('robot_piezo')
+
+
+@pytest.fixture(scope='session')
 def micromill_kin(micromill):
     return Kinematics.from_config(micromill)
 

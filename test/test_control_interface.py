@@ -21,7 +21,8 @@ MACHINES = Path(__file__).resolve().parents[1] / 'config' / 'machines'
 
 # the machine (a conftest fixture) and axis whose config carries each law's gains
 AXIS_FOR_LAW = {'sliding_mode': ('micromill', 'x_c'), 'ppi': ('micromill', 'x_c'),
-                'lead_lag': ('micromill', 'x_f'), 'pid': ('fts_lathe', 'w'), 'h2': ('fts_lathe', 'w')}
+                'lead_lag': ('micromill', 'x_f'), 'pid': ('fts_lathe', 'w'), 'h2': ('fts_lathe', 'w'),
+                'position_command': ('robot_piezo', 'j2'), 'lqg': ('robot_piezo', 'py')}
 
 
 @pytest.fixture
@@ -48,7 +49,7 @@ def run(block, rows):
 
 
 def test_the_registry_names_exactly_the_laws_of_the_config_schema():
-    assert set(LAWS) == set(CONTROL_LAWS) == {'sliding_mode', 'ppi', 'lead_lag', 'pid', 'h2'}
+    assert set(LAWS) == set(CONTROL_LAWS) == {'sliding_mode', 'ppi', 'lead_lag', 'pid', 'h2', 'position_command', 'lqg'}
     hints = typing.get_type_hints(ControlConfig)
     for name, entry in LAWS.items():
         assert entry.gains in typing.get_args(hints[name]), name     # ControlConfig.<name>: Gains | None
@@ -100,7 +101,7 @@ def test_reset_of_servos_with_friction_feedforward_and_of_the_coupling(micromill
 def test_an_unknown_law_name_is_refused_with_one_line(micromill):
     with pytest.raises(ValueError) as info:
         ServoGroup(micromill, ['x_c'], laws={'x_c': 'hinf'})
-    assert str(info.value) == "axis x_c: unknown control law 'hinf' (known: h2, lead_lag, pid, ppi, sliding_mode)"
+    assert str(info.value) == "axis x_c: unknown control law 'hinf' (known: h2, lead_lag, lqg, pid, position_command, ppi, sliding_mode)"
 
 
 def test_a_law_without_gains_or_an_axis_without_control_is_refused(micromill):
@@ -118,7 +119,7 @@ def test_an_unknown_law_in_the_yaml_is_a_config_error(tmp_path):
     (tmp_path / 'm.yaml').write_text(text.replace('law: sliding_mode', 'law: hinf', 1))
     with pytest.raises(ConfigError) as info:
         load_machine(tmp_path / 'm.yaml')
-    expected = "axes.x.control.law: must be one of h2, lead_lag, pid, ppi, sliding_mode, got 'hinf'"
+    expected = "axes.x.control.law: must be one of h2, lead_lag, lqg, pid, position_command, ppi, sliding_mode, got 'hinf'"
     assert str(info.value).endswith(expected)
 
 
@@ -156,7 +157,9 @@ LIVE = {'sliding_mode': ['bandwidth', 'gain', 'adaptation'],
         'ppi': ['position_gain', 'velocity_gain', 'velocity_integral_gain'],
         'lead_lag': [],
         'pid': ['proportional', 'integral', 'derivative'],
-        'h2': []}
+        'h2': [],
+        'position_command': ['velocity_lead'],
+        'lqg': []}
 
 
 @pytest.mark.parametrize('name', sorted(LAWS))

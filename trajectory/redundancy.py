@@ -161,7 +161,8 @@ class RedundancySettings:
     # the thesis's Fig. 3.6 value (tight accuracy).
     manipulability_threshold: float = 1e-3
     damping_max: float = 1e-6
-    # Axis names that move; the others keep q0 (None: all axes).
+    # Axis names that move; the others keep q0 (None: the machine's planned_axes, all but the
+    # fine axes of a Cartesian coupling).
     active_axes: tuple[str, ...] | None = None
     # Newton projection after each RK4 step (0 iterations: off).
     projection_iterations: int = 2
@@ -220,7 +221,7 @@ class _Resolver:
                  settings: RedundancySettings):
         self.kin, self.settings = kinematics, settings
         names = tuple(machine.axis_names)
-        active = names if settings.active_axes is None else tuple(settings.active_axes)
+        active = machine.planned_axes if settings.active_axes is None else tuple(settings.active_axes)
         unknown = [a for a in active if a not in names]
         if unknown or not active:
             raise ValueError(f'active_axes: unknown axis names {unknown}' if unknown

@@ -4,6 +4,15 @@ x = x_c + x_f follows the coarse reference with the fine stage's bandwidth.
 
     r_f' = r_f + sign * (r_c - x_c)        (sign -1 for z, seed-notes.md)
 
+A Cartesian coupling (machine config ``cartesian_dual_stage``; Sörnmo Fig. 2.9, a robot and a
+micro manipulator) does the same through the kinematics: the tool tip's deviation caused by
+the coarse axes' errors, J_P,coarse (r_c - x_c), is cancelled by the fine axes,
+
+    r_f' = r_f + pinv(J_P,fine) J_P,coarse (r_c - x_c)
+
+with J_P the tool-tip position rows of the Jacobian at the reference (for a pair of parallel
+axes this is the pair's law, the sign coming out of the kinematics).
+
 Stroke: the fine axis must stay inside its stroke. The total fine reference is clipped to
 the stroke shrunk by a margin (default 10 % of its width, assumed: room for the fine axis's
 own tracking error) and slewed at no more than the fine axis's velocity limit, so a large
@@ -13,11 +22,14 @@ going — the fine stage then compensates only part of the error, it never fault
 operation (um-level coarse errors) neither limit is active.
 
 Same shape as a control law (machine_ctrl/control/law.py), over all axes at once:
-``step(ref_pos, pos)`` -> offsets, ``reset()``, declared ``parameters``.
+``step(ref_pos, pos)`` -> offsets (in the order of MachineConfig.fine_axes), ``reset()``,
+declared ``parameters``.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import numpy as np
 
 from machine_ctrl.control.law import Parameter
 from machine_ctrl.model.config import MachineConfig
@@ -25,7 +37,7 @@ from machine_ctrl.model.config import MachineConfig
 
 @dataclass(frozen=True)
 class CouplingResult:
-    offsets: tuple[float, ...]       # added to each fine axis's reference, pair order
+    offsets: tuple[float, ...]       # added to each fine axis's reference, MachineConfig.fine_axes order
     saturated: tuple[bool, ...]
 
 
@@ -37,13 +49,16 @@ class DualStageCoupling:
 
     def __init__(self, machine: MachineConfig, dual_stage: bool = True, margin: float = 0.10):
         index = {name: i for i, name in enumerate(machine.axis_names)}
-        self.pairs = []
-        for pair in machine.dual_stage:
-            lo, hi = machine.axis(pair.fine).stroke
+        self.pairs = [(index[p.coarse], index[p.fine], p.sign) for p in machine.dual_stage]
+        self.fine_axes = machine.fine_axes
+        self.fine = [index[name] for name in self.fine_axes]
+        self.limits = []                 # per fine axis: lowest and highest total reference, slew per step
+        for name in self.fine_axes:
+            lo, hi = machine.axis(name).stroke
             shrink = margin * (hi - lo)
-            slew = machine.axis(pair.fine).limits.velocity * machine.control_period
-            self.pairs.append((index[pair.coarse], index[pair.fine], pair.sign, lo + shrink, hi - shrink, slew))
-        self.fine_axes = tuple(p.fine for p in machine.dual_stage)
+            self.limits.append((lo + shrink, hi - shrink, machine.axis(name).limits.velocity * machine.control_period))
+        cartesian = machine.cartesian_dual_stage
+        self.cartesian = None if cartesian is None else _CartesianDeviation(machine, index)
         self.enabled = dual_stage
         self.reset()
 
@@ -51,16 +66,19 @@ class DualStageCoupling:
         """Forget the last fine references (no slew limit on the next step) and the
         saturation count; `enabled` stays as it is."""
         self.saturation_count = 0
-        self._last_total: list[float | None] = [None] * len(self.pairs)
+        self._last_total: list[float | None] = [None] * len(self.fine)
 
     def step(self, ref_pos, pos) -> CouplingResult:
         """ref_pos, pos: reference and measured position of every axis (machine order)."""
         if not self.enabled:
-            self._last_total = [None] * len(self.pairs)
-            return CouplingResult((0.0,) * len(self.pairs), (False,) * len(self.pairs))
+            self._last_total = [None] * len(self.fine)
+            return CouplingResult((0.0,) * len(self.fine), (False,) * len(self.fine))
+        corrections = [sign * (ref_pos[coarse] - pos[coarse]) for coarse, _, sign in self.pairs]
+        if self.cartesian is not None:
+            corrections += self.cartesian.corrections(ref_pos, pos)
         offsets, saturated = [], []
-        for i, (coarse, fine, sign, lo, hi, slew) in enumerate(self.pairs):
-            wanted = ref_pos[fine] + sign * (ref_pos[coarse] - pos[coarse])
+        for i, (fine, correction, (lo, hi, slew)) in enumerate(zip(self.fine, corrections, self.limits)):
+            wanted = ref_pos[fine] + correction
             total = min(hi, max(lo, wanted))
             last = self._last_total[i]
             if last is not None:
@@ -70,6 +88,32 @@ class DualStageCoupling:
             saturated.append(total != wanted)
         self.saturation_count += sum(saturated)
         return CouplingResult(tuple(offsets), tuple(saturated))
+
+
+class _CartesianDeviation:
+    """The fine axes' corrections of a Cartesian coupling (module doc): dq_f solving
+    J_P,fine dq_f = J_P,coarse (r_c - x_c) in the least-squares sense, J_P the tool-tip position
+    rows of the Jacobian at the reference. J is evaluated again only when a reference axis has
+    moved by more than JACOBIAN_STEP since the last evaluation (the coarse errors are small,
+    so the change of J in between changes the corrections by a negligible fraction)."""
+
+    JACOBIAN_STEP = 1e-4         # m or rad, assumed: J's relative change over it is ~1e-4
+
+    def __init__(self, machine: MachineConfig, index: dict[str, int]):
+        from machine_ctrl.model.kinematics import Kinematics
+        self.kinematics = Kinematics.from_config(machine)
+        self.coarse = np.array([index[n] for n in machine.cartesian_dual_stage.coarse])
+        self.fine = np.array([index[n] for n in machine.cartesian_dual_stage.fine])
+        self._at, self._map = None, None
+
+    def corrections(self, ref_pos, pos) -> list[float]:
+        ref = np.asarray(ref_pos, float)
+        if self._at is None or np.abs(ref - self._at).max() > self.JACOBIAN_STEP:
+            jacobian = self.kinematics.jacobian(ref)[:3]
+            self._map = np.linalg.pinv(jacobian[:, self.fine]) @ jacobian[:, self.coarse]
+            self._at = ref
+        error = ref[self.coarse] - np.asarray(pos, float)[self.coarse]
+        return (self._map @ error).tolist()
 
 
 def apply_offsets(ref_pos, slots, offsets) -> list[float]:

@@ -15,7 +15,8 @@ machine_ctrl/identification/subspace.py), as plain numeric functions and one con
 * a notch on the reference at the axis's eigenfrequency (the y axis of section 2.5), a
   biquad by the bilinear transform pre-warped at its centre.
 
-All of it is linear and deterministic; :class:`LqgController` runs it step by step.
+All of it is linear and deterministic; :class:`LqgController` runs it step by step, and
+:class:`LqgLaw` is it behind the control-law interface for a machine's piezo axis.
 :func:`design` answers with a status and a reason (a model it cannot control, a notch it
 cannot place), never an exception.
 """
@@ -29,6 +30,10 @@ import numpy as np
 from scipy.linalg import LinAlgError, solve_discrete_are
 
 from machine_ctrl.control.filters import Biquad, tustin
+from machine_ctrl.control.law import Parameter, gains_change_problem, retune_checked
+from machine_ctrl.identification.subspace import NoiseCovariance, StateSpaceModel, balanced
+from machine_ctrl.model import modal
+from machine_ctrl.model.config import AxisConfig, LqgGains
 
 Q_WEIGHT, R_WEIGHT = 1.0, 2.5          # Q = I, R = 2.5, Sörnmo section 2.5
 # assumed: the disturbance state drifts with a variance per sample of 1 % of the measurement
@@ -160,3 +165,61 @@ class LqgController:
         self.estimate = predicted + g.observer_gain * innovation
         self.integral += g.period * (r - y)
         return u
+
+
+class LqgLaw:
+    """The LQG behind the control-law interface (machine_ctrl/control/law.py) for a piezo axis:
+    designed at the control period from the axis's plant model (plant.modes, the machine
+    config's stand-in for the identified model of section 2.3, which the thesis does not print)
+    in its balanced realization (identification/subspace.py), with Q = state_weight I and
+    R = control_weight (Eq. 2.5); the Kalman filter's noise: an input disturbance of
+    `process_noise` per period and the sensor's noise (its resolution's when it has none); the
+    reference notch at `notch_frequency` (section 2.5). Nothing is live: a new design is a new law."""
+
+    parameters = (
+        Parameter('state_weight', '1', 'Q = state_weight I on [x, x_i], Eq. (2.5)'),
+        Parameter('control_weight', '1', 'R, Eq. (2.5)'),
+        Parameter('process_noise', 'm', "the model's input disturbance, std per control period (Kalman filter)"),
+        Parameter('notch_frequency', 'Hz', "the reference notch's centre, section 2.5 (0: none)"),
+        Parameter('notch_width', '1', "2 zeta of the notch's poles"),
+    )
+
+    @classmethod
+    def from_axis(cls, gains: LqgGains, axis: AxisConfig, period: float) -> LqgLaw:
+        plant = axis.plant
+        if axis.drive.type != 'piezo' or plant is None or not plant.modes:
+            raise ValueError(f'axis {axis.name}: the lqg law needs a piezo drive with plant.modes (its model)')
+        a, b, c = modal.state_space([(m.omega, m.zeta) for m in plant.modes], plant.real_pole)
+        phi, gamma = modal.held(a, b, period)
+        n = len(gamma)
+        measurement = max(plant.sensor_noise, axis.sensor_resolution / math.sqrt(12.0)) ** 2
+        model, noise = balanced(StateSpaceModel(phi, gamma[:, None], c[None, :], np.zeros((1, 1)), period),
+                                NoiseCovariance(np.outer(gamma, gamma) * gains.process_noise ** 2,
+                                                np.array([[measurement]]), np.zeros((n, 1))))
+        result = design(model.a, model.b, model.c, 0.0, period, noise.process, noise.measurement, noise.cross,
+                        q=gains.state_weight, r=gains.control_weight)
+        if not result.ok:
+            raise ValueError(f'axis {axis.name}: {result.reason}')
+        reference_notch = None
+        if gains.notch_frequency > 0.0:
+            try:
+                reference_notch = notch(gains.notch_frequency, period, width=gains.notch_width)
+            except ValueError as exc:
+                raise ValueError(f'axis {axis.name}: {exc}') from None
+        return cls(gains, LqgController(result.design, reference_notch))
+
+    def __init__(self, gains: LqgGains, controller: LqgController):
+        self.gains, self.controller = gains, controller
+
+    def retune_problem(self, gains: LqgGains) -> str | None:
+        return gains_change_problem(self, gains)
+
+    def retune(self, gains: LqgGains) -> None:
+        retune_checked(self, gains)
+        self.gains = gains
+
+    def reset(self) -> None:
+        self.controller.reset()
+
+    def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float:
+        return self.controller.step(x_r, x)

@@ -13,7 +13,8 @@ import importlib
 from dataclasses import dataclass
 
 from machine_ctrl.control.law import ControlLaw
-from machine_ctrl.model.config import AxisConfig, H2Gains, LeadLagGains, PIDGains, PPIGains, SlidingModeGains
+from machine_ctrl.model.config import (AxisConfig, H2Gains, LeadLagGains, LqgGains, PIDGains, PositionCommandGains,
+                                       PPIGains, SlidingModeGains)
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,8 @@ LAWS: dict[str, LawEntry] = {
     'lead_lag': LawEntry('machine_ctrl.control.lead_lag', 'LeadLagController', LeadLagGains),
     'pid': LawEntry('machine_ctrl.control.pid', 'PIDController', PIDGains),
     'h2': LawEntry('machine_ctrl.control.h2', 'H2Controller', H2Gains),
+    'position_command': LawEntry('machine_ctrl.control.position_command', 'PositionCommand', PositionCommandGains),
+    'lqg': LawEntry('machine_ctrl.control.lqg', 'LqgLaw', LqgGains),
 }
 
 

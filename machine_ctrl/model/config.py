@@ -32,7 +32,13 @@ DRIVE_TYPES = {
     'maglev': 'amplifier command (force/torque = amplifier_gain * u on the levitated table)',
     'servo_voltage': 'V (drive identified normalized to its input: u = mass*acc + damping*vel)',
     'voice_coil': 'V (DAC volts into the current loop plant.current_loop: force = force_constant * current)',
+    'position_servo': 'm or rad (the position reference of a drive whose own controller closes the loop, '
+                      'plant.servo: an industrial robot\'s joint)',
+    'piezo': 'm (the reference of the inner loop around a piezo-actuator, scaled to the stage\'s displacement: '
+             'plant.modes from reference to position, unit static gain)',
 }
+# drive types whose plant is given by its own closed loop: no mass, no damping of their own
+CLOSED_LOOP_DRIVES = ('position_servo', 'piezo')
 
 
 def _positive(**kw):
@@ -46,9 +52,10 @@ def _nonnegative(**kw):
 @dataclass(frozen=True)
 class DriveConfig:
     type: str = field(metadata={'choices': tuple(DRIVE_TYPES)})
-    mass: float = _positive()        # kg or kg*m^2 (servo_voltage: V*s^2/m or V*s^2/rad)
-    damping: float = _nonnegative()  # viscous friction per unit velocity
     command_limit: float = _positive()                  # |u| saturation, in the command's unit
+    mass: float | None = _positive(default=None)        # kg or kg*m^2 (servo_voltage: V*s^2/m or V*s^2/rad);
+                                                        # None for CLOSED_LOOP_DRIVES, required otherwise
+    damping: float | None = _nonnegative(default=None)  # viscous friction per unit velocity (as mass)
     force_constant: float = _positive(default=1.0)      # N/A (linear_motor), else 1
     amplifier_gain: float = _positive(default=1.0)      # A/V (linear_motor), else 1
     command_resolution: float = _nonnegative(default=0.0)  # quantization step of u, 0 = none
@@ -145,6 +152,11 @@ class PlantConfig:
     current_noise: NoiseConfig | None = None  # A/sqrt(Hz) added to the current
     accelerometer: AccelerometerConfig | None = None  # on the moving mass (acceleration feedback)
     ground_vibration: NoiseConfig | None = None   # m/sqrt(Hz), the frame's motion at the flexure's root
+    # position_servo drives: the closed joint loop x'' = w^2 (u - x) - 2 zeta w x'
+    servo: ModeConfig | None = None
+    # piezo drives: reference -> position, prod_i w_i^2 / (s^2 + 2 zeta_i w_i s + w_i^2) [x p / (s + p)]
+    modes: tuple[ModeConfig, ...] = ()
+    real_pole: float = _nonnegative(default=0.0)     # p, rad/s (0: none)
 
 
 @dataclass(frozen=True)
@@ -223,6 +235,26 @@ class H2Gains:
     noise_pole: float = _positive()          # rad/s: the 1/s of a noise filter becomes 1/(s + noise_pole)
 
 
+@dataclass(frozen=True)
+class PositionCommandGains:
+    """A position_servo drive's command: its position reference plus a lead on the
+    reference velocity, u = x_r + T_v v_r (machine_ctrl/control/position_command.py)."""
+    velocity_lead: float = _nonnegative()    # T_v, s (2 zeta / w of plant.servo: no lag on a ramp)
+
+
+@dataclass(frozen=True)
+class LqgGains:
+    """Sörnmo section 2.4 (machine_ctrl/control/lqg.py): LQ state feedback with the integral
+    state (2.9), l_r for unit static gain, the Kalman filter with the disturbance state (2.8),
+    the reference notch, designed from the axis's plant model (plant.modes) in its balanced
+    realization at the control period."""
+    state_weight: float = _positive()        # Q = state_weight I, Eq. (2.5)
+    control_weight: float = _positive()      # R, Eq. (2.5)
+    process_noise: float = _positive()       # the model's input disturbance, std per period, command unit
+    notch_frequency: float = _nonnegative()  # Hz, the reference notch's centre (0: none)
+    notch_width: float = _positive(default=0.5)   # 2 zeta of the notch's poles (control/lqg.py notch)
+
+
 def _law_gains():
     """A gains section of ControlConfig whose field name is a control law's name."""
     return field(default=None, metadata={'law': True})
@@ -241,6 +273,8 @@ class ControlConfig:
     lead_lag: LeadLagGains | None = _law_gains()
     pid: PIDGains | None = _law_gains()
     h2: H2Gains | None = _law_gains()
+    position_command: PositionCommandGains | None = _law_gains()
+    lqg: LqgGains | None = _law_gains()
 
     @property
     def gains(self):
@@ -256,6 +290,17 @@ class DualStagePair:
     coarse: str
     fine: str
     sign: float      # fine reference += sign * coarse tracking error (seed-notes.md: z needs -1)
+
+
+@dataclass(frozen=True)
+class CartesianCoupling:
+    """A coarse stage of several axes and a fine stage of others (Sörnmo Fig. 2.9: a robot and
+    a micro manipulator): the tool's deviation caused by the coarse axes' tracking errors,
+    J_coarse (r_c - x_c), is cancelled by the fine axes, J_fine dq_f = J_coarse (r_c - x_c),
+    in the least-squares sense over the tool-tip position (machine_ctrl/control/dual_stage.py).
+    The fine axes only compensate: the trajectory planner holds them at home."""
+    coarse: tuple[str, ...]
+    fine: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -304,10 +349,25 @@ class MachineConfig:
     home: tuple[float, ...]
     dual_stage: tuple[DualStagePair, ...] = ()
     simulation: SimulationConfig = SimulationConfig()
+    cartesian_dual_stage: CartesianCoupling | None = None
 
     @property
     def axis_names(self) -> tuple[str, ...]:
         return tuple(a.name for a in self.axes)
+
+    @property
+    def planned_axes(self) -> tuple[str, ...]:
+        """The axes the trajectory planner moves: all but a Cartesian coupling's fine axes,
+        which only compensate (held at home by the plan)."""
+        held = self.cartesian_dual_stage.fine if self.cartesian_dual_stage is not None else ()
+        return tuple(n for n in self.axis_names if n not in held)
+
+    @property
+    def fine_axes(self) -> tuple[str, ...]:
+        """The fine stage's axes, in coupling order: the pairs' fine axes, then a Cartesian
+        coupling's."""
+        cartesian = self.cartesian_dual_stage.fine if self.cartesian_dual_stage is not None else ()
+        return tuple(p.fine for p in self.dual_stage) + cartesian
 
     @property
     def accelerometer_axes(self) -> tuple[AxisConfig, ...]:
@@ -500,6 +560,9 @@ def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
         axes_section.fail(f'URDF joint(s) without an axis entry: {", ".join(missing)}')
 
     for axis in axes:
+        problem = _drive_problem(axis.drive)
+        if problem:
+            axes_section.fail(problem, f'{axis.name}.drive')
         problem = _plant_problem(axis, control_period)
         if problem:
             axes_section.fail(problem, f'{axis.name}.plant')
@@ -509,27 +572,55 @@ def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
         home = tuple(home_section.number(a.name, 0.0) for a in axes)
         home_section.finish()
     dual_stage = _dual_stage(top, axes) if 'dual_stage' in top.data else ()
+    cartesian = _cartesian_dual_stage(top.section('cartesian_dual_stage'), axes, dual_stage) \
+        if 'cartesian_dual_stage' in top.data else None
     simulation = _read(top.section('simulation'), SimulationConfig) if 'simulation' in top.data \
         else SimulationConfig()
-    top._used.update(('dual_stage', 'simulation'))
+    top._used.update(('dual_stage', 'simulation', 'cartesian_dual_stage'))
     top.finish()
     for axis, value in zip(axes, home):
         if not axis.in_stroke(value):
             raise ConfigError(f'{path}: home.{axis.name}: {value:g} is outside the stroke {axis.stroke}')
     return MachineConfig(name, description, path, urdf_path, control_period, workpiece_frame,
-                         tool_frame, tuple(axes), home, dual_stage, simulation)
+                         tool_frame, tuple(axes), home, dual_stage, simulation, cartesian)
 
 
 FLEXURE_ONLY = ('flexure', 'current_loop', 'sensor_bandwidth', 'sensor_noise_density', 'current_noise', 'accelerometer',
                 'ground_vibration')
 
 
+def _drive_problem(drive: DriveConfig) -> str:
+    """Why the drive section is incomplete for its type, or ''."""
+    closed = drive.type in CLOSED_LOOP_DRIVES
+    if closed and (drive.mass is not None or drive.damping is not None):
+        return f'a {drive.type} drive has no mass or damping of its own (its plant is its closed loop)'
+    if not closed and (drive.mass is None or drive.damping is None):
+        return f'a {drive.type} drive needs mass and damping'
+    return ''
+
+
 def _plant_problem(axis: AxisConfig, period: float) -> str:
     """Why the plant section cannot be simulated with this drive and period, or ''."""
-    plant = axis.plant
+    plant, drive = axis.plant, axis.drive
+    closed = drive.type in CLOSED_LOOP_DRIVES
     if plant is None:
         return ''
-    if axis.drive.type == 'voice_coil':
+    own = {'position_servo': ('servo',), 'piezo': ('modes', 'real_pole')}
+    for kind, keys in own.items():
+        used = [k for k in keys if getattr(plant, k)]
+        if drive.type != kind and used:
+            return f'{", ".join(used)}: only for {kind} drives'
+    if closed:
+        others = [k for k in ('friction', 'resonance', 'antiresonance', 'force_noise', 'loop_delay') + FLEXURE_ONLY
+                  if getattr(plant, k)]
+        if others:
+            return f'{", ".join(others)}: not modelled for a {drive.type} drive (its plant is its closed loop)'
+        if drive.type == 'position_servo' and plant.servo is None:
+            return 'a position_servo drive needs servo (its closed loop: omega, zeta)'
+        if drive.type == 'piezo' and not plant.modes:
+            return 'a piezo drive needs modes (at least one: omega, zeta)'
+        return ''
+    if drive.type == 'voice_coil':
         missing = [k for k in ('flexure', 'current_loop') if getattr(plant, k) is None]
         if missing:
             return f'a voice_coil drive needs {" and ".join(missing)}'
@@ -573,6 +664,32 @@ def _dual_stage(top: _Section, axes: list[AxisConfig]) -> tuple[DualStagePair, .
     if len(set(fines)) != len(fines):
         top.fail('a fine axis appears in two pairs', 'dual_stage')
     return tuple(pairs)
+
+
+def _cartesian_dual_stage(s: _Section, axes: list[AxisConfig], pairs) -> CartesianCoupling:
+    by_name = {a.name: a for a in axes}
+    roles = {}
+    for role in ('coarse', 'fine'):
+        raw = s._get(role, _REQUIRED)
+        if not (isinstance(raw, list) and raw and all(isinstance(n, str) for n in raw)):
+            s.fail('must be a non-empty list of axis names', role)
+        unknown = [n for n in raw if n not in by_name]
+        if unknown:
+            s.fail(f'unknown axis {", ".join(map(repr, unknown))}', role)
+        if len(set(raw)) != len(raw):
+            s.fail('names an axis twice', role)
+        roles[role] = tuple(raw)
+    s.finish()
+    if set(roles['coarse']) & set(roles['fine']):
+        s.fail('an axis cannot be both coarse and fine')
+    paired = {name for p in pairs for name in (p.coarse, p.fine)}
+    if paired & set(roles['coarse'] + roles['fine']):
+        s.fail(f'{", ".join(sorted(paired & set(roles["coarse"] + roles["fine"])))}: already in a dual_stage pair')
+    if not 1 <= len(roles['fine']) <= 3:
+        s.fail(f'{len(roles["fine"])} fine axes: the tool-tip position has three coordinates', 'fine')
+    if any(by_name[n].kind != 'linear' or by_name[n].stroke is None for n in roles['fine']):
+        s.fail('fine axes must be linear with a stroke', 'fine')
+    return CartesianCoupling(roles['coarse'], roles['fine'])
 
 
 def config_dirs() -> list[Path]:

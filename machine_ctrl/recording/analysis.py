@@ -227,14 +227,14 @@ def analyse(run: Run) -> dict:
         result['limits']['reference'][axis.name] = peak_ratios(run.reference[:, i], T, lim)
         result['limits']['measured'][axis.name] = peak_ratios(run.measured[::DIFF_STEPS, i], DIFF_STEPS * T, lim)
     result['fine_stroke'] = {}
-    for pair in machine.dual_stage:
-        axis = machine.axis(pair.fine)
-        q = run.measured[:, names.index(pair.fine)]
+    for name in machine.fine_axes:
+        axis = machine.axis(name)
+        q = run.measured[:, names.index(name)]
         entry = {'min': float(q.min()), 'max': float(q.max()), 'usage': None}
         if axis.stroke:
             lo, hi = axis.stroke
             entry['usage'] = float(np.abs(q - (lo + hi) / 2).max() / ((hi - lo) / 2))
-        result['fine_stroke'][pair.fine] = entry
+        result['fine_stroke'][name] = entry
     result['series'] = {'steps': run.steps, 'errors': run.reference - run.measured,
                         'tool_ref': p_ref, 'tool_meas': p_meas,
                         'contour': contour}

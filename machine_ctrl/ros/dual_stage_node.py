@@ -1,5 +1,6 @@
 """dual_stage_node: per step k, the fine-stage reference offsets of the dual-stage coupling
-(thesis section 4.4) from the coarse tracking errors, on /dual_stage/offsets
+(thesis section 4.4; a Cartesian coupling through the kinematics, control/dual_stage.py) from
+the coarse tracking errors, on /dual_stage/offsets
 (sensor_msgs/JointState: name = fine axes, position = offsets in m, stamp = step k).
 Inputs: /joint_states and the reference stream /reference (all coupled axes). Waits for a
 reference stream that never started; once it has, waits up to `input_timeout` s (wall)
@@ -29,8 +30,9 @@ class DualStageNode(StepNode):
     def __init__(self, name: str = 'dual_stage', **kwargs):
         super().__init__(name, parameters.DUAL_STAGE, **kwargs)
         self.machine = machine_parameter(self)
-        if not self.machine.dual_stage:
-            self.get_logger().fatal(f'{self.machine.name}: the machine config has no dual_stage pairs')
+        if not self.machine.fine_axes:
+            self.get_logger().fatal(f'{self.machine.name}: the machine config has no dual-stage coupling '
+                                    f'(dual_stage pairs or cartesian_dual_stage)')
             raise SystemExit(2)
         dual_stage = declare_parameters(self, parameters.DUAL_STAGE,
                                         on_change={'dual_stage': self.on_dual_stage}).dual_stage

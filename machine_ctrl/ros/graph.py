@@ -3,7 +3,7 @@ node in its own process or all in one process (one executor). Used by the graph 
 benchmarks; `machine-ctrl bringup` ([7/7]) builds on it.
 
 Default layout for a machine with dual-stage pairs: hw_sim, one servo node per stage
-(fine stage: every axis with the drive type of the pairs' fine axes — the whole maglev
+(fine stage: every axis with the drive type of the coupling's fine axes — the whole maglev
 table; coarse stage: the other controlled axes), dual_stage, and the reference source:
 the trajectory node (contour None; the machine starts at home, or where `hw_sim` says),
 or the reference node playing a test contour (the machine starts where it starts). With a
@@ -174,7 +174,7 @@ def read_specs(path) -> list[NodeSpec]:
 def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_stage: bool = True,
                   hw_sim: dict | None = None, compensation_model: str | None = None,
                   contour_error: bool = False, namespace: str = '') -> list[NodeSpec]:
-    fine_types = {machine.axis(p.fine).drive.type for p in machine.dual_stage}
+    fine_types = {machine.axis(name).drive.type for name in machine.fine_axes}
     controlled = [a for a in machine.axes if a.control is not None]
     fine = [a.name for a in controlled if a.drive.type in fine_types]
     coarse = [a.name for a in controlled if a.drive.type not in fine_types]

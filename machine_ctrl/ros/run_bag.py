@@ -59,7 +59,7 @@ def servo_groups(machine: MachineConfig) -> list[list[str]]:
 def write_run_bag(directory, machine: MachineConfig, reference, record, label: str = '') -> dict[str, int]:
     """Write `record` (offline.RunRecord of `reference`) as a bag; returns the counts."""
     writer = BagWriter(directory)
-    has_offsets = bool(machine.dual_stage)
+    has_offsets = bool(machine.fine_axes)
     for topic, qos in _TOPICS:
         if topic is not contract.DUAL_STAGE_OFFSETS or has_offsets:
             writer.add_topic(topic.full(), topic.type, [qos])

@@ -52,7 +52,7 @@ class ServoNode(StepNode):
         self.servo = ServoGroup(self.machine, values.axes, feedforward=values.feedforward)
         self.axes = self.servo.axis_names
         self.declare_gains()
-        fine = {p.fine for p in self.machine.dual_stage}
+        fine = set(self.machine.fine_axes)
         self.fine_slots = [i for i, a in enumerate(self.axes) if a in fine]
         self.fine_names = [self.axes[i] for i in self.fine_slots]
         coupled = declare_parameters(self, parameters.SERVO, {'wait_for_offsets': bool(self.fine_slots)},

@@ -1,0 +1,40 @@
+"""robot_piezo through the graph as a user runs it (issue [4/8], "Done when"): `machine-ctrl
+bringup robot_piezo --record DIR`, a milling path sent with `machine-ctrl send`, Ctrl-C, and
+`machine-ctrl analyze` of the bag, which learns the machine from its config. Real nodes over
+real DDS; the coupling's effect (on against off) is measured offline
+(test/test_robot_piezo.py), where the two runs cost seconds, not minutes."""
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+from trajectory import toolpath
+
+EXE = str(Path(sys.executable).with_name('machine-ctrl'))
+
+
+def test_robot_piezo_mills_a_path_through_the_graph_recorded_and_analysed(ros_supervisor, ros_env, tmp_path,
+                                                                           robot_piezo):
+    path = tmp_path / 'face.csv'           # a 1 mm circle on the workpiece's face, from home
+    toolpath.write_csv(path, toolpath.circle_xy(radius=0.5e-3, points=91))
+    bag = tmp_path / 'bag'
+    child = ros_supervisor.start('bringup', [EXE, 'bringup', 'robot_piezo', '--record', str(bag)])
+    ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
+    sent = subprocess.run([EXE, 'send', str(path), '--machine', 'robot_piezo', '--timeout', '600'], env=ros_env,
+                          capture_output=True, text=True, timeout=700)
+    assert sent.returncode == 0, sent.stdout + sent.stderr
+    assert 'succeeded' in sent.stdout
+    child.signal_group(signal.SIGINT)
+    assert ros_supervisor.wait('bringup', timeout=120) == 0
+    analysed = subprocess.run([EXE, 'analyze', str(bag), '--json'], capture_output=True, text=True, timeout=300)
+    assert analysed.returncode == 0, analysed.stderr
+    (result,) = json.loads(analysed.stdout)['runs']
+    assert result['machine'] == 'robot_piezo'
+    assert set(result['tracking']) == set(robot_piezo.axis_names)
+    # the piezo axes moved: the coupling cancelled the robot's deviation through them
+    stroke = result['fine_stroke']
+    assert set(stroke) == {'px', 'py', 'pz'}
+    assert max(entry['max'] - entry['min'] for entry in stroke.values()) > 1e-6
+    assert all(entry['usage'] < 0.9 for entry in stroke.values())     # inside the coupling's margin
+    assert result['tool_tip']['tracking']['max'] < 100e-6
