@@ -260,14 +260,16 @@ def test_failures_are_reported_not_raised():
     assert 'failed' in midrange.format_table(res)
 
 
-def test_the_command_prints_the_rows_beside_the_seed():
-    """`machine-ctrl experiment midrange --json`: the CLI wiring (Table 3.1's values written here)."""
+def test_the_command_prints_the_rows_beside_the_seed(tmp_path):
+    """`machine-ctrl experiment midrange --json --plots DIR`: the CLI wiring (Table 3.1's values
+    written here) and the figure."""
     import json
     import subprocess
     import sys
     from pathlib import Path
     exe = str(Path(sys.executable).parent / 'machine-ctrl')
-    result = subprocess.run([exe, 'experiment', 'midrange', '--json'], capture_output=True, text=True, timeout=300)
+    result = subprocess.run([exe, 'experiment', 'midrange', '--json', '--plots', str(tmp_path)], capture_output=True,
+                            text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     data = json.loads(result.stdout)
     assert data['status'] == 'ok'
@@ -276,3 +278,4 @@ def test_the_command_prints_the_rows_beside_the_seed():
     for row in data['rows']:
         for ctrl in ('mvpc_aw', 'mvpc'):
             assert row['ours_over_seed'][ctrl] == row['ratio'][ctrl] / row['seed'][ctrl]
+    assert [p.name for p in tmp_path.iterdir()] == ['midrange.png']

@@ -396,3 +396,37 @@ def format_table(result: dict) -> str:
                          f"min alpha {s['min_alpha']:.2f}")
     lines.append(f"status: {result['status']}{': ' + result['reason'] if result['reason'] else ''}")
     return '\n'.join(lines)
+
+
+def plots(result: dict, directory) -> list[str]:
+    """midrange.png: the AIMC on the row-2 reference (r_r = 5: the relative position, both
+    loops' positions, Fig. 3.6 without its disturbance) and the RLS's gain estimate through
+    the gain steps of Fig. 3.7 beside the true gain and |u_f| / u_sat. Reruns both with
+    the result's choices (the same numbers)."""
+    if result.get('status') != 'ok':
+        return []
+    from machine_ctrl.experiments.seed_rows import save_figure, two_panels
+    choices = Choices(**result['choices'])
+    pc = PlantConfig()
+    r = reference(5.0, choices)
+    sig = run('aimc', r, choices, record=True)['signals']
+    t = np.arange(len(r)) * pc.h
+    plt, fig, (left, right) = two_panels(directory)
+    for values, label in ((r, 'r_r'), (sig['y_r'], 'y_r'), (sig['y_f'], 'y_f (fine, mid-ranged)'),
+                          (sig['y_s'], 'y_s (slow)')):
+        left.plot(t, values, lw=0.8, label=label)
+    left.set_xlabel('time [s]')
+    left.set_ylabel('position (Fig. 3.6, AIMC, r_r = 5)')
+    adapted = run('aimc', reference(FIG37_R, choices, ramp=False), choices, gain_steps=FIG37_STEPS,
+                  record=True)['signals']
+    true = np.ones(len(t))
+    for at, factor in FIG37_STEPS:
+        true[int(round(at / pc.h)):] *= factor
+    right.plot(t, adapted['b_f'] / (pc.h * pc.kc_f * pc.kp_f), lw=0.8, label='RLS gain estimate')
+    right.plot(t, true, 'k--', lw=0.8, label='true gain factor')
+    right.plot(t, np.abs(adapted['u_f']) / pc.u_sat, lw=0.5, alpha=0.6, label='|u_f| / u_sat')
+    right.set_xlabel('time [s]')
+    right.set_ylabel('Fig. 3.7: gain steps +50 % at 8 s, -60 % at 16 s')
+    for ax in (left, right):
+        ax.legend(fontsize=8)
+    return [save_figure(plt, fig, directory, 'midrange.png')]

@@ -1,7 +1,7 @@
 """``machine-ctrl experiment NAME ...``: the experiments on the simulated machine (offline
 runner, machine_ctrl.experiments and compensation/), one subcommand each; progress on stderr.
 
-* ``midrange [--json]`` (Sörnmo Table 3.1), ``piezo-milling [--json] [--plots DIR]`` (Sörnmo
+* ``midrange [--json] [--plots DIR]`` (Sörnmo Table 3.1), ``piezo-milling [--json] [--plots DIR]`` (Sörnmo
   Tables 2.1/2.2), ``deflection [--json] [--plots DIR]`` (Sörnmo Table 4.1), ``fts-budget [--json]
   [--plots DIR]`` (Ding section 5.7), ``fts-freeform [--json] [--plots DIR]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
   [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / piezo_milling / deflection /
@@ -51,7 +51,9 @@ CONTOUR_DESCRIPTION = ('Sencer Figs. 9-10 on the simulated machines: the Frenet-
 # help, and the help of --plots DIR where the module writes plots (module.plots)
 SEED_TABLES = (
     ('midrange', 'midrange', 'table_3_1',
-     'Sörnmo Table 3.1: adaptive mid-ranging (AIMC) vs MVPC, the simulation rows with their spread', None),
+     'Sörnmo Table 3.1: adaptive mid-ranging (AIMC) vs MVPC, the simulation rows with their spread',
+     'write midrange.png: the AIMC on the r_r = 5 reference (Fig. 3.6) and the gain estimate through the steps of '
+     'Fig. 3.7'),
     ('piezo-milling', 'piezo_milling', 'reproduce',
      "Sörnmo Ch. 2, Tables 2.1/2.2: the piezo micro manipulator's axes identified from chirps, their LQG at 10 kHz "
      "following the robot's deviation in milling, with vs without compensation",
