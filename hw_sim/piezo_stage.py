@@ -69,18 +69,6 @@ class PiezoAxisModel:
                    plant.real_pole / (2 * math.pi) if plant.real_pole else None,
                    axis.drive.command_limit, plant.sensor_noise)
 
-    def transfer_at(self, frequency: float) -> complex:
-        """G(j 2 pi f)."""
-        s = 2j * math.pi * frequency
-        g = complex(1.0)
-        for f, zeta in self.modes:
-            w = 2 * math.pi * f
-            g *= w * w / (s * s + 2 * zeta * w * s + w * w)
-        if self.real_pole is not None:
-            p = 2 * math.pi * self.real_pole
-            g *= p / (s + p)
-        return g
-
 
 class PiezoAxis:
     """The axis stepped at `period` with a zero-order-held command (m), from rest at

@@ -211,7 +211,6 @@ def test_table_rows_and_compensation(table):
     assert len(rows) == 6
     assert all(row['seed'] in (218.7, 36.3, 6.0, 246.5, 27.2, 9.1) for row in rows.values())
     none = rows['FF IAE uncompensated (shared run)']['ours']
-    assert rows['PF IAE uncompensated (shared run)']['ours'] == none
     # the uncompensated pass is about the static deflection (+40 um offset, minus the ramps)
     assert 350 < none < 550
     for label in ('FF', 'PF'):

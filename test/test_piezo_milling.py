@@ -63,6 +63,12 @@ def test_the_balanced_realization_has_equal_diagonal_gramians_and_the_same_respo
     for f in (0.0, 20.0, 47.0, 80.0):
         assert response(ours, f) == pytest.approx(response(model, f), rel=1e-9)
     assert noise.measurement == NOISE2.measurement
+    for f in (5.0, 47.0):                       # what the noise does at the output: basis-free
+        z = np.exp(2j * math.pi * f * model.period)
+        seen = [m.c @ np.linalg.inv(z * np.eye(2) - m.a) for m in (model, ours)]
+        assert seen[1] @ noise.process @ seen[1].conj().T == pytest.approx(
+            seen[0] @ NOISE2.process @ seen[0].conj().T, rel=1e-9)
+        assert seen[1] @ noise.cross == pytest.approx(seen[0] @ NOISE2.cross, rel=1e-9)
     unreachable = StateSpaceModel(np.diag([0.5, 0.3]), np.array([[1.0], [0.0]]), np.array([[1.0, 1.0]]),
                                   np.zeros((1, 1)), 0.01)
     with pytest.raises(ValueError, match='not minimal'):

@@ -116,6 +116,46 @@ def test_the_cartesian_coupling_cancels_the_tool_deviation_of_the_robots_errors(
     assert coupling.step(ref, pos).offsets == (0.0, 0.0, 0.0)
 
 
+def test_the_coupling_follows_the_jacobian_along_the_path_and_a_reset_one_is_a_fresh_one(robot_piezo):
+    """J is evaluated again once the reference has moved more than JACOBIAN_STEP: stepped
+    from home to a pose 0.1 rad away, the coupling gives what a fresh one gives there."""
+    home = np.array(robot_piezo.home)
+    moved = home + np.array([0.1, -0.05, 0.08, 0.1, 0.05, 0.0, 0, 0, 0])
+    error = np.array([2e-5, -3e-5, 4e-5, 1e-5, -2e-5, 1e-5, 0, 0, 0])
+    used = DualStageCoupling(robot_piezo)
+    first = used.step(home, home - error).offsets
+    at_moved = used.step(moved, moved - error).offsets
+    fresh = DualStageCoupling(robot_piezo)
+    assert at_moved == fresh.step(moved, moved - error).offsets
+    assert at_moved != first                                  # the map changed with the pose
+    used.reset()
+    assert used.step(home, home - error).offsets == first     # no Jacobian kept across a reset
+
+
+def test_the_yaml_axes_are_the_experiments_axes(robot_piezo):
+    """The machine's piezo axes (robot_piezo.yaml) are the ones the milling experiment
+    identifies (piezo_milling.AXES): one model, written twice, kept equal here."""
+    from hw_sim.piezo_stage import PiezoAxisModel
+    from machine_ctrl.experiments import piezo_milling
+    for name, experiment_axis in zip(robot_piezo.fine_axes, piezo_milling.AXES.values()):
+        ours = PiezoAxisModel.from_axis(robot_piezo.axis(name))
+        assert np.allclose(np.ravel(ours.modes), np.ravel(experiment_axis.modes), rtol=1e-12, atol=0), name
+        assert ours.real_pole == pytest.approx(experiment_axis.real_pole, rel=1e-12) if ours.real_pole else \
+            experiment_axis.real_pole is None
+        assert (ours.stroke, ours.sensor_noise) == (experiment_axis.stroke, experiment_axis.sensor_noise)
+
+
+def test_a_law_for_another_kind_of_drive_is_refused_with_the_reason(robot_piezo, micromill):
+    period = robot_piezo.control_period
+    with pytest.raises(ValueError, match='axis j1: sliding_mode needs the drive.s mass and damping '
+                                         r'\(a position_servo drive has none\)'):
+        type(make_law(micromill.axis('x_c'), period)).from_axis(micromill.axis('x_c').control.sliding_mode,
+                                                                 robot_piezo.axis('j1'), period)
+    with pytest.raises(ValueError, match='axis x_c: position_command sends a position reference; a linear_motor'):
+        type(make_law(robot_piezo.axis('j1'), period)).from_axis(robot_piezo.axis('j1').control.position_command,
+                                                                  micromill.axis('x_c'), period)
+
+
 BASE = (MACHINES / 'robot_piezo.yaml').read_text()
 
 
@@ -130,6 +170,18 @@ BASE = (MACHINES / 'robot_piezo.yaml').read_text()
      'j1.drive: a position_servo drive has no mass or damping of its own'),
     (('      servo: {omega: 125.66370614359172, zeta: 0.7}', '      sensor_noise: 0.0'),
      'j1.plant: a position_servo drive needs servo'),
+    (('        - {omega: 251.32741228718345, zeta: 0.03}\n        - {omega: 364.424747816416, zeta: 0.05}\n',
+      '        []\n'), 'px.plant: a piezo drive needs modes'),
+    (('        - {omega: 251.32741228718345, zeta: 0.03}', '        - {omega: 251.32741228718345, zeta: 1.2}'),
+     'px.plant: modes: zeta must be below 1'),
+    (('      sensor_noise: 2.0e-8     # m RMS per sample, assumed (as piezo_milling.SENSOR_NOISE)',
+      '      sensor_noise: 2.0e-8\n      servo: {omega: 10.0, zeta: 0.5}'), 'px.plant: servo: only for position_servo'),
+    (('      command_limit: 3.1416    # rad, the joint\'s range (robot_piezo.urdf)',
+      '      command_limit: 3.1416\n      force_constant: 2.0'), 'j1.drive: a position_servo drive has no force_constant'),
+    (('  coarse: [j1, j2, j3, j4, j5, j6]\n  fine: [px, py, pz]', '  coarse: [j1, j2, j3, j4, j5]\n  fine: [px, py, pz, j6]'),
+     'cartesian_dual_stage.fine: 4 fine axes'),
+    (('  coarse: [j1, j2, j3, j4, j5, j6]\n  fine: [px, py, pz]', '  coarse: [j1, j2, j3, j4, j5]\n  fine: [px, py, j6]'),
+     'cartesian_dual_stage.fine: fine axes must be linear with a stroke'),
 ])
 def test_a_bad_robot_piezo_config_is_refused_with_the_reason(tmp_path, edit, reason):
     old, new = edit

@@ -4,7 +4,9 @@ that its arm-side position z_a follows the desired z_d despite the process force
 
 * Stiffness model (§4.2, Eq. 4.1, f = K_f x_p): a table of stiffness measured at points of
   the workspace, linearly interpolated between them (held at the end values beyond the
-  table), looked up at the robot's own (motor-side) position.
+  table), looked up at the robot's own measured position in the workspace (§4.2's z_m; in
+  the one-direction experiment the coordinate along the feed, which the deflection, normal
+  to the feed, does not change).
 * Force feedback (FF, Fig. 4.1): the measured force f gives the deflection e_z = f / K(z_m)
   in the direction of the force; the arm-side position is estimated as z_m + e_z and the
   error fed to C(s) is z_d - (z_m + e_z), so the compensation acts opposite to the force.

@@ -49,7 +49,7 @@ class DualStageCoupling:
 
     def __init__(self, machine: MachineConfig, dual_stage: bool = True, margin: float = 0.10):
         index = {name: i for i, name in enumerate(machine.axis_names)}
-        self.pairs = [(index[p.coarse], index[p.fine], p.sign) for p in machine.dual_stage]
+        self.pairs = [(index[p.coarse], p.sign) for p in machine.dual_stage]
         self.fine_axes = machine.fine_axes
         self.fine = [index[name] for name in self.fine_axes]
         self.limits = []                 # per fine axis: lowest and highest total reference, slew per step
@@ -67,13 +67,15 @@ class DualStageCoupling:
         saturation count; `enabled` stays as it is."""
         self.saturation_count = 0
         self._last_total: list[float | None] = [None] * len(self.fine)
+        if self.cartesian is not None:
+            self.cartesian.reset()
 
     def step(self, ref_pos, pos) -> CouplingResult:
         """ref_pos, pos: reference and measured position of every axis (machine order)."""
         if not self.enabled:
             self._last_total = [None] * len(self.fine)
             return CouplingResult((0.0,) * len(self.fine), (False,) * len(self.fine))
-        corrections = [sign * (ref_pos[coarse] - pos[coarse]) for coarse, _, sign in self.pairs]
+        corrections = [sign * (ref_pos[coarse] - pos[coarse]) for coarse, sign in self.pairs]
         if self.cartesian is not None:
             corrections += self.cartesian.corrections(ref_pos, pos)
         offsets, saturated = [], []
@@ -94,16 +96,27 @@ class _CartesianDeviation:
     """The fine axes' corrections of a Cartesian coupling (module doc): dq_f solving
     J_P,fine dq_f = J_P,coarse (r_c - x_c) in the least-squares sense, J_P the tool-tip position
     rows of the Jacobian at the reference. J is evaluated again only when a reference axis has
-    moved by more than JACOBIAN_STEP since the last evaluation (the coarse errors are small,
-    so the change of J in between changes the corrections by a negligible fraction)."""
+    moved by more than JACOBIAN_STEP (in its own unit, m or rad: one max-norm over both) since
+    the last evaluation (the coarse errors are small, so the change of J in between changes the
+    corrections by a negligible fraction). ValueError when the fine axes cannot move the tool
+    tip in as many independent directions as they are (at the machine's home)."""
 
-    JACOBIAN_STEP = 1e-4         # m or rad, assumed: J's relative change over it is ~1e-4
+    JACOBIAN_STEP = 1e-4         # m or rad, assumed: J's relative change over it is ~1e-4 at a 1 m reach
 
     def __init__(self, machine: MachineConfig, index: dict[str, int]):
         from machine_ctrl.model.kinematics import Kinematics
         self.kinematics = Kinematics.from_config(machine)
         self.coarse = np.array([index[n] for n in machine.cartesian_dual_stage.coarse])
         self.fine = np.array([index[n] for n in machine.cartesian_dual_stage.fine])
+        at_home = self.kinematics.jacobian(np.array(machine.home))[:3, self.fine]
+        if np.linalg.matrix_rank(at_home) < len(self.fine):
+            raise ValueError(f'{machine.name}: cartesian_dual_stage: the fine axes '
+                             f'{", ".join(machine.cartesian_dual_stage.fine)} do not move the tool tip in '
+                             f'{len(self.fine)} independent directions (at home)')
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the Jacobian: the next step evaluates it (a reset coupling is a fresh one)."""
         self._at, self._map = None, None
 
     def corrections(self, ref_pos, pos) -> list[float]:
@@ -111,7 +124,7 @@ class _CartesianDeviation:
         if self._at is None or np.abs(ref - self._at).max() > self.JACOBIAN_STEP:
             jacobian = self.kinematics.jacobian(ref)[:3]
             self._map = np.linalg.pinv(jacobian[:, self.fine]) @ jacobian[:, self.coarse]
-            self._at = ref
+            self._at = ref.copy()
         error = ref[self.coarse] - np.asarray(pos, float)[self.coarse]
         return (self._map @ error).tolist()
 

@@ -173,7 +173,7 @@ class LqgLaw:
     config's stand-in for the identified model of section 2.3, which the thesis does not print)
     in its balanced realization (identification/subspace.py), with Q = state_weight I and
     R = control_weight (Eq. 2.5); the Kalman filter's noise: an input disturbance of
-    `process_noise` per period and the sensor's noise (its resolution's when it has none); the
+    `process_noise` per period and the sensor's noise plus its quantization; the
     reference notch at `notch_frequency` (section 2.5). Nothing is live: a new design is a new law."""
 
     parameters = (
@@ -192,7 +192,7 @@ class LqgLaw:
         a, b, c = modal.state_space([(m.omega, m.zeta) for m in plant.modes], plant.real_pole)
         phi, gamma = modal.held(a, b, period)
         n = len(gamma)
-        measurement = max(plant.sensor_noise, axis.sensor_resolution / math.sqrt(12.0)) ** 2
+        measurement = plant.sensor_noise ** 2 + axis.sensor_resolution ** 2 / 12.0     # noise + quantization
         model, noise = balanced(StateSpaceModel(phi, gamma[:, None], c[None, :], np.zeros((1, 1)), period),
                                 NoiseCovariance(np.outer(gamma, gamma) * gains.process_noise ** 2,
                                                 np.array([[measurement]]), np.zeros((n, 1))))

@@ -24,6 +24,9 @@ class PositionCommand:
 
     @classmethod
     def from_axis(cls, gains: PositionCommandGains, axis: AxisConfig, period: float) -> PositionCommand:
+        if axis.drive.type != 'position_servo':
+            raise ValueError(f'axis {axis.name}: position_command sends a position reference; a {axis.drive.type} '
+                             f'drive takes another command (position_command needs a position_servo drive)')
         return cls(gains)
 
     def __init__(self, gains: PositionCommandGains):

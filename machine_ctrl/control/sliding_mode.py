@@ -43,6 +43,9 @@ class SlidingModeController:
     def from_axis(cls, gains: SlidingModeGains, axis: AxisConfig, period: float) -> SlidingModeController:
         """m_e, b_e from the axis's drive (Eq. 4.46)."""
         drive = axis.drive
+        if drive.mass is None or drive.damping is None:
+            raise ValueError(f'axis {axis.name}: sliding_mode needs the drive\'s mass and damping '
+                             f'(a {drive.type} drive has none)')
         return cls(gains, drive.mass / drive.gain, drive.damping / drive.gain, period)
 
     def __init__(self, gains: SlidingModeGains, equivalent_mass: float, equivalent_damping: float,

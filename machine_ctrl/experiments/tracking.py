@@ -164,7 +164,7 @@ def frf_channels(machine: MachineConfig) -> tuple[list[FrfChannel], list[FrfChan
     for axis in machine.axes:
         if axis.kind != 'linear' or axis.control is None:
             continue
-        fine = axis.name in {p.fine for p in machine.dual_stage}
+        fine = axis.name in machine.fine_axes
         alone.append(FrfChannel(axis.name, axis.name, (axis.name,), FINE_AMPLITUDE if fine else COARSE_AMPLITUDE))
         pair = fine_of.get(axis.name)
         if pair is not None and pair.sign > 0:

@@ -92,16 +92,19 @@ def balanced(model: StateSpaceModel, noise: NoiseCovariance) -> tuple[StateSpace
     (an LQ design's Q) means the same for every identification. ValueError for a model that is
     not minimal (a Gramian not positive definite)."""
     a, b, c = model.a, model.b, model.c
+    radius = float(np.abs(model.poles()).max())
+    if radius >= 1.0:
+        raise ValueError(f'the model is not stable (pole radius {radius:.4g}): it has no Gramians')
     reach = solve_discrete_lyapunov(a, b @ b.T)
     observe = solve_discrete_lyapunov(a.T, c.T @ c)
     try:
         factor = np.linalg.cholesky(reach)
     except np.linalg.LinAlgError:
         raise ValueError('the model is not minimal: its reachability Gramian is singular') from None
-    u, hankel, _ = np.linalg.svd(factor.T @ observe @ factor)
-    if not hankel[-1] > 0.0:
+    u, squared, _ = np.linalg.svd(factor.T @ observe @ factor)     # the Hankel singular values squared
+    if not squared[-1] > 0.0:
         raise ValueError('the model is not minimal: a Hankel singular value is zero')
-    t = factor @ u @ np.diag(hankel ** -0.25)           # x = t x_balanced
+    t = factor @ u @ np.diag(squared ** -0.25)          # x = t x_balanced
     ti = np.linalg.inv(t)
     return (StateSpaceModel(ti @ a @ t, ti @ b, c @ t, model.d, model.period),
             NoiseCovariance(ti @ noise.process @ ti.T, noise.measurement, ti @ noise.cross))
@@ -115,6 +118,8 @@ def resampled(model: StateSpaceModel, noise: NoiseCovariance, period: float
     measurement / ratio, cross term unchanged. ValueError where no real logarithm exists (a
     pole on the negative real axis: no continuous system sampled gives it)."""
     n = model.order
+    if model.b.shape[1] != 1:
+        raise ValueError(f'one input only, the model has {model.b.shape[1]}')
     held = np.zeros((n + 1, n + 1))
     held[:n, :n], held[:n, n:], held[n, n] = model.a, model.b, 1.0
     poles = model.poles()

@@ -252,7 +252,8 @@ class LqgGains:
     control_weight: float = _positive()      # R, Eq. (2.5)
     process_noise: float = _positive()       # the model's input disturbance, std per period, command unit
     notch_frequency: float = _nonnegative()  # Hz, the reference notch's centre (0: none)
-    notch_width: float = _positive(default=0.5)   # 2 zeta of the notch's poles (control/lqg.py notch)
+    notch_width: float = _positive(default=0.5)   # 2 zeta of the notch's poles (control/lqg.py notch); assumed
+                                                  # default: -3 dB over ~ +-25 % of the centre, the thesis states none
 
 
 def _law_gains():
@@ -298,7 +299,7 @@ class CartesianCoupling:
     a micro manipulator): the tool's deviation caused by the coarse axes' tracking errors,
     J_coarse (r_c - x_c), is cancelled by the fine axes, J_fine dq_f = J_coarse (r_c - x_c),
     in the least-squares sense over the tool-tip position (machine_ctrl/control/dual_stage.py).
-    The fine axes only compensate: the trajectory planner holds them at home."""
+    The fine axes only compensate: a path plan holds them at home (a joint goal may jog them)."""
     coarse: tuple[str, ...]
     fine: tuple[str, ...]
 
@@ -594,6 +595,8 @@ def _drive_problem(drive: DriveConfig) -> str:
     closed = drive.type in CLOSED_LOOP_DRIVES
     if closed and (drive.mass is not None or drive.damping is not None):
         return f'a {drive.type} drive has no mass or damping of its own (its plant is its closed loop)'
+    if closed and (drive.force_constant != 1.0 or drive.amplifier_gain != 1.0):
+        return f'a {drive.type} drive has no force_constant or amplifier_gain (its command is a position)'
     if not closed and (drive.mass is None or drive.damping is None):
         return f'a {drive.type} drive needs mass and damping'
     return ''
@@ -619,6 +622,10 @@ def _plant_problem(axis: AxisConfig, period: float) -> str:
             return 'a position_servo drive needs servo (its closed loop: omega, zeta)'
         if drive.type == 'piezo' and not plant.modes:
             return 'a piezo drive needs modes (at least one: omega, zeta)'
+        overdamped = [f'{m.omega:g} rad/s' for m in plant.modes if m.zeta >= 1.0]
+        if overdamped:
+            return (f'modes: zeta must be below 1 (a lightly damped pole pair; an overdamped one is two real poles): '
+                    f'{", ".join(overdamped)}')
         return ''
     if drive.type == 'voice_coil':
         missing = [k for k in ('flexure', 'current_loop') if getattr(plant, k) is None]

@@ -301,7 +301,7 @@ def params_document(machine: MachineConfig) -> dict:
         if spec.table is parameters.SERVO:
             values.update({g.name: g.default for g in gain_parameters(machine, values['axes'])})
         nodes.append((spec.name, spec.table, values))
-    if machine.dual_stage:
+    if machine.fine_axes:
         nodes.append(('compensation', parameters.COMPENSATION, {'machine': machine.name}))
     nodes.append(('recorder', parameters.RECORDER, {'machine': machine.name}))
     return {f'/**/{name}': {'ros__parameters': _nested(_section(table, values))} for name, table, values in nodes}

@@ -5,7 +5,7 @@ record: same topics, types, stamps and contents per step k (stamp t_k = k T):
 * /servo_commands: one message per servo node of the default graph (coarse, fine), effort =
   the commands computed at k;
 * /dual_stage/offsets: the fine-stage offsets (zero with the coupling off), if the machine
-  has dual-stage pairs;
+  has a dual-stage coupling;
 * /reference: chunks of ``CHUNK_STEPS`` rows as reference_node sends them;
 * /clock every ``CLOCK_DECIMATION`` steps and the ground truth
   (/hw_sim/ground_truth/joint_states: true positions — the offline record keeps no true

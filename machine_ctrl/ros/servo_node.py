@@ -3,7 +3,7 @@ one per stage, or all), answering every /joint_states step with /servo_commands.
 
 Inputs per step k: the state (/joint_states), the reference row k of its axes (streamed
 ahead in chunks on /reference, trajectory_msgs/JointTrajectory on the control grid),
-for fine axes of a dual-stage pair the offsets of step k (/dual_stage/offsets) and, for
+for the fine axes of a dual-stage coupling the offsets of step k (/dual_stage/offsets) and, for
 axes whose law closes the acceleration loop (pid with acceleration_gain > 0), the
 accelerometer readings of step k (/accelerometers, sensor_msgs/Imu by the axis's link). An
 input stream that has never delivered is waited for (reported on /diagnostics as
