@@ -92,6 +92,19 @@ def ros2(env, *args: str, timeout: float = 60.0) -> str:
     return result.stdout
 
 
+def end_reader(process: subprocess.Popen, grace: float = 10.0) -> None:
+    """End a `ros2 topic echo` with SIGINT, so that it leaves the graph announced: a reliable
+    reader killed without notice can hold the graph's writers for seconds (issue [6/8], the
+    killed-recorder stall); SIGKILL only if it has not ended within `grace` s."""
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.communicate(timeout=grace)        # drains its output: a full pipe cannot hold it
+        except subprocess.TimeoutExpired:
+            process.kill()
+    process.communicate()
+
+
 def echo_until(env, topic: str, type_name: str, accept, launch: Launch, timeout: float, latched: bool = True):
     """Messages on `topic` (YAML documents of `ros2 topic echo`) until `accept(message)` is
     true: returns that message; fails with the launch output when none is accepted within
@@ -116,8 +129,7 @@ def echo_until(env, topic: str, type_name: str, accept, launch: Launch, timeout:
                 break
     finally:
         timer.cancel()
-        process.kill()
-        process.wait()
+        end_reader(process)
     pytest.fail(f'no accepted message on {topic} within {timeout:g} s; launch output:\n{launch.text()[-3000:]}')
 
 
