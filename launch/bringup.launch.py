@@ -18,7 +18,8 @@ Arguments (``name:=value``):
   installed (ROS from apt; not on PyPI); default false.
 * ``respawn`` — ``true`` (default): a controller node that dies (servo, dual_stage, trajectory,
   compensation, contour_error; an exit status other than 0) is started again after
-  ``RESPAWN_DELAY`` s, at most ``RESPAWN_MAX`` times; a node that exits 0 was asked to stop. hw_sim (the machine: its state would be lost) and the recorder (its
+  hw_sim's ``command_timeout`` + ``RESPAWN_MARGIN`` s (3 s by default; a ``params_file``'s
+  value is not read here), at most ``RESPAWN_MAX`` times; a node that exits 0 was asked to stop. hw_sim (the machine: its state would be lost) and the recorder (its
   bag directory is not empty any more) are not respawned. A dead servo or dual_stage node
   faults hw_sim (its commands stop); once the respawned node answers the held step,
   ``hw_sim/reset`` continues, and nothing moves again without a new goal.
@@ -26,7 +27,8 @@ Arguments (``name:=value``):
 The graph is the same data as ``machine-ctrl bringup`` builds
 (:func:`machine_ctrl.app.bringup.graph_specs`): each node a process of its own, with its
 parameters and remappings. Ctrl-C or SIGTERM: launch signals every node, each shuts down
-at once and exits 0; the recorder drains and closes the bag first.
+at once and exits 0; the recorder drains and closes the bag first (launch waits up to
+``RECORDER_STOP_TIMEOUT`` s, 60, for it before its SIGTERM, as ``machine-ctrl bringup`` does).
 """
 from __future__ import annotations
 
@@ -45,9 +47,14 @@ ARGUMENTS = (
     ('robot_state_publisher', 'false', 'start robot_state_publisher when installed (true/false)'),
     ('respawn', 'true', 'start a dead controller node again (not hw_sim, not the recorder)'),
 )
-# assumed: 1 s lets a dying process release its DDS entities before its successor joins;
-# 3 retries tell a transient crash from one that repeats (then the fault stays, named).
-RESPAWN_DELAY = 1.0        # s
+# assumed: a node is started again 1 s after hw_sim's command_timeout has passed since it
+# died, so that a dead servo or dual_stage node is always a fault first (its commands stopped;
+# its successor starts without its state: integrators, filters, estimates), never a silent
+# continuation — with 1 s a successor that started fast answered the held step within the
+# timeout and the machine went on (a loaded run); the 1 s also lets the dying process release
+# its DDS entities. 3 retries tell a transient crash from one that repeats (then the fault
+# stays, named).
+RESPAWN_MARGIN = 1.0       # s
 RESPAWN_MAX = 3
 NOT_RESPAWNED = ('hw_sim', 'recorder')
 
@@ -66,7 +73,7 @@ def _executable(spec) -> str:
 
 def _nodes(context):
     from machine_ctrl import contract
-    from machine_ctrl.app.bringup import graph_specs, recorder_spec
+    from machine_ctrl.app.bringup import RECORDER_STOP_TIMEOUT, graph_specs, recorder_spec
     from machine_ctrl.model.config import load_machine
     from machine_ctrl.ros.graph import write_params_file
 
@@ -83,23 +90,35 @@ def _nodes(context):
     extra = [value['params_file']] if value['params_file'] else []
     # the graph's values as our own parameters file (strings quoted: rcl reads a bare y as true)
     respawn = _flag('respawn', value['respawn'])
+    delay = _respawn_delay(specs)
     actions = []
     for spec in specs:
         params = [str(write_params_file([spec], None, spec.name)), *extra]
 
-        def make(spec=spec, params=params):
+        # the recorder may take long to drain and close a long session's bag: launch's
+        # SIGTERM waits as long as machine-ctrl bringup's does (a loaded run's recorder got
+        # SIGTERM after launch's default 5 s while closing a bag of 316k messages)
+        grace = {'sigterm_timeout': str(RECORDER_STOP_TIMEOUT)} if spec.name == 'recorder' else {}
+
+        def make(spec=spec, params=params, grace=grace):
             return Node(package='machine_ctrl', executable=_executable(spec), name=spec.name,
                         namespace=spec.namespace or None, parameters=params,
-                        remappings=[contract.CLOCK_REMAP], output='screen', emulate_tty=True)
-        actions += _respawned(make, RESPAWN_MAX) if respawn and spec.name not in NOT_RESPAWNED else [make()]
+                        remappings=[contract.CLOCK_REMAP], output='screen', emulate_tty=True, **grace)
+        actions += _respawned(make, delay, RESPAWN_MAX) if respawn and spec.name not in NOT_RESPAWNED else [make()]
     if _flag('robot_state_publisher', value['robot_state_publisher']):
         actions.append(_robot_state_publisher(machine, namespace))
     return actions
 
 
-def _respawned(make, retries: int) -> list:
-    """The node `make()` makes, and a handler that starts a new one `RESPAWN_DELAY` s after
-    it died, at most `retries` more times. Died = an exit status other than 0: every node
+def _respawn_delay(specs) -> float:
+    """hw_sim's command_timeout in this graph (its spec's value, else its default) + margin."""
+    hw_sim = next(spec for spec in specs if spec.name == 'hw_sim')
+    return {**hw_sim.table.defaults(), **hw_sim.parameters}['command_timeout'] + RESPAWN_MARGIN
+
+
+def _respawned(make, delay: float, retries: int) -> list:
+    """The node `make()` makes, and a handler that starts a new one `delay` s after it died,
+    at most `retries` more times. Died = an exit status other than 0: every node
     exits 0 when asked to stop (Ctrl-C, SIGTERM), so a terminal's Ctrl-C — which reaches the
     nodes at the same time as launch, and they may end before launch has begun its shutdown
     — never starts a node again (launch's own `respawn` would, and the node started after
@@ -112,7 +131,7 @@ def _respawned(make, retries: int) -> list:
     def on_exit(event, context):
         if event.returncode == 0 or context.is_shutdown or retries <= 0:
             return None
-        return [TimerAction(period=RESPAWN_DELAY, actions=_respawned(make, retries - 1))]
+        return [TimerAction(period=delay, actions=_respawned(make, delay, retries - 1))]
     return [node, RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit))]
 
 
