@@ -95,30 +95,9 @@ class FrictionAxis(_Actuator):
         return applied
 
 
-class LinearAxis(_Actuator):
-    """x = G(s) u with G(s) = gain F(s) / (m s^2 + b s) and the flexible part
-    F(s) = (w_r^2/w_z^2) (s^2 + 2 z_z w_z s + w_z^2) / (s^2 + 2 z_r w_r s + w_r^2), DC gain 1.
-    State [x, v] or [x, v, w, dw] (w: force-filter state)."""
-
-    def __init__(self, axis: AxisConfig, period: float, rng: random.Random, position: float = 0.0):
-        super().__init__(axis, rng)
-        m, b = axis.drive.mass, axis.drive.damping
-        plant = axis.plant
-        if plant.resonance is None:
-            a = np.array([[0.0, 1.0], [0.0, -b / m]])
-            bvec = np.array([0.0, self.gain / m])
-        else:
-            wr, zr = plant.resonance.omega, plant.resonance.zeta
-            wz, zz = plant.antiresonance.omega, plant.antiresonance.zeta
-            k = wr * wr / (wz * wz)
-            # effective force f = k (w'' + 2 zz wz w' + wz^2 w), with w'' = gain u - 2 zr wr w' - wr^2 w
-            c_w, c_dw, c_u = k * (wz * wz - wr * wr), k * 2.0 * (zz * wz - zr * wr), k
-            a = np.array([[0.0, 1.0, 0.0, 0.0],
-                          [0.0, -b / m, c_w / m, c_dw / m],
-                          [0.0, 0.0, 0.0, 1.0],
-                          [0.0, 0.0, -wr * wr, -2.0 * zr * wr]])
-            bvec = np.array([0.0, c_u * self.gain / m, 0.0, self.gain])
-        self._hold(a, bvec, period, position)
+class _HeldAxis(_Actuator):
+    """A linear drive x' = a x + b u stepped by its exact zero-order hold; state [x, v] or
+    [x, v, w, dw], unrolled by hand (the per-step cost of every drive of this kind)."""
 
     def _hold(self, a, bvec, period: float, position: float) -> None:
         """The exact zero-order-hold discretization of x' = a x + bvec u, at rest at `position`."""
@@ -156,14 +135,40 @@ class LinearAxis(_Actuator):
         return applied
 
 
-class PositionServoAxis(LinearAxis):
+class LinearAxis(_HeldAxis):
+    """x = G(s) u with G(s) = gain F(s) / (m s^2 + b s) and the flexible part
+    F(s) = (w_r^2/w_z^2) (s^2 + 2 z_z w_z s + w_z^2) / (s^2 + 2 z_r w_r s + w_r^2), DC gain 1.
+    State [x, v] or [x, v, w, dw] (w: force-filter state)."""
+
+    def __init__(self, axis: AxisConfig, period: float, rng: random.Random, position: float = 0.0):
+        super().__init__(axis, rng)
+        m, b = axis.drive.mass, axis.drive.damping
+        plant = axis.plant
+        if plant.resonance is None:
+            a = np.array([[0.0, 1.0], [0.0, -b / m]])
+            bvec = np.array([0.0, self.gain / m])
+        else:
+            wr, zr = plant.resonance.omega, plant.resonance.zeta
+            wz, zz = plant.antiresonance.omega, plant.antiresonance.zeta
+            k = wr * wr / (wz * wz)
+            # effective force f = k (w'' + 2 zz wz w' + wz^2 w), with w'' = gain u - 2 zr wr w' - wr^2 w
+            c_w, c_dw, c_u = k * (wz * wz - wr * wr), k * 2.0 * (zz * wz - zr * wr), k
+            a = np.array([[0.0, 1.0, 0.0, 0.0],
+                          [0.0, -b / m, c_w / m, c_dw / m],
+                          [0.0, 0.0, 0.0, 1.0],
+                          [0.0, 0.0, -wr * wr, -2.0 * zr * wr]])
+            bvec = np.array([0.0, c_u * self.gain / m, 0.0, self.gain])
+        self._hold(a, bvec, period, position)
+
+
+class PositionServoAxis(_HeldAxis):
     """A drive whose own controller closes the position loop (drive type position_servo: an
     industrial robot's joint, Sörnmo section 2.4, "controlled by a conventional robot
     controller"): x'' = w^2 (u - x) - 2 zeta w x' with u the position reference
     (plant.servo), exact zero-order hold."""
 
     def __init__(self, axis: AxisConfig, period: float, rng: random.Random, position: float = 0.0):
-        _Actuator.__init__(self, axis, rng)
+        super().__init__(axis, rng)
         w, zeta = axis.plant.servo.omega, axis.plant.servo.zeta
         self._hold(np.array([[0.0, 1.0], [-w * w, -2.0 * zeta * w]]), np.array([0.0, w * w]), period, position)
 

@@ -18,7 +18,7 @@ Arguments (``name:=value``):
   installed (ROS from apt; not on PyPI); default false.
 * ``respawn`` — ``true`` (default): a controller node that dies (servo, dual_stage, trajectory,
   compensation, contour_error; an exit status other than 0) is started again after
-  hw_sim's ``command_timeout`` + ``RESPAWN_MARGIN`` s (3 s by default; a ``params_file``'s
+  hw_sim's ``command_timeout`` + ``RESPAWN_MARGIN`` s (6 s by default; a ``params_file``'s
   value is not read here), at most ``RESPAWN_MAX`` times; a node that exits 0 was asked to stop. hw_sim (the machine: its state would be lost) and the recorder (its
   bag directory is not empty any more) are not respawned. A dead servo or dual_stage node
   faults hw_sim (its commands stop); once the respawned node answers the held step,

@@ -15,15 +15,12 @@ under test:
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from experiment_cli import experiment_json
 from hw_sim.robot_compliance import MillingConfig, MillingRobot, RobotConfig
 from machine_ctrl.control import deflection as law
 from machine_ctrl.control.deflection import DeflectionConfig, StiffnessTable, Status, design
@@ -230,12 +227,6 @@ def test_format_table_prints_seed_ours_and_assumptions(table):
 
 def test_the_command_prints_table_4_1_and_writes_the_plot(tmp_path):
     """`machine-ctrl experiment deflection --json --plots DIR`: the CLI wiring."""
-    exe = str(Path(sys.executable).parent / 'machine-ctrl')
-    result = subprocess.run([exe, 'experiment', 'deflection', '--json', '--plots', str(tmp_path)],
-                            capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    data = json.loads(result.stdout)
-    assert data['status'] == 'ok'
+    data = experiment_json('deflection', tmp_path)
     assert [row['seed'] for row in data['rows']] == [218.7, 36.3, 6.0, 246.5, 27.2, 9.1]
     assert [p.name for p in tmp_path.iterdir()] == ['deflection_table_4_1.png']
-    assert (tmp_path / 'deflection_table_4_1.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'

@@ -20,10 +20,12 @@ import pytest
 from machine_ctrl import contract
 from machine_ctrl.app.client import MachineClient
 from machine_ctrl.app.processes import Supervisor
+from machine_ctrl.parameters import HW_SIM
 from machine_ctrl.ros.graph import default_graph
 from ros_fixtures import private_context
 
 GUARD = 120.0          # s: a failure guard only, never a measured time (2 busy cores)
+COMMAND_TIMEOUT = HW_SIM.spec('command_timeout').default      # s: the graph's (its default)
 TERMINAL = ('succeeded', 'canceled', 'aborted')
 
 
@@ -331,12 +333,12 @@ def test_a_stopped_hw_sim_aborts_the_goal_naming_it_and_faults_itself_when_conti
     assert state == 'aborted' and reason.startswith('machine faulted: hw_sim lost: no sign of life'), reason
     faulted(client, graph)
     graph['hw_sim'].signal_group(signal.SIGCONT)
-    # stopped longer than command_timeout (2 s), hw_sim faults itself; a shorter stall (the
-    # lease may run out after 2/3 of it) does not, and the trajectory node goes idle
+    # stopped longer than command_timeout (5 s), hw_sim faults itself; a shorter stall (the
+    # lease, 6 s, may run out after 2/3 of it) does not, and the trajectory node goes idle
     client.wait(lambda: client.diag('hw_sim', 'fault').startswith('hw_sim stalled: its process did not run for')
                 or client.status().get('state') == 'idle', 'hw_sim back', GUARD, graph.check)
     if client.status().get('state') == 'fault':
-        assert float(client.diag('hw_sim', 'fault').split(' for ')[1].split(' s')[0]) > 2.0
+        assert float(client.diag('hw_sim', 'fault').split(' for ')[1].split(' s')[0]) > COMMAND_TIMEOUT
     reset_and_move(client, graph, still=False)
     assert abs(client.truth[0] - target) > 0.5e-3 - 1e-4     # the aborted goal did not go on (+0.5 mm since)
 

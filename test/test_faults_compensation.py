@@ -7,6 +7,7 @@ import signal
 
 import pytest
 
+from machine_ctrl import contract
 from machine_ctrl.ros.graph import default_graph
 from test_faults import GUARD, TERMINAL, graph_client, running_graph, slow_goal
 
@@ -37,7 +38,8 @@ def test_a_killed_compensation_aborts_the_goal_naming_it_the_servos_hold_and_goa
     graph['compensation'].signal_group(signal.SIGKILL)
     assert graph.wait('compensation', GUARD) == -signal.SIGKILL
     _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
-    lost = ('compensation lost: no sign of life within its 2 s liveliness lease (killed, stopped or hung); '
+    lost = (f'compensation lost: no sign of life within its {contract.LIVELINESS_LEASE:g} s liveliness lease '
+            '(killed, stopped or hung); '
             'the reference does not reach the servos')
     assert (state, reason) == ('aborted', lost)
     client.wait(lambda: client.status().get('reference_lost') == lost, 'the status naming it', GUARD, graph.check)

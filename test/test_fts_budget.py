@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from experiment_cli import experiment_json
 from machine_ctrl.experiments import fts_budget as fb
 
 # seed 003 Table 5-2 and the loop constants, written out again (not read from the module)
@@ -226,16 +227,8 @@ def test_table_and_plots(result, tmp_path):
 
 def test_the_command_prints_the_figures_and_writes_the_plots(tmp_path):
     """`machine-ctrl experiment fts-budget --json --plots DIR`: the CLI wiring."""
-    import json
-    import subprocess
-    import sys
-    from pathlib import Path
-    exe = str(Path(sys.executable).parent / 'machine-ctrl')
-    result = subprocess.run([exe, 'experiment', 'fts-budget', '--json', '--plots', str(tmp_path)],
-                            capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    data = json.loads(result.stdout)
-    assert data['status'] == 'ok' and data['calibration']['parameter'] == 'S_capa'
+    data = experiment_json('fts-budget', tmp_path)
+    assert data['calibration']['parameter'] == 'S_capa'
     seeds = {row['name']: row['seed'] for row in data['rows']}
     assert seeds['following RMS @468 Hz [calibration]'] == 0.83 and seeds['real RMS @468 Hz'] == 0.23
     assert sorted(p.name for p in tmp_path.iterdir()) == ['fts_budget_psd_cas.png', 'fts_budget_sweep.png']

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from experiment_cli import experiment_json
 from machine_ctrl.control.midranging import (AIMC, AIMCConfig, MidRangingPlant, MVPC,
                                              MVPCConfig, PlantConfig, RLS, ReferenceGovernor)
 from machine_ctrl.experiments import midrange
@@ -263,16 +264,7 @@ def test_failures_are_reported_not_raised():
 def test_the_command_prints_the_rows_beside_the_seed(tmp_path):
     """`machine-ctrl experiment midrange --json --plots DIR`: the CLI wiring (Table 3.1's values
     written here) and the figure."""
-    import json
-    import subprocess
-    import sys
-    from pathlib import Path
-    exe = str(Path(sys.executable).parent / 'machine-ctrl')
-    result = subprocess.run([exe, 'experiment', 'midrange', '--json', '--plots', str(tmp_path)], capture_output=True,
-                            text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    data = json.loads(result.stdout)
-    assert data['status'] == 'ok'
+    data = experiment_json('midrange', tmp_path)
     assert [(row['seed']['mvpc_aw'], row['seed']['mvpc']) for row in data['rows']] == [
         (1.525, 1.525), (1.458, 1.555), (1.380, 1.474)]
     for row in data['rows']:

@@ -3,17 +3,14 @@ hw_sim/piezo_stage.py, the realizations the LQG is designed in (identification/s
 balanced, re-sampled) and the experiment of machine_ctrl/experiments/piezo_milling.py, each
 checked against what is known without the code under test: the continuous transfer function,
 scipy's zero-order-hold discretization, the Gramians' definition."""
-import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import signal
 from scipy.linalg import solve_discrete_lyapunov
 
+from experiment_cli import experiment_json
 from hw_sim.piezo_stage import PiezoAxis, PiezoAxisModel
 from machine_ctrl.experiments import piezo_milling
 from machine_ctrl.identification.subspace import (NoiseCovariance, StateSpaceModel, balanced, identify,
@@ -131,12 +128,7 @@ def test_a_milling_run_repeats_bit_for_bit():
 def test_the_command_compensates_every_axis_better_than_none_and_writes_the_plot(tmp_path):
     """`machine-ctrl experiment piezo-milling --json --plots DIR`: the seed's figures written
     here (Tables 2.1 / 2.2, section 2.3), ours below the uncompensated on every axis."""
-    exe = str(Path(sys.executable).parent / 'machine-ctrl')
-    result = subprocess.run([exe, 'experiment', 'piezo-milling', '--json', '--plots', str(tmp_path)],
-                            capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    data = json.loads(result.stdout)
-    assert data['status'] == 'ok'
+    data = experiment_json('piezo-milling', tmp_path)
     seeds = {row['name']: row['seed'] for row in data['rows']}
     assert [seeds[f'{a}: e_m compensated'] for a in 'xyz'] == [14.0, 12.8, 24.5]
     assert [seeds[f'{a}: sigma_e uncompensated'] for a in 'xyz'] == [7.6, 5.6, 14.9]
@@ -146,4 +138,3 @@ def test_the_command_compensates_every_axis_better_than_none_and_writes_the_plot
         for key in ('e_m', 'sigma_e'):
             assert axis['compensated'][key] < axis['uncompensated'][key], (name, key, axis)
     assert [p.name for p in tmp_path.iterdir()] == ['piezo_milling.png']
-    assert (tmp_path / 'piezo_milling.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'

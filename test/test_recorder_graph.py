@@ -24,7 +24,8 @@ import pytest
 STEPS = 20_000          # 2.0 s at the micromill's 10 kHz
 WINDOW = 100            # hw_sim's recorder_window, steps (README: the recommended value)
 PAUSE_AT = 5_000        # step at which the recorder process is stopped ...
-PAUSE = 2.5             # ... for this long (s, wall; hw_sim's command_timeout is 2 s)
+PAUSE = 2.5             # ... for this long (s, wall; longer than hw_sim's COMMAND_TIMEOUT)
+COMMAND_TIMEOUT = 2.0   # s: the graph's, below the 5 s default so that the pause outlasts it
 TOPICS = {
     '/joint_states': 'sensor_msgs/msg/JointState',
     '/servo_commands': 'sensor_msgs/msg/JointState',
@@ -151,7 +152,8 @@ def live(micromill, ros_env, tmp_path_factory):
             log = PublishLog(int(round(micromill.control_period * 1e9)), (PAUSE_AT, STEPS))
             # hw_sim holds step 0 until servo_coarse, servo_fine, dual_stage and the recorder
             # subscribe, and later whenever the recorder is more than WINDOW steps behind
-            nodes = create_nodes(default_graph(micromill, hw_sim={'min_subscribers': 4, 'recorder_window': WINDOW}))
+            nodes = create_nodes(default_graph(micromill, hw_sim={'min_subscribers': 4, 'recorder_window': WINDOW,
+                                                                       'command_timeout': COMMAND_TIMEOUT}))
             executor = DefaultExecutor()
             for node in nodes:
                 executor.add_node(node)

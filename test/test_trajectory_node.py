@@ -387,7 +387,7 @@ def test_a_fault_refuses_goals_until_hw_sim_is_reset(micromill, graph, client):
     spec = next(s for s in default_graph(micromill, contour=None) if s.name == 'servo_coarse')
     graph.start(spec.name, spec.argv())
     graph.wait_for_line('servo_coarse', 'ready', timeout=60)
-    # hw_sim's command timeout (2 s) runs from the reset: reset once the new servo has its
+    # hw_sim's command timeout (5 s) runs from the reset: reset once the new servo has its
     # reference stream (the transient-local history), which may take a while on a busy machine
     client.diagnostics.pop('servo_coarse', None)
     client.wait(lambda: int(client.diagnostics.get('servo_coarse', {}).get('buffered_steps', 0)) > 0,
