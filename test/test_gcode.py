@@ -101,7 +101,7 @@ def test_inches_incremental_distances_and_inverse_time():
 
 def test_what_is_read_and_ignored_is_said():
     result = parse('%\nN10 G17 G21 G40 G49 G54 G61 G80 G90 G91.1 G94 (header)\nG0 X1 S2000 M3\n'
-                   'G1 X2 F100 ; cut\nG1 X2\nM5 M30\nG0 X9\n%', 'p.ngc')
+                   'G1 X2 F100 ; cut (at last)\nG1 (on; and on) X2\nM5 M30\nG0 X9\n%', 'p.ngc')
     assert result.ok, result.reason
     assert [m.line for m in result.program.motions] == [3, 4]
     assert result.program.notes == (
@@ -135,6 +135,7 @@ def test_what_is_read_and_ignored_is_said():
     ('/G0 X1', 1, 'block delete'),
     ('M0', 1, 'M0 before any motion'),
     ('G0 A10', 1, 'a rotary move with the tool tip standing still'),
+    ('G0 X1\nM' + '9' * 400, 2, 'the number is too large'),
 ])
 def test_a_malformed_program_is_refused_with_its_line_and_reason(program, line, reason):
     result = parse(program, 'bad.ngc')
@@ -234,6 +235,16 @@ def test_the_command_plans_a_program_and_names_the_line_of_a_bad_one(circle_plan
     refused = subprocess.run([exe, 'plan', str(bad), '--out', str(tmp_path)], capture_output=True, text=True,
                              timeout=60)
     assert refused.returncode == 2 and f'{bad}:3: R 0.1' in refused.stderr, refused.stderr
+
+
+def test_send_refuses_a_bad_program_before_it_looks_for_the_graph(tmp_path):
+    bad = tmp_path / 'bad.ngc'
+    bad.write_text('G0 X1\nG1 X2 F60 B3\n')
+    exe = str(Path(sys.executable).parent / 'machine-ctrl')
+    refused = subprocess.run([exe, 'send', str(bad), '--machine', 'trt_5axis'], capture_output=True, text=True,
+                             timeout=60)
+    assert refused.returncode == 2, refused.stderr
+    assert refused.stderr == f'machine-ctrl: send: {bad}:2: trt_5axis has no rotary axis for B (its rotary axes: a c)\n'
 
 
 def test_a_program_out_of_stroke_is_refused_naming_its_piece(tmp_path, micromill):

@@ -247,8 +247,7 @@ class _Reader:
 
     def _words(self, number: int, raw: str, strict: bool = True) -> list[tuple[str, float, str]] | None:
         """(letter, value, text) of each word of the line, None for a line without words."""
-        line = raw.split(';', 1)[0]
-        line = _COMMENT.sub(' ', line)
+        line = _COMMENT.sub(' ', raw).split(';', 1)[0]
         if strict and ('(' in line or ')' in line):
             raise GcodeError(number, f'an unclosed or nested comment in {raw.strip()!r}')
         stripped = line.strip()
@@ -262,7 +261,10 @@ class _Reader:
         for match in _WORD.finditer(line):
             if match.start() != at:
                 break
-            words.append((match.group(1).upper(), float(match.group(2)), match.group(0).strip()))
+            value = float(match.group(2))
+            if strict and not math.isfinite(value):
+                raise GcodeError(number, f'{match.group(0).strip()[:20]}...: the number is too large')
+            words.append((match.group(1).upper(), value, match.group(0).strip()))
             at = match.end()
         if at != len(line) and line[at:].strip():
             if strict:
@@ -297,8 +299,6 @@ class _Reader:
             elif letter in 'XYZIJKRF' or letter in ROTARY:
                 if letter in values:
                     raise GcodeError(number, f'{letter} appears twice in the block')
-                if not math.isfinite(value):
-                    raise GcodeError(number, f'{text} is not a finite number')
                 values[letter] = value
             else:
                 raise GcodeError(number, f'{text}: the word {letter} is not supported')

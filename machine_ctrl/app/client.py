@@ -224,6 +224,20 @@ class MachineClient:
         self.wait(future.done, f'the answer of {service}', timeout)
         return [f'{name}: {r.reason}' for name, r in zip(values, future.result().results) if not r.successful]
 
+    def get_parameters(self, node: str, names, timeout: float = 30.0) -> dict:
+        """Values of parameters of `node` (rcl_interfaces/GetParameters, what `ros2 param get`
+        calls), by name."""
+        from rcl_interfaces.srv import GetParameters
+        from rclpy.parameter import parameter_value_to_python
+        service = f'{node}/get_parameters'
+        client = self._services.get(service) or self._services.setdefault(
+            service, self.node.create_client(GetParameters, service))
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise Timeout(f'service {service} is not available')
+        future = client.call_async(GetParameters.Request(names=list(names)))
+        self.wait(future.done, f'the answer of {service}', timeout)
+        return {name: parameter_value_to_python(value) for name, value in zip(names, future.result().values)}
+
     def cancel(self, goal_id: str | None = None, timeout: float = 30.0):
         """action_msgs/CancelGoal on the trajectory node (`goal_id` None: the active goal);
         returns (return code, ids of the goals now canceling)."""

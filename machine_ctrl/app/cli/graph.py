@@ -1,6 +1,7 @@
 """``machine-ctrl bringup|send|move|freeform|demo``: the running node graph
 (machine_ctrl.app.bringup starts it; send, move and freeform are clients of its trajectory
 node, machine_ctrl.app.goals follows their goals by id; demo is machine_ctrl.app.demo).
+send takes a G-code program too: its pieces one goal after the other (:func:`_send_program`).
 bringup, send, move and freeform take the graph's ``--namespace`` (default the root).
 
 send, move and freeform wait for the graph to be ready (hw_sim's latched ready, at most 30 s: else
@@ -33,7 +34,8 @@ def register(subparsers) -> None:
     namespace_option(bring)
     bring.set_defaults(run=cmd_bringup)
     send = subparsers.add_parser('send', help='send a tool path to the running graph and follow it')
-    send.add_argument('path', help='CSV file (px,py,pz,oi,oj,ok, SI) or built-in toolpath name')
+    send.add_argument('path', help='CSV file (px,py,pz,oi,oj,ok, SI), built-in toolpath name or G-code program '
+                      '(.ngc .nc .gcode .tap: its pieces one after the other)')
     send.add_argument('--machine', default=DEFAULT_MACHINE)
     send.add_argument('--timeout', type=float, default=3600.0, metavar='S', help='give up after S s (wall)')
     namespace_option(send)
@@ -104,11 +106,18 @@ def parse_joint_goal(items) -> tuple[list[str], list[float]]:
 def _run_goal(command: str, machine, timeout: float, send, namespace: str = '', known_id=None) -> int:
     """Wait for the graph (ready, the trajectory node listening), then send(client, stamp)
     and follow the goal."""
+    from machine_ctrl.app.goals import follow_goal
+    return _with_graph(command, machine, timeout, namespace,
+                       lambda client: follow_goal(client, lambda stamp: send(client, stamp), timeout,
+                                                  known_id=known_id))
+
+
+def _with_graph(command: str, machine, timeout: float, namespace: str, run) -> int:
+    """run(client) once the graph is ready and the trajectory node listens; its exit status."""
     from machine_ctrl.app.client import READY_TIMEOUT, Timeout
     if not (math.isfinite(timeout) and timeout > 0):
         return error(command, ValueError(f'--timeout must be > 0 s, got {timeout}'))
     from machine_ctrl.app.bringup import client_session, listening
-    from machine_ctrl.app.goals import follow_goal
     with client_session(machine, 'machine_ctrl_cli', namespace=namespace) as client:
         started = time.monotonic()
         try:
@@ -119,12 +128,71 @@ def _run_goal(command: str, machine, timeout: float, send, namespace: str = '', 
                         'the trajectory node (is the graph up? machine-ctrl bringup)', left)
         except Timeout as exc:
             return error(command, exc)
-        return follow_goal(client, lambda stamp: send(client, stamp), timeout, known_id=known_id)
+        return run(client)
+
+
+def _send_program(args, machine) -> int:
+    """A G-code program on the graph: its pieces (trajectory.gcode) one after the other, each
+    a tool path goal with the trajectory node's feed set to the piece's (restored at the
+    end), followed to its end; the first that does not succeed ends the program (exit 1,
+    naming its lines). At an M0 it waits for Enter on stdin (a closed stdin goes on at once)."""
+    from machine_ctrl.app.client import Timeout
+    from machine_ctrl.app.goals import follow_goal
+    from machine_ctrl.model.kinematics import Kinematics
+    from trajectory import gcode
+    read = gcode.read(args.path)
+    if not read.ok:
+        return error('send', read.reason)
+    try:
+        cut = gcode.pieces(read.program, gcode.tool_axis_of(Kinematics.from_config(machine), machine))
+    except gcode.GcodeError as exc:
+        return error('send', f'{args.path}:{exc.line}: {exc}')
+    for note in read.program.notes:
+        print(f'note: {note}', flush=True)
+    deadline = time.monotonic() + args.timeout
+
+    def run(client) -> int:
+        try:
+            feed = client.get_parameters('trajectory', ['feed'])['feed']
+        except Timeout as exc:
+            return error('send', exc)
+        try:
+            for n, piece in enumerate(cut, start=1):
+                first, last = piece.lines
+                kind = 'rapid' if piece.rapid else f'feed {piece.feed * 1e3:.4g} mm/s'
+                print(f'piece {n} of {len(cut)}: lines {first}-{last}, {kind}', flush=True)
+                refused = client.set_parameters('trajectory', {'feed': piece.feed})
+                if refused:
+                    return error('send', f'the trajectory node refused the feed of lines {first}-{last}: '
+                                         + '; '.join(refused))
+                left = deadline - time.monotonic()
+                status = follow_goal(client, lambda stamp, cl=piece.cl: client.send_path(cl, stamp=stamp),
+                                     max(left, 1.0))
+                if status != 0:
+                    print(f'machine-ctrl: send: the program stopped at lines {first}-{last} (piece {n} of '
+                          f'{len(cut)})', file=sys.stderr)
+                    return status
+                if piece.stop_after and n < len(cut):
+                    print(f'M0 after line {last}: program stop; Enter goes on', flush=True)
+                    if not sys.stdin.readline():
+                        print('stdin is closed: going on', flush=True)
+        except Timeout as exc:
+            return error('send', exc)
+        finally:
+            try:
+                client.set_parameters('trajectory', {'feed': feed})
+            except Timeout as exc:
+                print(f'machine-ctrl: send: the trajectory node\'s feed was not restored to {feed:g} m/s: {exc}',
+                      file=sys.stderr)
+        return 0
+    return _with_graph('send', machine, args.timeout, args.namespace, run)
 
 
 def cmd_send(args) -> int:
-    from trajectory import toolpath
+    from trajectory import part_program, toolpath
     machine = load_machine(args.machine)
+    if part_program.is_program(args.path):
+        return _send_program(args, machine)
     try:
         cl = toolpath.builtin(args.path) if args.path in toolpath.BUILTIN else toolpath.read_csv(args.path)
     except (ValueError, OSError) as exc:
