@@ -17,9 +17,10 @@ Arguments (``name:=value``):
 * ``robot_state_publisher`` — ``true`` starts robot_state_publisher (TF for RViz) when it is
   installed (ROS from apt; not on PyPI); default false.
 * ``respawn`` — ``true`` (default): a controller node that dies (servo, dual_stage, trajectory,
-  compensation, contour_error; an exit status other than 0) is started again after
-  hw_sim's ``command_timeout`` + ``RESPAWN_MARGIN`` s (6 s by default; a ``params_file``'s
-  value is not read here), at most ``RESPAWN_MAX`` times; a node that exits 0 was asked to stop. hw_sim (the machine: its state would be lost) and the recorder (its
+  compensation, contour_error; an exit status other than 0) is started again once its death
+  has certainly been detected, + ``RESPAWN_MARGIN`` s: the longer of hw_sim's
+  ``command_timeout`` and the liveliness lease with its confirmation (8.5 s by default; a
+  ``params_file``'s ``command_timeout`` is not read here), at most ``RESPAWN_MAX`` times; a node that exits 0 was asked to stop. hw_sim (the machine: its state would be lost) and the recorder (its
   bag directory is not empty any more) are not respawned. A dead servo or dual_stage node
   faults hw_sim (its commands stop); once the respawned node answers the held step,
   ``hw_sim/reset`` continues, and nothing moves again without a new goal.
@@ -47,12 +48,13 @@ ARGUMENTS = (
     ('robot_state_publisher', 'false', 'start robot_state_publisher when installed (true/false)'),
     ('respawn', 'true', 'start a dead controller node again (not hw_sim, not the recorder)'),
 )
-# assumed: a node is started again 1 s after hw_sim's command_timeout has passed since it
-# died, so that a dead servo or dual_stage node is always a fault first (its commands stopped;
-# its successor starts without its state: integrators, filters, estimates), never a silent
-# continuation — with 1 s a successor that started fast answered the held step within the
-# timeout and the machine went on (a loaded run); the 1 s also lets the dying process release
-# its DDS entities. 3 retries tell a transient crash from one that repeats (then the fault
+# assumed: a node is started again 1 s after its death has certainly been detected: hw_sim's
+# command_timeout (a dead servo or dual_stage node) or the liveliness lease and its
+# confirmation (a dead compensation node, seen by the trajectory node), whichever is longer.
+# So a death is always a fault first (the successor starts without its state: integrators,
+# filters, estimates), never a silent continuation — with a 1 s delay a successor that started
+# fast answered the held step within the timeout and the machine went on (a loaded run); the
+# 1 s also lets the dying process release its DDS entities. 3 retries tell a transient crash from one that repeats (then the fault
 # stays, named).
 RESPAWN_MARGIN = 1.0       # s
 RESPAWN_MAX = 3
@@ -111,9 +113,12 @@ def _nodes(context):
 
 
 def _respawn_delay(specs) -> float:
-    """hw_sim's command_timeout in this graph (its spec's value, else its default) + margin."""
+    """The longer of hw_sim's command_timeout in this graph (its spec's value, else its
+    default) and the liveliness lease with its confirmation, + margin."""
+    from machine_ctrl import contract
     hw_sim = next(spec for spec in specs if spec.name == 'hw_sim')
-    return {**hw_sim.table.defaults(), **hw_sim.parameters}['command_timeout'] + RESPAWN_MARGIN
+    timeout = {**hw_sim.table.defaults(), **hw_sim.parameters}['command_timeout']
+    return max(timeout, contract.LIVELINESS_LEASE + contract.LOSS_CONFIRM) + RESPAWN_MARGIN
 
 
 def _respawned(make, delay: float, retries: int) -> list:

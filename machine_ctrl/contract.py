@@ -61,6 +61,10 @@ class Qos:
 # between 2/3 of the lease and the lease, a SIGCONT at once (test/test_faults.py checks the
 # behaviour, not the time). hw_sim's command_timeout (5 s) is chosen the same way.
 LIVELINESS_LEASE = 6.0     # s
+# assumed: 1.5 s, a peer's loss reported by its lease is confirmed when nothing (its 1 Hz
+# /diagnostics) is heard from it for this long after the report (machine_ctrl.diagnostics.
+# PeerLiveliness: a reader starved by its own node's long callback reports false losses)
+LOSS_CONFIRM = 1.5         # s
 # assumed: above the 2.5 s recorder freeze that test_recorder_graph.py must survive holding
 # (a freeze longer than this releases hw_sim's hold: the machine goes on, the bag may lose)
 RECORDER_LIVELINESS_LEASE = 5.0     # s

@@ -136,11 +136,26 @@ def test_what_is_read_and_ignored_is_said():
     ('M0', 1, 'M0 before any motion'),
     ('G0 A10', 1, 'a rotary move with the tool tip standing still'),
     ('G0 X1\nM' + '9' * 400, 2, 'the number is too large'),
+    ('G1 F100\nG2 X1 I1000000000000', 2, 'I1e+12: farther than 2 m from the origin'),
+    ('G1 X100000 F100', 1, 'the end point [100000.0, 0.0, 0.0]: farther than 2 m from the origin'),
+    ('G91 G0 X1500\nX1500', 2, 'the end point [3000.0, 0.0, 0.0]: farther than 2 m'),
+    ('G20 G21 G0 X1', 1, 'G20 and G21 in one block (both set the units)'),
+    ('G0 X1 G90 G91', 1, 'G90 and G91 in one block (both set the distance)'),
 ])
 def test_a_malformed_program_is_refused_with_its_line_and_reason(program, line, reason):
     result = parse(program, 'bad.ngc')
     assert result.status == GcodeStatus.INVALID_INPUT and result.program is None
     assert result.reason.startswith(f'bad.ngc:{line}: ') and reason in result.reason, result.reason
+
+
+def test_a_move_too_short_for_its_samples_is_no_motion_and_the_closing_percent_ends_the_program(tmp_path):
+    program = tmp_path / 'p.ngc'
+    program.write_bytes('\ufeff%\nG0 X1\nG1 X1.000003 F60\nG1 X2\n%\nG0 X9\n'.encode())    # with a byte-order mark
+    result = gcode.read(program)
+    assert result.ok, result.reason
+    assert [m.line for m in result.program.motions] == [2, 4]
+    assert result.program.notes == ('line 3: no motion (a move of 3e-09 m, shorter than 5e-09 m)',
+                                    'line 5: program end; the 1 block(s) after it are not read')
 
 
 def test_the_program_is_cut_at_corners_feed_changes_rapids_and_stops():
@@ -185,8 +200,8 @@ def test_rapids_are_bound_by_the_axes_alone():
 CIRCLE = """% (a circle of radius 2 mm from a rapid approach)
 G17 G21 G90 G94
 G0 X2 Y0 Z0.5
-G1 Z0 F300
-G3 X2 Y0 I-2 J0 F600
+G1 Z0 F120
+G3 X2 Y0 I-2 J0 F300
 G1 X1
 G0 Z0.5
 M30

@@ -31,17 +31,28 @@ def test_send_runs_a_program_piece_by_piece_and_leaves_the_feed_as_it_was(ros_su
     assert sent.returncode == 0, sent.stdout + sent.stderr
     lines = sent.stdout.splitlines()
     assert [line for line in lines if line.startswith('piece ')] == [
-        'piece 1 of 5: lines 3-3, rapid', 'piece 2 of 5: lines 4-4, feed 5 mm/s', 'piece 3 of 5: lines 5-5, feed 10 mm/s',
-        'piece 4 of 5: lines 6-6, feed 10 mm/s', 'piece 5 of 5: lines 7-7, rapid']
+        'piece 1 of 5: line 3, rapid', 'piece 2 of 5: line 4, feed 2 mm/s', 'piece 3 of 5: line 5, feed 5 mm/s',
+        'piece 4 of 5: line 6, feed 5 mm/s', 'piece 5 of 5: line 7, rapid']
     assert sum(line.startswith('done: ') for line in lines) == 5
     with client_session(trt, 'gcode_test') as client:
         assert client.get_parameters('trajectory', ['feed']) == {'feed': 0.01}      # the node's own, back
     child.signal_group(signal.SIGINT)
     assert ros_supervisor.wait('bringup', timeout=120) == 0
     with Bag(bag) as recorded:
-        *_, last = recorded.messages(['/joint_states'])
-    state = deserialize_message(last.data, JointState)
-    tip, _ = Kinematics.from_config(trt).forward(np.array(state.position))
+        states = [deserialize_message(m.data, JointState) for m in recorded.messages(['/joint_states'])]
+    kinematics = Kinematics.from_config(trt)
+    # the circle ran at the program's 5 mm/s, not the node's own 10 mm/s: the time (sim, every
+    # 10th state) the tool tip spent on its 324 degrees away from the start, 2.26 s at 5 mm/s
+    # (1.13 s at 10)
+    on_circle = [s.header.stamp.sec + 1e-9 * s.header.stamp.nanosec for s in states[::10]
+                 if _on_circle(kinematics.forward(np.array(s.position))[0])]
+    assert 1.9 < on_circle[-1] - on_circle[0] < 2.6, (on_circle[0], on_circle[-1])
+    tip, _ = kinematics.forward(np.array(states[-1].position))
     # the program's end (the block before it ended 0.5 mm lower), within the servos' error at rest
     # as the sensors read it (2.4 µm in x measured)
     assert np.abs(tip - np.array([1e-3, 0.0, 0.5e-3])).max() < 10e-6
+
+
+def _on_circle(tip) -> bool:
+    """On the programmed circle (radius 2 mm, z 0) and away from its start and end at (2, 0) mm."""
+    return abs(np.hypot(tip[0], tip[1]) - 2e-3) < 10e-6 and abs(tip[2]) < 10e-6 and tip[0] < 1.9e-3

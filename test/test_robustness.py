@@ -420,7 +420,7 @@ def test_a_killed_node_faults_hw_sim_naming_its_axes_and_restart_and_reset_recov
                 check=graph.check)
     # and once it answers the step hw_sim holds (re-sent while faulted): then its state,
     # offsets and command streams are all matched; a fresh process may take seconds for
-    # that on a loaded machine, longer than the 2 s command timeout that starts at the reset
+    # that on a loaded machine, longer than the 5 s command timeout that starts at the reset
     client.wait(lambda: client.diag('servo_fine', 'answered_step') == client.diag('hw_sim', 'step'),
                 'the restarted servo answering the held step', check=graph.check)
     assert np.abs(client.truth - held).max() < 1e-9

@@ -57,11 +57,17 @@ MM, INCH = 1e-3, 25.4e-3                 # m per program unit
 # programs: 0.002 mm); a larger difference is a wrong end point, not a spiral.
 ARC_RADIUS_TOLERANCE = 2e-6              # m
 # assumed: arcs sampled so that the chord's sagitta is at most 0.1 µm (the quintic spline
-# through the samples lies far closer to the arc than the chords), and every block at most
-# 0.1 mm apart, so a piece's samples are about evenly spaced for the spline.
+# through the samples lies far closer to the arc than the chords), and every block's samples
+# at most 0.1 mm apart (a short block's closer: it has at least MIN_SEGMENTS + 1).
 CHORD_SAGITTA = 0.1e-6                   # m
 MAX_SPACING = 0.1e-3                     # m
 MIN_SEGMENTS = 5                         # a block's fewest samples - 1 (toolpath.MIN_POINTS = 6)
+# a block shorter than this has no room for its samples (toolpath.MIN_SPACING apart): no motion
+MIN_MOVE = MIN_SEGMENTS * toolpath.MIN_SPACING
+# assumed: 2 m, beyond the reach of every shipped machine (the IRB 2400's 1.55 m the largest):
+# a coordinate, centre offset or radius farther out is a wrong number, refused before its
+# samples are made (a 100 m line would be a million of them)
+MAX_COORDINATE = 2.0                     # m
 # assumed: 0.1 deg. Two blocks whose tangents differ by more are a corner: the piece ends
 # there (an exact stop). A smaller kink is smoothed by the spline through the samples by
 # about spacing x angle / 8 <= 0.1 mm x 1.7e-3 / 8 = 0.02 µm.
@@ -71,6 +77,9 @@ JOIN_ANGLE = math.radians(0.1)
 RAPID_FEED = 10.0                        # m/s
 
 PLANES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}      # (first, second, normal) axis index
+# modal groups other than motion: at most one code of each in a block
+MODAL_GROUPS = {17: 'plane', 18: 'plane', 19: 'plane', 20: 'units', 21: 'units', 90: 'distance', 91: 'distance',
+                93: 'feed mode', 94: 'feed mode'}
 IN_FORCE = (40.0, 49.0, 54.0, 61.0, 80.0, 91.1)             # G codes of modes already in force
 ROTARY = 'ABC'
 _WORD = re.compile(r'\s*([A-Za-z])\s*([+-]?(?:\d+\.?\d*|\.\d+))\s*')
@@ -196,11 +205,17 @@ class Piece:
     lines: tuple[int, int]
     stop_after: bool = False
 
+    @property
+    def where(self) -> str:
+        """'line 3' or 'lines 3-5'."""
+        first, last = self.lines
+        return f'line {first}' if first == last else f'lines {first}-{last}'
+
 
 def read(path) -> GcodeResult:
     """:func:`parse` of the file at `path` (its name in the reasons)."""
     try:
-        text = Path(path).read_text()
+        text = Path(path).read_text(encoding='utf-8-sig')
     except (OSError, UnicodeDecodeError) as exc:
         return GcodeResult(GcodeStatus.INVALID_INPUT, f'{path}: cannot read the program: {exc}')
     return parse(text, str(path))
@@ -234,16 +249,25 @@ class _Reader:
 
     def read(self, text: str) -> Program:
         lines = text.splitlines()
+        percent = 0
         for number, raw in enumerate(lines, start=1):
+            if raw.strip().startswith('%'):
+                percent += 1
+                if percent == 2 or (percent == 1 and (self.motions or self.notes)):   # the closing %
+                    self._end(number, lines)
+                    break
             words = self._words(number, raw)
             if words is None:
                 continue
             if self._block(number, words):             # M2 / M30
-                rest = sum(1 for later in lines[number:] if self._words(0, later, strict=False))
-                if rest:
-                    self.notes.append(f'line {number}: program end; the {rest} block(s) after it are not read')
+                self._end(number, lines)
                 break
         return Program(tuple(self.motions), tuple(self.notes), self.source)
+
+    def _end(self, number: int, lines: list[str]) -> None:
+        rest = sum(1 for later in lines[number:] if self._words(0, later, strict=False))
+        if rest:
+            self.notes.append(f'line {number}: program end; the {rest} block(s) after it are not read')
 
     def _words(self, number: int, raw: str, strict: bool = True) -> list[tuple[str, float, str]] | None:
         """(letter, value, text) of each word of the line, None for a line without words."""
@@ -278,8 +302,14 @@ class _Reader:
         m = self.modes
         values: dict[str, float] = {}
         motion, ends, stop = None, False, False
+        groups: dict[str, str] = {}
         for letter, value, text in words:
             if letter == 'G':
+                group = MODAL_GROUPS.get(value)
+                if group in groups:
+                    raise GcodeError(number, f'{groups[group]} and {text} in one block (both set the {group})')
+                if group:
+                    groups[group] = text
                 motion = self._g_code(number, value, text, motion)
             elif letter == 'M':
                 code = int(value) if value == int(value) else None
@@ -359,11 +389,19 @@ class _Reader:
             if letter in values:
                 rotary[index] = math.radians(values[letter]) + (rotary[index] if m.incremental else 0.0)
         rotary = tuple(rotary)
+        far = [f'{letter}{values[letter]:g}' for letter in 'IJKR' if letter in values
+               and abs(values[letter]) * m.unit > MAX_COORDINATE]
+        if far or np.abs(end).max() > MAX_COORDINATE:
+            what = ' '.join(far) or f'the end point {np.round(end / m.unit, 6).tolist()}'
+            raise GcodeError(number, f'{what}: farther than {MAX_COORDINATE:g} m from the origin, beyond the reach '
+                                     'of any machine here')
         arc = self._arc(number, values, centre, start, end) if m.motion in (2, 3) else None
         motion = Motion(number, start, end, m.rotary, rotary, None, arc)
-        moved = motion.length > toolpath.MIN_SPACING
+        moved = motion.length >= MIN_MOVE
         if not moved and rotary == m.rotary:
-            self.notes.append(f'line {number}: no motion (the block ends where it starts)')
+            shorter = f'a move of {motion.length:.3g} m, shorter than {MIN_MOVE:g} m' if motion.length else \
+                'the block ends where it starts'
+            self.notes.append(f'line {number}: no motion ({shorter})')
             return
         if not moved:
             raise GcodeError(number, 'a rotary move with the tool tip standing still: the planner takes tool-tip '
@@ -469,11 +507,17 @@ def _piece(group: list[Motion], tool_axis) -> Piece:
         points.append(motion.point(u))
         r0, r1 = np.array(motion.rotary_start), np.array(motion.rotary_end)
         try:
-            axes.extend(tool_axis(tuple(r0 + t * (r1 - r0))) for t in u)
+            if motion.rotary_start == motion.rotary_end:         # one orientation for the whole block
+                axes.extend([tool_axis(motion.rotary_start)] * len(u))
+            else:
+                axes.extend(tool_axis(tuple(r0 + t * (r1 - r0))) for t in u)
         except ValueError as exc:
             raise GcodeError(motion.line, str(exc)) from None
     first, last = group[0], group[-1]
-    cl = toolpath.CLData(np.vstack(points), np.array(axes))
+    try:
+        cl = toolpath.CLData(np.vstack(points), np.array(axes))
+    except toolpath.CLDataError as exc:
+        raise GcodeError(first.line, f'the tool path of this piece: {exc}') from None
     feed = RAPID_FEED if first.rapid else first.feed
     return Piece(cl, feed, first.rapid, (first.line, last.line), last.stop_after)
 

@@ -62,7 +62,7 @@ class ProgramPlan:
                 for key, value in ratios.items():
                     mine[key] = max(mine[key], value)
         return {'traversal_time': sum(p.traversal_time for p in self.plans), 'planning_time': self.planning_time,
-                'samples': len(self.reference()),
+                'samples': sum(len(p.reference) for p in self.plans) - (len(self.plans) - 1),
                 'max_position_deviation': max(p.max_position_deviation for p in self.plans),
                 'max_orientation_deviation': max(p.max_orientation_deviation for p in self.plans),
                 'peak_ratios': peaks, 'pieces': per_piece, 'notes': list(self.notes)}
@@ -101,9 +101,7 @@ def plan_program(program, machine) -> ProgramPlan:
     for n, piece in enumerate(pieces, start=1):
         result = plan(piece.cl, machine, feed=piece.feed, q0=q0, kinematics=kinematics)
         if not result.ok:
-            first, last = piece.lines
-            where = f'line {first}' if first == last else f'lines {first}-{last}'
-            return failed(result.status, f'{program.source}: {where} (piece {n} of {len(pieces)}'
+            return failed(result.status, f'{program.source}: {piece.where} (piece {n} of {len(pieces)}'
                                          f'{", a rapid" if piece.rapid else ""}): {result.reason}',
                           pieces=tuple(pieces), notes=program.notes)
         plans.append(result.plan)

@@ -208,8 +208,8 @@ class Session:
         self.held: tuple[int, float] | None = None   # a cut hold: (part, planned time) to resume
         self.stopping = False                # a stop or cancel: the goal ends canceled
         # assumed: 1.5 s = 1.5 x the peers' 1 Hz /diagnostics (PeerLiveliness)
-        self.hw_sim = PeerLiveliness(confirm=1.5)       # hw_sim's liveliness
-        self.chain = PeerLiveliness(confirm=1.5)        # the node between this one and the servos
+        self.hw_sim = PeerLiveliness(confirm=contract.LOSS_CONFIRM)     # hw_sim's liveliness
+        self.chain = PeerLiveliness(confirm=contract.LOSS_CONFIRM)      # the node between this one and the servos
         self.chain_lost = ''                 # why the reference does not reach the servos
         self._watched_at: float | None = None  # wall time of the last watch (own stall)
         self._await_fault_step = False       # a fault without hw_sim's fault step yet

@@ -135,7 +135,10 @@ def _send_program(args, machine) -> int:
     """A G-code program on the graph: its pieces (trajectory.gcode) one after the other, each
     a tool path goal with the trajectory node's feed set to the piece's (restored at the
     end), followed to its end; the first that does not succeed ends the program (exit 1,
-    naming its lines). At an M0 it waits for Enter on stdin (a closed stdin goes on at once)."""
+    naming its lines). An M0 waits for a line on stdin (Enter): at its end (a closed stdin)
+    the program stops there, exit 1 — a mandatory stop is never run through unattended.
+    The node plans each piece from where the machine stands (as ``plan`` from where the
+    piece before ended: the same place, up to the servos' error)."""
     from machine_ctrl.app.client import Timeout
     from machine_ctrl.app.goals import follow_goal
     from machine_ctrl.model.kinematics import Kinematics
@@ -147,6 +150,8 @@ def _send_program(args, machine) -> int:
         cut = gcode.pieces(read.program, gcode.tool_axis_of(Kinematics.from_config(machine), machine))
     except gcode.GcodeError as exc:
         return error('send', f'{args.path}:{exc.line}: {exc}')
+    if not cut:
+        return error('send', f'{args.path}: no motion in the program')
     for note in read.program.notes:
         print(f'note: {note}', flush=True)
     deadline = time.monotonic() + args.timeout
@@ -158,32 +163,38 @@ def _send_program(args, machine) -> int:
             return error('send', exc)
         try:
             for n, piece in enumerate(cut, start=1):
-                first, last = piece.lines
                 kind = 'rapid' if piece.rapid else f'feed {piece.feed * 1e3:.4g} mm/s'
-                print(f'piece {n} of {len(cut)}: lines {first}-{last}, {kind}', flush=True)
+                print(f'piece {n} of {len(cut)}: {piece.where}, {kind}', flush=True)
                 refused = client.set_parameters('trajectory', {'feed': piece.feed})
                 if refused:
-                    return error('send', f'the trajectory node refused the feed of lines {first}-{last}: '
+                    return error('send', f'the trajectory node refused the feed of {piece.where}: '
                                          + '; '.join(refused))
                 left = deadline - time.monotonic()
-                status = follow_goal(client, lambda stamp, cl=piece.cl: client.send_path(cl, stamp=stamp),
-                                     max(left, 1.0))
-                if status != 0:
-                    print(f'machine-ctrl: send: the program stopped at lines {first}-{last} (piece {n} of '
+                if left <= 0:
+                    print(f'machine-ctrl: timed out after {args.timeout:g} s, before {piece.where} (piece {n} of '
                           f'{len(cut)})', file=sys.stderr)
+                    return 1
+                status = follow_goal(client, lambda stamp, cl=piece.cl: client.send_path(cl, stamp=stamp), left)
+                if status != 0:
+                    print(f'machine-ctrl: send: the program stopped at {piece.where} (piece {n} of {len(cut)})',
+                          file=sys.stderr)
                     return status
                 if piece.stop_after and n < len(cut):
-                    print(f'M0 after line {last}: program stop; Enter goes on', flush=True)
+                    print(f'M0 after line {piece.lines[1]}: program stop; Enter goes on', flush=True)
                     if not sys.stdin.readline():
-                        print('stdin is closed: going on', flush=True)
+                        print(f'machine-ctrl: send: M0 after line {piece.lines[1]}: the program stops there '
+                              '(stdin is closed; a line on stdin goes on)', file=sys.stderr)
+                        return 1
         except Timeout as exc:
             return error('send', exc)
         finally:
             try:
-                client.set_parameters('trajectory', {'feed': feed})
+                refused = client.set_parameters('trajectory', {'feed': feed})
             except Timeout as exc:
-                print(f'machine-ctrl: send: the trajectory node\'s feed was not restored to {feed:g} m/s: {exc}',
-                      file=sys.stderr)
+                refused = [str(exc)]
+            if refused:
+                print(f'machine-ctrl: send: the trajectory node\'s feed was not restored to {feed:g} m/s: '
+                      + '; '.join(refused), file=sys.stderr)
         return 0
     return _with_graph('send', machine, args.timeout, args.namespace, run)
 
