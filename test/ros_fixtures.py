@@ -130,6 +130,12 @@ class ProgressReporter:
         self.publisher = node.create_publisher(Time, contract.RECORDER_PROGRESS.name,
                                                qos(contract.PROGRESS_QOS))
 
+    def announce(self) -> None:
+        """Nothing held yet (step -1), as a recorder says at its start: hw_sim, once it has this,
+        stays at step 0 (re-sending it) until the first report of a step held."""
+        sec, nanosec = self.clock.split(-1)
+        self.publisher.publish(self.time_type(sec=sec, nanosec=nanosec))
+
     def report(self, step: int) -> None:
         """Every stream is held up to `step` (called from the reader's callbacks)."""
         if step > self.reported:

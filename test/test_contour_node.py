@@ -8,7 +8,7 @@ closest-point truth (machine_ctrl.contour.truth) every published number is withi
 and the NaN steps are few and sit at the joins; /diagnostics counts them.
 
 Nothing is lost to a slow test reader: the test reports its progress like the recorder
-(ros_fixtures.ProgressReporter), so hw_sim never runs far ahead of it. The test waits on
+(ros_fixtures.ProgressReporter), so hw_sim never runs far ahead of it, from step 0 on. The test waits on
 conditions (a threading.Condition its reader threads notify), never on time; a hang guard
 of HANG s only turns a stuck graph into a failure."""
 import math
@@ -50,7 +50,7 @@ class Collector:
         qos = QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE)
         self.states, self.tip, self.orientation = {}, {}, {}
         self.tip_magnitude, self.orientation_magnitude, self.frames = [], [], set()
-        self.diagnostics = None
+        self.diagnostics, self.hw_sim = None, {}
         self.held = -1
         self.subscriptions = [
             node.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state, qos),
@@ -93,6 +93,8 @@ class Collector:
         for status in msg.status:
             if status.name == 'contour_error':
                 self.diagnostics = {kv.key: kv.value for kv in status.values}
+            elif status.name == 'hw_sim':
+                self.hw_sim = {kv.key: kv.value for kv in status.values}
         self.report()
 
     def report(self):
@@ -151,6 +153,8 @@ def publish_reference(node, machine, reference):
 
 
 def test_node_publishes_the_offline_core_and_marks_the_joins(trt, reference, ros_node, ros_supervisor):
+    from sensor_msgs.msg import JointState
+
     from machine_ctrl.ros import messages as ros_io
     steps = len(reference) - TAIL // 2
     common = {'machine': str(trt.yaml_path)}
@@ -159,7 +163,7 @@ def test_node_publishes_the_offline_core_and_marks_the_joins(trt, reference, ros
     publish_reference(node, trt, reference)
     specs = [NodeSpec('hw_sim', 'machine_ctrl.ros.hw_sim_node', 'HwSimNode',
                       {**common, 'initial_position': [float(v) for v in reference.position[0]],
-                       'min_subscribers': 3,           # servo, contour_error and this test
+                       'min_subscribers': 4,           # servo, contour_error and this test's two readers
                        'recorder_window': ProgressReporter.WINDOW}),   # this test reports its progress
              NodeSpec('servo', 'machine_ctrl.ros.servo_node', 'ServoNode', common),
              NodeSpec('contour_error', 'machine_ctrl.ros.contour_error_node', 'ContourErrorNode',
@@ -173,7 +177,15 @@ def test_node_publishes_the_offline_core_and_marks_the_joins(trt, reference, ros
         collector.wait(lambda: collector.contour_publishers_matched() and collector.diagnostics is not None
                        and collector.diagnostics['buffered_steps'] == str(len(reference)),
                        'the contour node with the reference', ros_supervisor)
+        # hw_sim holds step 0 for this test as for a recorder that has written nothing: it has
+        # the test's step -1 before the last state reader it waits for appears (else it could
+        # leave step 0 before the test's first report and outrun the writers' queues)
+        collector.progress.announce()
         ros_supervisor.start_nodes(specs)
+        collector.wait(lambda: collector.hw_sim.get('recorder_step', '') != '', 'hw_sim with this test\'s progress',
+                       ros_supervisor)
+        collector.subscriptions.append(node.create_subscription(
+            JointState, contract.JOINT_STATES.name, lambda _msg: None, 10))     # the last reader hw_sim waits for
         collector.wait(lambda: all(k in collector.tip for k in range(steps))
                        and len(collector.orientation_magnitude) >= steps and len(collector.tip_magnitude) >= steps
                        and all(k in collector.states for k in range(steps)),   # each topic: its own pace
