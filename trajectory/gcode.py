@@ -210,6 +210,11 @@ class Piece:
     stop_after: bool = False
 
     @property
+    def label(self) -> str:
+        """'rapid' or 'feed 5 mm/s'."""
+        return 'rapid' if self.rapid else f'feed {self.feed * 1e3:.4g} mm/s'
+
+    @property
     def where(self) -> str:
         """'line 3' or 'lines 3-5'."""
         first, last = self.lines

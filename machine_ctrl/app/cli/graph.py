@@ -163,8 +163,7 @@ def _send_program(args, machine) -> int:
             return error('send', exc)
         try:
             for n, piece in enumerate(cut, start=1):
-                kind = 'rapid' if piece.rapid else f'feed {piece.feed * 1e3:.4g} mm/s'
-                print(f'piece {n} of {len(cut)}: {piece.where}, {kind}', flush=True)
+                print(f'piece {n} of {len(cut)}: {piece.where}, {piece.label}', flush=True)
                 refused = client.set_parameters('trajectory', {'feed': piece.feed})
                 if refused:
                     return error('send', f'the trajectory node refused the feed of {piece.where}: '

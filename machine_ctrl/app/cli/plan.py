@@ -64,11 +64,9 @@ def cmd_plan(args) -> int:
         return 0
     if program:
         print(f"pieces           {len(summary['pieces'])} (an exact stop between pieces)")
-        for n, piece in enumerate(summary['pieces'], start=1):
-            first, last = piece['lines']
-            kind = 'rapid' if piece['rapid'] else f"feed {piece['feed'] * 1e3:.4g} mm/s"
-            print(f"  {n:3d}  lines {first}-{last}  {kind:>20s}  {piece['traversal_time']:.4f} s"
-                  f"{'  M0 stop after' if piece['stop_after'] else ''}")
+        for n, (piece, planned) in enumerate(zip(result.pieces, result.plans), start=1):
+            print(f"  {n:3d}  {piece.where:>11s}  {piece.label:>20s}  {planned.traversal_time:.4f} s"
+                  f"{'  M0 stop after' if piece.stop_after else ''}")
         for note in summary['notes']:
             print(f'note: {note}')
     print(f"traversal time   {summary['traversal_time']:.4f} s ({summary['samples']} samples)")
