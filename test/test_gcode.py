@@ -268,3 +268,21 @@ def test_a_program_out_of_stroke_is_refused_naming_its_piece(tmp_path, micromill
     result = plan_program(far, micromill)
     assert result.status == PlanStatus.OUT_OF_STROKE
     assert result.reason.startswith(f'{far}: line 2 (piece 2 of 2): '), result.reason
+
+
+def test_a_program_text_as_the_topic_takes_it(circle_plan, trt):
+    """trajectory.session.plan_program_text (the trajectory node's /trajectory/program, run in
+    its planner process): the program's references one after the other; a bad program, or an
+    M0 before the last motion (nobody is there to go on on a topic), refused naming the line."""
+    from trajectory.session import plan_program_text
+    _, planned = circle_plan
+    reference, failure = plan_program_text(trt, CIRCLE.replace('M30', 'M0\nM30'), '/trajectory/program')
+    assert failure == ''                        # an M0 after the last motion stops nothing
+    assert np.array_equal(reference.position, planned.reference().position)
+    assert plan_program_text(trt, CIRCLE.replace('G1 X1', 'G1 X1 Q3'), '/p') == (
+        None, '/p:6: Q3: the word Q is not supported')
+    reference, failure = plan_program_text(trt, CIRCLE.replace('G1 Z0 F120', 'G1 Z0 F120\nM0'), '/p')
+    assert reference is None and failure.startswith('/p:4: an M0 program stop follows this block'), failure
+    assert plan_program_text(trt, '(nothing)\n', '/p') == (None, '/p: no motion in the program')
+    reference, failure = plan_program_text(trt, 'G1 X500 F60\n', '/p')    # 0.5 m: beyond the x stroke
+    assert reference is None and failure.startswith('/p: line 1 (piece 1 of 1): '), failure

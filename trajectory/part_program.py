@@ -73,9 +73,10 @@ def _from_row(reference: Reference, first: int) -> Reference:
                      reference.velocity[first:], reference.acceleration[first:])
 
 
-def plan_program(program, machine) -> ProgramPlan:
+def plan_program(program, machine, kinematics: Kinematics | None = None) -> ProgramPlan:
     """Plan the program (a trajectory.gcode.Program, or the path of a G-code file) on
-    `machine` (MachineConfig or name): every piece or none."""
+    `machine` (MachineConfig or name): every piece or none. `kinematics`: the machine's,
+    when the caller has them built (default: built here)."""
     start = time.perf_counter()
 
     def failed(status: PlanStatus, reason: str, **done) -> ProgramPlan:
@@ -91,7 +92,7 @@ def plan_program(program, machine) -> ProgramPlan:
     try:
         if not isinstance(machine, MachineConfig):
             machine = load_machine(machine)
-        kinematics = Kinematics.from_config(machine)
+        kinematics = kinematics or Kinematics.from_config(machine)
         pieces = gcode.pieces(program, gcode.tool_axis_of(kinematics, machine))
     except gcode.GcodeError as exc:
         return failed(PlanStatus.INVALID_INPUT, f'{program.source}:{exc.line}: {exc}')

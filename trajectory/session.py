@@ -65,7 +65,7 @@ from machine_ctrl.diagnostics import PeerLiveliness, Rejections, error_text
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.model.reference import Reference
-from trajectory import freeform, moves, toolpath
+from trajectory import freeform, gcode, moves, part_program, toolpath
 from trajectory.goals import Goal, GoalBook, GoalState
 from trajectory.planner import plan
 from trajectory.stream import ReferenceStream
@@ -165,13 +165,35 @@ def planner_process_init() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _kinematics_of(machine: MachineConfig) -> Kinematics:
+    """The machine's kinematics, built once per machine and (planner) process."""
+    return _kinematics.get(machine.yaml_path) or _kinematics.setdefault(machine.yaml_path,
+                                                                         Kinematics.from_config(machine))
+
+
 def plan_path(machine: MachineConfig, cl: toolpath.CLData, feed: float) -> tuple[Reference | None, str]:
     """Plan a tool path (runs in the node's planner process): (references, '') or (None, the
-    reason it cannot be planned). The kinematics are built once per machine and process."""
-    kinematics = _kinematics.get(machine.yaml_path) or _kinematics.setdefault(
-        machine.yaml_path, Kinematics.from_config(machine))
-    result = plan(cl, machine, feed, kinematics=kinematics)
+    reason it cannot be planned)."""
+    result = plan(cl, machine, feed, kinematics=_kinematics_of(machine))
     return (result.plan.reference, '') if result.ok else (None, result.reason)
+
+
+def plan_program_text(machine: MachineConfig, text: str, source: str) -> tuple[Reference | None, str]:
+    """A G-code program's text (trajectory/gcode.py; the program topic), in the node's planner
+    process: (its pieces' references one after the other, each piece at its program feed,
+    exact stops between them: trajectory/part_program.py; '') or (None, the reason, naming
+    `source` and the line). A program stop (M0) before the last motion is refused: a program
+    sent on a topic runs unattended, with nobody to go on after the stop (``machine-ctrl
+    send`` runs such a program, waiting for Enter at each M0)."""
+    read = gcode.parse(text, source)
+    if not read.ok:
+        return None, read.reason
+    stop = next((m for m in read.program.motions[:-1] if m.stop_after), None)
+    if stop is not None:
+        return None, (f'{source}:{stop.line}: an M0 program stop follows this block, and a program sent on '
+                      f'{contract.PROGRAM.name} runs unattended (machine-ctrl send waits for Enter at an M0)')
+    result = part_program.plan_program(read.program, machine, _kinematics_of(machine))
+    return (result.reference(), '') if result.ok else (None, result.reason)
 
 
 def plan_freeform(machine: MachineConfig, surface: str, turning: freeform.Turning, start,

@@ -11,6 +11,14 @@ Inputs (every one validated; a refused goal moves nothing and its reason is publ
 * `/trajectory/joint_goal` (trajectory_msgs/JointTrajectory): axis goals (m, rad) for any
   subset of the axes (the others stay); several points are waypoints, each reached at
   rest; time_from_start all zero (time-optimal) or strictly increasing (earliest arrival).
+* `/trajectory/program` (std_msgs/String): a G-code part program's text (the subset of
+  trajectory/gcode.py; README "G-code"), for other robots and programs: read and planned
+  whole (trajectory/part_program.py: each piece at its program feed, the `feed` parameter
+  not used, exact stops between pieces), then run as a tool path (approach, hold, resume,
+  stop, cancel and the feed override alike). A program that cannot be read or planned is
+  refused with `program: planning failed: /trajectory/program:LINE: reason`, nothing moved; one with an M0 before its
+  last motion too (on a topic nobody is there to go on after the stop; `machine-ctrl send`
+  waits for Enter).
 * `/trajectory/feed_override` (std_msgs/Float64): fraction 0..1 of the planned feed, for
   the motion under way and the next ones; a change is a smooth ramp (trajectory/stream.py)
   that keeps the motion on its path. Outside [0, 1] or not finite: refused.
@@ -80,7 +88,7 @@ from nav_msgs.msg import Path
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64
+from std_msgs.msg import Bool, Float64, String
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 from unique_identifier_msgs.msg import UUID
@@ -92,7 +100,7 @@ from machine_ctrl.ros.node_common import main_for, qos, use_sim_time, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 from trajectory.freeform import Turning
 from trajectory.goals import Goal, GoalState
-from trajectory.session import Answer, Session, plan_freeform, plan_path, planner_process_init
+from trajectory.session import Answer, Session, plan_freeform, plan_path, plan_program_text, planner_process_init
 
 LATCHED = ros_io.qos(contract.LATCHED_QOS)
 GOAL_QOS = ros_io.qos(contract.COMMAND_QOS)
@@ -152,6 +160,7 @@ class TrajectoryNode(Node):
         self.create_subscription(Clock, contract.CLOCK.name, self.on_clock, ros_io.qos(contract.CLOCK_READER_QOS))
         self.create_subscription(Path, contract.PATH.name, self.on_path, GOAL_QOS)
         self.create_subscription(JointTrajectory, contract.JOINT_GOAL.name, self.on_joint_goal, GOAL_QOS)
+        self.sub_program = self.create_subscription(String, contract.PROGRAM.name, self.on_program, GOAL_QOS)
         self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics,
                                  ros_io.qos(contract.DIAGNOSTICS_READER_QOS))
         self.create_subscription(Float64, contract.FEED_OVERRIDE.name, self.on_feed_override, GOAL_QOS)
@@ -221,6 +230,18 @@ class TrajectoryNode(Node):
         self.planning = self.planner.submit(plan_path, self.machine, cl, self.feed)
         self.session.planning(f'path of {len(cl)} points', stamp)
         self.session.touch(time.monotonic())         # reading a long path took this callback's time
+
+    def on_program(self, msg: String) -> None:
+        """A G-code program's text: read and planned in the planner process (plan_program_text),
+        played as a tool path is. A String has no header: the goal is stamped with the sim
+        time it came (as home)."""
+        lines = msg.data.count('\n') + 1
+        stamp, label = self.clock.split(self.session.step), f'program of {lines} line{"s" if lines > 1 else ""}'
+        if not self.session.may_accept('program', stamp, label):
+            return
+        self.planning = self.planner.submit(plan_program_text, self.machine, msg.data, self.sub_program.topic_name)
+        self.session.planning(label, stamp, kind='program')
+        self.session.touch(time.monotonic())
 
     def on_machine_alive(self, alive: bool) -> None:
         self.machine_lost_at = None if alive else time.monotonic()
