@@ -27,6 +27,7 @@ EXECUTABLES = {
     'reference_node': 'machine_ctrl.ros.reference_node:main',
     'recorder_node': 'machine_ctrl.ros.recorder_node:main',
     'replay_node': 'machine_ctrl.ros.replay_node:main',
+    'view_node': 'machine_ctrl.ros.view_node:main',
     'trajectory_node': 'machine_ctrl.ros.trajectory_node:main',
     'contour_error_node': 'machine_ctrl.ros.contour_error_node:main',
     'compensation_node': 'machine_ctrl.ros.compensation_node:main',
@@ -73,10 +74,14 @@ REQUIRES = [
     # identification
     'nfoursid>=1.0.2,<1.1',  # N4SID (machine_ctrl/identification)
     'pandas>=3.1,<4',  # nfoursid's input, imported by machine_ctrl/identification
+    # live view
+    'foxglove-sdk>=0.30.3,<0.31',  # import foxglove (machine_ctrl/view)
 ]
 EXTRAS = {
     'test': ['pytest>=9.2', 'rosbags>=0.11.9,<0.12',  # rosbags: an independent bag reader for the tests
-             'hypothesis>=6.170,<7'],  # test/test_fuzz_graph.py: property-based fuzzing of the graph
+             'pytest-xdist>=3.8,<4',  # dev/test: ROS-free tests in a second worker
+             'hypothesis>=6.170,<7',  # test/test_fuzz_graph.py: property-based fuzzing of the graph
+             'websockets>=17.4,<18'],  # test/test_view.py: a Foxglove WebSocket client
     'bench': ['toppra>=0.6.10,<0.7'],  # bench/feed_vs_toppra.py
 }
 

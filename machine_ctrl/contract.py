@@ -104,6 +104,10 @@ CLOCK_READER_QOS = Qos(depth=10)
 # status change and each goal's change (its reason). assumed: the writer keeps 100 so that such a
 # burst does not overwrite a goal's entry before a reader under load has it (a reliable
 # keep-last writer drops what it overwrites).
+# A viewer of the per-step streams (machine_ctrl/ros/view_node.py): best effort, so that a
+# slow viewer never holds up a writer, keeping the newest 2 (the view takes them at its own
+# rate; 2: the newest of each of the two servos on /servo_commands).
+VIEW_STEP_QOS = Qos(depth=2, reliable=False)
 DIAGNOSTICS_QOS = Qos(depth=100)
 DIAGNOSTICS_READER_QOS = Qos(depth=50)
 
@@ -183,6 +187,8 @@ PATH = Topic('trajectory/path', 'nav_msgs/msg/Path', COMMAND_QOS,
              'tool path, frame workpiece, m; pose z-axis = tool axis')
 JOINT_GOAL = Topic('trajectory/joint_goal', 'trajectory_msgs/msg/JointTrajectory', COMMAND_QOS,
                    'axis goals, m / rad, times s')
+PROGRAM = Topic('trajectory/program', 'std_msgs/msg/String', COMMAND_QOS,
+                'G-code part program text (trajectory/gcode.py); units from G20/G21')
 FEED_OVERRIDE = Topic('trajectory/feed_override', 'std_msgs/msg/Float64', COMMAND_QOS,
                       'feed fraction 0..1, ramped')
 TRAJECTORY_STATUS = Topic('trajectory/status', 'diagnostic_msgs/msg/DiagnosticStatus', LATCHED_QOS,
@@ -230,7 +236,7 @@ ROSOUT = '/rosout'
 PARAMETER_EVENTS = '/parameter_events'
 
 # The command API a user of the running graph sees (machine-ctrl bringup prints it).
-COMMAND_API = (PATH, JOINT_GOAL, FEED_OVERRIDE, HOLD, RESUME, STOP, CANCEL, HOME, RESET, DUAL_STAGE_ENABLE,
+COMMAND_API = (PATH, JOINT_GOAL, PROGRAM, FEED_OVERRIDE, HOLD, RESUME, STOP, CANCEL, HOME, RESET, DUAL_STAGE_ENABLE,
                COMPENSATION_ENABLE, TRAJECTORY_STATUS, GOAL_STATUS, READY, ROBOT_DESCRIPTION, DIAGNOSTICS)
 # The per-step streams of the lock-step graph: each publisher of these answers every step,
 # so the recorder's progress is the minimum over them.
@@ -240,7 +246,7 @@ PER_STEP_TOPICS = (JOINT_STATES, SERVO_COMMANDS, DUAL_STAGE_OFFSETS, CLOCK, ACCE
 # are hw_sim's own).
 STEP_ANSWERS = (SERVO_COMMANDS, DUAL_STAGE_OFFSETS)
 TOPICS = (CLOCK, JOINT_STATES, SERVO_COMMANDS, REFERENCE, TRAJECTORY_REFERENCE, DUAL_STAGE_OFFSETS, ACCELEROMETERS,
-          TRUE_JOINT_STATES, TRUE_TOOL_POSE, DIAGNOSTICS, PATH, JOINT_GOAL, FEED_OVERRIDE, TRAJECTORY_STATUS,
+          TRUE_JOINT_STATES, TRUE_TOOL_POSE, DIAGNOSTICS, PATH, JOINT_GOAL, PROGRAM, FEED_OVERRIDE, TRAJECTORY_STATUS,
           CONTOUR_TOOL_TIP, CONTOUR_TOOL_TIP_MAGNITUDE, CONTOUR_ORIENTATION, CONTOUR_ORIENTATION_MAGNITUDE,
           RECORDER_PROGRESS, GOAL_STATUS, READY, ROBOT_DESCRIPTION, COMPENSATION_READY)
 SERVICES = (HOLD, RESUME, STOP, CANCEL, HOME, RESET, DUAL_STAGE_ENABLE, COMPENSATION_ENABLE)

@@ -417,7 +417,21 @@ REPLAY = NodeParameters('replay_node', (
     ParameterSpec('wait_timeout', DOUBLE, 30.0, 's', 'wall time to wait for them', low=0.0),
 ))
 
-TABLES = (HW_SIM, SERVO, DUAL_STAGE, TRAJECTORY, REFERENCE, COMPENSATION, CONTOUR_ERROR, RECORDER, REPLAY)
+VIEW = NodeParameters('view_node', (
+    MACHINE,
+    # assumed: this computer only; a viewer on another one is a deliberate choice (0.0.0.0)
+    ParameterSpec('host', STRING, '127.0.0.1', description='address the Foxglove WebSocket server listens on',
+                  required=True),
+    # Foxglove's own default port, which its "Open connection" dialog proposes
+    ParameterSpec('port', INTEGER, 8765, description='TCP port of the Foxglove WebSocket server (0: any free port, '
+                  'logged)', low=0, high=65535),
+    # assumed: 50 Hz, what a plot panel redraws smoothly; the view then takes 50 messages a
+    # second of each per-step stream whatever the graph's rate (bench/view_cost.py)
+    ParameterSpec('sample_rate', DOUBLE, 50.0, 'Hz', 'wall rate at which the newest message of each per-step '
+                  'stream is taken and forwarded', low=0.0, low_open=True, high=1000.0),
+))
+
+TABLES = (HW_SIM, SERVO, DUAL_STAGE, TRAJECTORY, REFERENCE, COMPENSATION, CONTOUR_ERROR, RECORDER, REPLAY, VIEW)
 
 
 def table(executable: str) -> NodeParameters:

@@ -1,3 +1,7 @@
+import functools
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -51,3 +55,39 @@ def central_difference_jacobian(f, q, h=1e-6):
         dq[i] = h
         columns.append((f(q + dq) - f(q - dq)) / (2 * h))
     return np.column_stack(columns)
+
+
+# A module that starts ROS nodes names ros_env or a fixture built on it (test/ros_fixtures.py).
+_ROS_FIXTURES = re.compile(r'\b(ros_env|rclpy_context|ros_node|ros_supervisor)\b')
+
+
+@functools.lru_cache(maxsize=None)
+def _starts_ros(path: Path) -> bool:
+    return bool(_ROS_FIXTURES.search(path.read_text()))
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """dev/test runs the suite in two pytest-xdist workers (`-n 2`). Every module that starts
+    ROS nodes is in one scope, which one worker runs test after test: at most one graph runs
+    at a time, as in a serial run, while the other worker runs the ROS-free modules beside
+    it. A module stays in one worker, so its module fixtures (an experiment run, an
+    installed prefix) are made once. (pytest-xdist's own --dist loadgroup does not group
+    under pytest 9, whose node ids it can no longer rename.)"""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class GraphsInOneWorker(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split('::')[0]
+            return 'ros_graph' if _starts_ros(config.rootpath / module) else module
+    return GraphsInOneWorker(config, log)
+
+
+def pytest_collection_modifyitems(config, items):
+    """The scheduler's reading of a module (above) must hold: a test that uses ros_env in a
+    module the scheduler takes for ROS-free would run a graph beside another."""
+    missed = sorted({item.nodeid.split('::')[0] for item in items
+                     if 'ros_env' in getattr(item, 'fixturenames', ())
+                     and not _starts_ros(config.rootpath / item.nodeid.split('::')[0])})
+    if missed:
+        raise pytest.UsageError(f'{", ".join(missed)}: tests use ros_env through a fixture that test/conftest.py '
+                                '_ROS_FIXTURES does not name; add it there')

@@ -33,6 +33,7 @@ LAYERS = {
     'machine_ctrl/contour': 2,
     'machine_ctrl/recording': 2,
     'machine_ctrl/identification': 2,
+    'machine_ctrl/view': 2,           # the Foxglove view of a session (live or a bag)
     'trajectory': 2,
     'compensation': 2,
     'hw_sim': 2,

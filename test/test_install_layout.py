@@ -49,9 +49,10 @@ def ament_layout():
 def prefix(tmp_path_factory):
     # --ignore-installed: without it pip would first uninstall the venv's own (editable) copy
     prefix = tmp_path_factory.mktemp('prefix')
-    subprocess.run([sys.executable, '-m', 'pip', 'install', '--no-deps', '--no-build-isolation',
-                    '--disable-pip-version-check', '-q', '--ignore-installed', '--prefix', str(prefix), str(ROOT)],
-                   check=True, capture_output=True, timeout=300)
+    done = subprocess.run([sys.executable, '-m', 'pip', 'install', '--no-deps', '--no-build-isolation',
+                           '--disable-pip-version-check', '-q', '--ignore-installed', '--prefix', str(prefix),
+                           str(ROOT)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return prefix
 
 

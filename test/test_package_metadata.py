@@ -31,6 +31,9 @@ DISTRIBUTION_TO_KEY = {
     'pytest': 'python3-pytest',
     'rosbags': 'python3-rosbags-pip',
     'hypothesis': 'python3-hypothesis',
+    'foxglove-sdk': 'python3-foxglove-sdk-pip',
+    'websockets': 'python3-websockets-pip',
+    'pytest-xdist': 'python3-pytest-xdist-pip',
 }
 # exec_depends with no requirement in setup.py, and why.
 PACKAGE_XML_ONLY = {

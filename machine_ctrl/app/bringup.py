@@ -83,6 +83,12 @@ def recorder_spec(machine: MachineConfig, output: str, graph: list[NodeSpec], na
                      'start_streams': sum(spec.cls in STEP_ANSWERERS for spec in graph)}, namespace=namespace)
 
 
+def view_spec(machine: MachineConfig, port: int, namespace: str = '') -> NodeSpec:
+    """The Foxglove live view of the graph (machine_ctrl/ros/view_node.py), on `port`."""
+    return NodeSpec('view', 'machine_ctrl.ros.view_node', 'ViewNode',
+                    {'machine': str(machine.yaml_path), 'port': port}, namespace=namespace)
+
+
 class RecordingLost(RuntimeError):
     """The recording stopped and the session asked to stop with it."""
 
@@ -97,8 +103,10 @@ class Bringup:
 
     def __init__(self, machine: MachineConfig, *, single_process: bool = False, record: str | None = None,
                  dual_stage: bool = True, compensation: str | None = None, env=None,
-                 log_dir: str | None = None, namespace: str = '', stop_on_recording_loss: bool = False):
+                 log_dir: str | None = None, namespace: str = '', stop_on_recording_loss: bool = False,
+                 view: int | None = None):
         self.machine, self.single_process, self.record = machine, single_process, record
+        self.view = view                    # the live view's port (None: no view)
         self.stop_on_recording_loss = stop_on_recording_loss
         self.ready = False
         self.recording_lost: str | None = None
@@ -114,11 +122,14 @@ class Bringup:
 
     @property
     def node_names(self) -> set[str]:
-        return {spec.name for spec in self.specs} | ({'recorder'} if self.record else set())
+        return ({spec.name for spec in self.specs} | ({'recorder'} if self.record else set())
+                | ({'view'} if self.view is not None else set()))
 
     def start(self) -> None:
         if self.record is not None:      # parameter files beside the logs
             self.recorder.start('recorder', recorder_spec(self.machine, self.record, self.specs, self.namespace).argv(self.log_dir))
+        if self.view is not None:        # a process of its own, also beside a single-process graph
+            self.graph.start_nodes([view_spec(self.machine, self.view, self.namespace)], self.log_dir)
         if self.single_process:
             self.graph.start('graph', single_process_argv(self.specs, self.log_dir))
             return
@@ -339,7 +350,7 @@ def run(args, machine: MachineConfig) -> int:
         with monitor(machine, 'bringup_monitor', namespace=namespace) as client, \
                 Bringup(machine, single_process=args.single_process, record=args.record,
                         dual_stage=not args.no_dual_stage, compensation=args.compensation,
-                        namespace=namespace,
+                        namespace=namespace, view=getattr(args, 'view', None),
                         stop_on_recording_loss=bool(getattr(args, 'stop_on_recording_loss', False))) as bringup:
             try:
                 print(f'starting {len(bringup.specs)} nodes ({"one process" if args.single_process else "one process each"})'

@@ -11,6 +11,7 @@ stable outputs documented in the module:
 * plan.py: ``plan PATH --machine M --out DIR [--json] [--feed F]``;
 * recording.py: ``record DIR ...``, ``replay BAG ...``, ``analyze BAG [BAG2] ...``;
 * graph.py: ``bringup [MACHINE] ...``, ``send PATH ...``, ``move AXIS=VALUE ...``, ``demo``;
+* view.py: ``view [--bag BAG --out FILE]`` (Foxglove);
 * errors.py: ``fit-errors CSV ...`` (the geometric error model).
 
 A group sets on each of its subparsers ``run`` (the handler: args -> exit status), and
@@ -32,11 +33,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from machine_ctrl.app.cli import errors, experiment, graph, machine, plan, recording
+from machine_ctrl.app.cli import errors, experiment, graph, machine, plan, recording, view
 from machine_ctrl.model.errors import ConfigError
 
 # in the order of the root help
-COMMAND_GROUPS = (machine, experiment, plan, recording, graph, errors)
+COMMAND_GROUPS = (machine, experiment, plan, recording, graph, view, errors)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -19,6 +19,9 @@ from machine_ctrl.app.cli.common import error, fresh_directory, namespace_option
 from machine_ctrl.app.demo import DEFAULT_TURNS as DEMO_TURNS
 from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
 from machine_ctrl.model.errors import ConfigError
+from machine_ctrl.parameters import VIEW
+
+VIEW_PORT = VIEW.spec('port').default
 
 
 def register(subparsers) -> None:
@@ -31,6 +34,9 @@ def register(subparsers) -> None:
                             'full); default: say so and keep the machine running')
     bring.add_argument('--no-dual-stage', action='store_true', help='start with the dual-stage coupling off')
     bring.add_argument('--compensation', metavar='MODEL', help='geometric error model: compensation on')
+    bring.add_argument('--view', type=int, nargs='?', const=VIEW_PORT, metavar='PORT',
+                       help=f'the Foxglove live view on ws://127.0.0.1:PORT (default {VIEW_PORT}; 0: any free port, '
+                            'printed in the view\'s log)')
     namespace_option(bring)
     bring.set_defaults(run=cmd_bringup)
     send = subparsers.add_parser('send', help='send a tool path to the running graph and follow it')

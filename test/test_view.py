@@ -1,0 +1,142 @@
+"""The live view (issue [7/8], part 3): `machine-ctrl bringup trt_5axis --record DIR --view 0`,
+a Foxglove WebSocket client (the `websockets` library speaking foxglove.sdk.v1, as the
+Foxglove app does) lists the channels and receives the joint states (at most the newest 2
+per sample of the view's 50 Hz), the tracking errors and the 3D scene while `machine-ctrl
+move` runs; then `machine-ctrl view --bag` writes the recorded session with the same
+channels, one joint state every 10 ms of sim time, which every panel of the shipped layout
+finds. Real nodes over real DDS."""
+import json
+import re
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from machine_ctrl import contract, parameters
+from machine_ctrl.model.config import load_machine
+from machine_ctrl.recording import cdr
+from machine_ctrl.recording.bag import Bag
+from machine_ctrl.view import layout
+from machine_ctrl.view.live_view import SCENE, TRACKING_ERROR, ViewConfig
+
+EXE = str(Path(sys.executable).with_name('machine-ctrl'))
+ROOT = Path(__file__).resolve().parents[1]
+PROTOCOL = 'foxglove.sdk.v1'       # the server's subprotocol (the successor of foxglove.websocket.v1)
+MESSAGE_DATA = 1           # the protocol's binary opcode of a message
+
+
+@pytest.mark.parametrize('name', layout.MACHINES)
+def test_the_shipped_layouts_are_current(name):
+    assert (ROOT / 'config/foxglove' / f'{name}.json').read_text() == layout.text(load_machine(name))
+
+
+def _layout_topics(machine) -> set[str]:
+    """Every topic a panel of the machine's layout reads."""
+    panels = layout.layout(machine)['configById']
+    paths = [p['value'] for panel in panels.values() for p in panel.get('paths', [])]
+    topics = {re.match(r'(/[\w/]+?)\.', path).group(1) for path in paths}
+    topics |= {panel[key] for panel in panels.values() for key in ('topicPath', 'topicToRender') if key in panel}
+    return topics | {name for panel in panels.values() for name in panel.get('topics', {})}
+
+
+class FoxgloveClient:
+    """The client side of the Foxglove WebSocket protocol, as far as the test needs it."""
+
+    def __init__(self, socket):
+        self.socket = socket
+        self.channels: dict[str, dict] = {}       # topic -> advertised channel
+        self.by_subscription: dict[int, str] = {}
+        self.received: dict[str, list[tuple[int, bytes]]] = {}
+
+    def poll(self, timeout: float = 1.0) -> None:
+        """Read what the server sent within `timeout` s (at least one frame if one comes)."""
+        from websockets.exceptions import ConnectionClosed
+        try:
+            frame = self.socket.recv(timeout=timeout)
+        except (TimeoutError, ConnectionClosed):
+            return
+        if isinstance(frame, str):
+            message = json.loads(frame)
+            if message['op'] == 'advertise':
+                self.channels.update({c['topic']: c for c in message['channels']})
+            return
+        assert frame[0] == MESSAGE_DATA, frame[:1]
+        subscription, log_time = struct.unpack_from('<IQ', frame, 1)
+        topic = self.by_subscription[subscription]
+        self.received.setdefault(topic, []).append((log_time, bytes(frame[13:])))
+
+    def subscribe(self, topics) -> None:
+        subscriptions = []
+        for topic in topics:
+            sub_id = len(self.by_subscription) + 1
+            self.by_subscription[sub_id] = topic
+            subscriptions.append({'id': sub_id, 'channelId': self.channels[topic]['id']})
+        self.socket.send(json.dumps({'op': 'subscribe', 'subscriptions': subscriptions}))
+
+    def until(self, predicate, what: str, limit: int = 20000) -> None:
+        for _ in range(limit):
+            if predicate():
+                return
+            self.poll()
+        raise AssertionError(f'{what}: not within {limit} reads; channels {sorted(self.channels)}, '
+                             f'received {[(t, len(m)) for t, m in self.received.items()]}')
+
+
+def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channels(ros_supervisor, ros_env,
+                                                                                  tmp_path, trt):
+    bag = tmp_path / 'bag'
+    ros_supervisor.start('bringup', [EXE, 'bringup', 'trt_5axis', '--record', str(bag), '--view', '0'])
+    logs = Path(ros_supervisor.wait_for_line('bringup', 'logs in ', timeout=180).rsplit('logs in ', 1)[1].strip())
+    assert 'view' in ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
+    port = int(re.search(r'ws://127\.0\.0\.1:(\d+)', (logs / 'view.log').read_text()).group(1))
+    joint_states, status = '/joint_states', '/trajectory/goal_status'
+    wanted = (joint_states, TRACKING_ERROR, SCENE)
+    from websockets.sync.client import connect
+    with connect(f'ws://127.0.0.1:{port}', subprotocols=[PROTOCOL], open_timeout=60) as socket:
+        started = time.monotonic()
+        client = FoxgloveClient(socket)
+        client.until(lambda: all(t in client.channels for t in wanted + (status,)), 'the channels advertised')
+        assert client.channels[joint_states]['encoding'] == 'cdr'
+        assert client.channels[joint_states]['schemaName'] == 'sensor_msgs/msg/JointState'
+        client.subscribe(wanted)
+        moved = subprocess.run([EXE, 'move', 'x=0.004', '--machine', 'trt_5axis', '--timeout', '600'], env=ros_env,
+                               capture_output=True, text=True, timeout=700)
+        assert moved.returncode == 0, moved.stdout + moved.stderr
+        client.until(lambda: len(client.received.get(joint_states, [])) >= 30 and client.received.get(SCENE)
+                     and client.received.get(TRACKING_ERROR), 'messages of every subscribed channel')
+        elapsed = time.monotonic() - started
+    # the documented rate, from above (a busy machine only makes fewer): at most the newest
+    # contract.VIEW_STEP_QOS.depth states per sample, sample_rate samples a second (+ 1)
+    steps = [step_of(trt, data) for _, data in client.received[joint_states]]
+    most = contract.VIEW_STEP_QOS.depth * (parameters.VIEW.spec('sample_rate').default * elapsed + 1)
+    assert len(steps) <= most, (len(steps), elapsed)
+    assert steps == sorted(set(steps))                    # each once, in order
+    error = json.loads(client.received[TRACKING_ERROR][-1][1])
+    assert set(error['error']) == set(trt.axis_names) and error['time'] > 0
+    ros_supervisor.children['bringup'].signal_group(signal.SIGINT)
+    assert ros_supervisor.wait('bringup', timeout=120) == 0
+
+    out = tmp_path / 'view.mcap'
+    done = subprocess.run([EXE, 'view', '--bag', str(bag), '--out', str(out)], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr
+    from mcap.reader import make_reader
+    with open(out, 'rb') as f:
+        reader = make_reader(f)
+        topics = {c.topic for c in reader.get_summary().channels.values()}
+        viewed = [step_of(trt, m.data) for _, c, m in reader.iter_messages(topics=[joint_states])]
+    assert _layout_topics(trt) <= topics, _layout_topics(trt) - topics       # every panel finds its topic
+    with Bag(bag) as recorded:
+        all_steps = [step_of(trt, m.data) for m in recorded.messages([joint_states])]
+    every = round(ViewConfig().period / trt.control_period)
+    assert viewed == [step for step in all_steps if step % every == 0]          # exactly the decimated ones
+
+
+def step_of(machine, data: bytes) -> int:
+    """The control step of a serialized JointState."""
+    state = cdr.JointStateDecoder().decode(data)
+    return contract.StepClock(machine.control_period).step_at(state.sec, state.nanosec)
