@@ -162,3 +162,14 @@ def on_disk(path, topic: str | None = None) -> int:
     bagmod._salvage(io.BytesIO(data), len(data), records.append)
     channels = {r.id: r.topic for r in records if isinstance(r, Channel)}
     return sum(isinstance(r, Message) and (topic is None or channels.get(r.channel_id) == topic) for r in records)
+
+
+# Fast DDS's own log lines: its default consumer writes them to stdout, coloured, so they
+# start with an escape sequence, which no YAML line of `ros2 topic echo` does (a loaded run
+# saw "[RTPS_TRANSPORT_SHM Error] Failed init_port ..." inside an echoed message)
+FASTDDS_LOG = '\x1b['
+
+
+def without_fastdds_log(text: str) -> str:
+    """`ros2 topic echo`'s output without Fast DDS's log lines."""
+    return ''.join(line for line in text.splitlines(keepends=True) if not line.startswith(FASTDDS_LOG))

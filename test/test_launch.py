@@ -22,6 +22,7 @@ import yaml
 
 from machine_ctrl.app.processes import default_stop_signals
 from machine_ctrl.recording.bag import Bag
+from ros_fixtures import FASTDDS_LOG
 
 BIN = Path(sys.executable).parent
 ROS2 = BIN / 'ros2'
@@ -119,6 +120,8 @@ def echo_until(env, topic: str, type_name: str, accept, launch: Launch, timeout:
     try:
         document = []
         for line in process.stdout:
+            if line.startswith(FASTDDS_LOG):            # Fast DDS logs on stdout too
+                continue
             if line.strip() != '---':
                 document.append(line)
                 continue

@@ -23,6 +23,7 @@ import yaml
 from machine_ctrl import parameters
 from machine_ctrl.app.processes import Supervisor
 from machine_ctrl.model.config import load_machine
+from ros_fixtures import without_fastdds_log
 
 ROS2 = Path(sys.executable).parent / 'ros2'
 PARAMS_DIR = Path(__file__).resolve().parents[1] / 'config' / 'params'
@@ -71,7 +72,7 @@ def wait_status(env, node_name: str, values: dict | None = None, **more) -> dict
                   '/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray')
     assert result.returncode == 0 and result.stdout.strip(), \
         f'no status of {node_name} with {values} within {WAIT} s: {result.stderr[-2000:]}'
-    message = next(doc for doc in yaml.safe_load_all(result.stdout) if doc)
+    message = next(doc for doc in yaml.safe_load_all(without_fastdds_log(result.stdout)) if doc)
     (status,) = [s for s in message['status'] if s['name'] == node_name]
     return {'message': status['message'], 'level': status['level'],
             **{kv['key']: kv['value'] for kv in status['values']}}
