@@ -72,6 +72,11 @@ RECORDER_LIVELINESS_LEASE = 5.0     # s
 
 # Per-step traffic must never be dropped silently: reliable, and deep enough for bursts.
 STEP_QOS = Qos(depth=200)
+# A viewer of the per-step streams (machine_ctrl/ros/view_node.py): best effort, so that a
+# slow viewer never holds up a writer. assumed: keep last 2, the view's take per sample:
+# usually the newest message of each servo on /servo_commands, which publish one step back
+# to back (a keyless topic's history does not guarantee it; a plot then misses a sample).
+VIEW_STEP_QOS = Qos(depth=2, reliable=False)
 # References are streamed ahead in chunks; a node that joins late still gets the last
 # chunks (transient local), so no step's reference depends on discovery timing.
 REFERENCE_QOS = Qos(depth=50, transient_local=True)
@@ -104,10 +109,6 @@ CLOCK_READER_QOS = Qos(depth=10)
 # status change and each goal's change (its reason). assumed: the writer keeps 100 so that such a
 # burst does not overwrite a goal's entry before a reader under load has it (a reliable
 # keep-last writer drops what it overwrites).
-# A viewer of the per-step streams (machine_ctrl/ros/view_node.py): best effort, so that a
-# slow viewer never holds up a writer, keeping the newest 2 (the view takes them at its own
-# rate; 2: the newest of each of the two servos on /servo_commands).
-VIEW_STEP_QOS = Qos(depth=2, reliable=False)
 DIAGNOSTICS_QOS = Qos(depth=100)
 DIAGNOSTICS_READER_QOS = Qos(depth=50)
 
@@ -230,6 +231,11 @@ COMPENSATION_ENABLE = Service('compensation/enable', 'std_srvs/srv/SetBool',
 # rclpy's sim-time subscription is to the absolute /clock: each node of a graph remaps it to
 # its own namespace's clock (a no-op in the root namespace), as (from, to).
 CLOCK_REMAP = ('/clock', CLOCK.name)
+
+# The live view's own Foxglove channels (machine_ctrl/view; not ROS topics): the 3D scene
+# (foxglove.SceneUpdate) and the tracking errors (JSON).
+VIEW_SCENE = '/view/scene'
+VIEW_TRACKING_ERROR = '/view/tracking_error'
 
 # ROS's own topics, which a recording leaves out by default.
 ROSOUT = '/rosout'

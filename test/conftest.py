@@ -57,8 +57,9 @@ def central_difference_jacobian(f, q, h=1e-6):
     return np.column_stack(columns)
 
 
-# A module that starts ROS nodes names ros_env or a fixture built on it (test/ros_fixtures.py).
-_ROS_FIXTURES = re.compile(r'\b(ros_env|rclpy_context|ros_node|ros_supervisor)\b')
+# A module that starts ROS nodes names ros_env or a fixture built on it (test/ros_fixtures.py),
+# or the bench's bare rclpy ring (test_bench_ros_chain.py, which leases a domain of its own).
+_ROS_FIXTURES = re.compile(r'\b(ros_env|rclpy_context|ros_node|ros_supervisor|ros_chain)\b')
 
 
 @functools.lru_cache(maxsize=None)

@@ -67,8 +67,8 @@ def test_send_runs_a_program_piece_by_piece_and_leaves_the_feed_as_it_was(ros_su
         assert run(CIRCLE.replace('G1 X1', 'G1 X1 Q3')) == (
             'aborted', f'program: planning failed: {topic}:6: Q3: the word Q is not supported')
         assert run(CIRCLE.replace('G1 X1', 'G1 X1\nM0')) == (
-            'aborted', f'program: planning failed: {topic}:6: an M0 program stop follows this block, and a program sent on '
-                       f'{contract.PROGRAM.name} runs unattended (machine-ctrl send waits for Enter at an M0)')
+            'aborted', f'program: planning failed: {topic}:6: an M0 program stop follows this block, and a '
+                       f'program sent on {topic} runs unattended (machine-ctrl send waits for Enter at an M0)')
         assert run(CIRCLE) == ('succeeded', '')
     child.signal_group(signal.SIGINT)
     assert ros_supervisor.wait('bringup', timeout=120) == 0

@@ -21,7 +21,7 @@ from machine_ctrl.model.config import load_machine
 from machine_ctrl.recording import cdr
 from machine_ctrl.recording.bag import Bag
 from machine_ctrl.view import layout
-from machine_ctrl.view.live_view import SCENE, TRACKING_ERROR, ViewConfig
+from machine_ctrl.view.live_view import ViewConfig
 
 EXE = str(Path(sys.executable).with_name('machine-ctrl'))
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,6 +32,53 @@ MESSAGE_DATA = 1           # the protocol's binary opcode of a message
 @pytest.mark.parametrize('name', layout.MACHINES)
 def test_the_shipped_layouts_are_current(name):
     assert (ROOT / 'config/foxglove' / f'{name}.json').read_text() == layout.text(load_machine(name))
+
+
+def test_a_session_view_decimates_derives_and_refuses_what_it_cannot_read(trt, tmp_path):
+    """SessionView alone (no ROS): a namespaced session of 100 steps into an MCAP file. The
+    states of every 10th step pass (10 ms at 1 kHz), each with its log time; the tracking
+    error is the reference row minus the state the test made; a state without the machine's
+    axes and a chunk with fewer positions than names are refused with the reason, the view
+    goes on."""
+    import foxglove
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from machine_ctrl.view.live_view import SessionView
+    names, period_ns = trt.axis_names, contract.StepClock(trt.control_period).period_ns
+    steps = 100
+    reference = np.zeros((steps, len(names)))
+    reference[:, 0] = np.arange(steps) * 1e-6                    # x moves 1 µm a step
+    lag = np.array([2e-6, -1e-6, 0.0, 1e-4, 0.0])                 # state = reference - lag
+    refused = []
+    context = foxglove.Context()
+    writer = foxglove.open_mcap(str(tmp_path / 'view.mcap'), context=context)
+    view = SessionView(trt, context, ViewConfig(), '/mill', refused=lambda topic, reason: refused.append(topic))
+    chunk = cdr.encode_chunk(0, 0, names, reference, np.zeros_like(reference), np.zeros_like(reference), period_ns)
+    assert view.take('/mill/reference', contract.REFERENCE.type, chunk, log_time=1)
+    encoder = cdr.JointStateEncoder(names)
+    for k in range(steps):
+        sec, nanosec = contract.split_ns(k * period_ns)
+        view.take('/mill/joint_states', contract.JOINT_STATES.type,
+                  encoder.encode(sec, nanosec, reference[k] - lag, np.zeros(len(names))), log_time=1000 + k)
+    assert not view.take('/mill/joint_states', contract.JOINT_STATES.type,
+                         cdr.JointStateEncoder(names[:2]).encode(0, 0, (0.0, 0.0)), log_time=5000)
+    short = cdr.encode_chunk(0, 0, names[:2], reference[:, :2], reference[:, :2], reference[:, :2], period_ns)
+    bad = short.replace(cdr._names_block(tuple(names[:2]), ''), cdr._names_block(tuple(names), ''))
+    assert not view.take('/mill/reference', contract.REFERENCE.type, bad, log_time=5001)
+    writer.close()
+    assert refused == ['/mill/joint_states', '/mill/reference'], view.skipped
+    assert 'without every axis' in view.skipped['/mill/joint_states']
+    assert 'without a position of every axis' in view.skipped['/mill/reference'], view.skipped
+    with open(tmp_path / 'view.mcap', 'rb') as f:
+        messages = [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages()]
+    states = [(t, step_of(trt, data)) for topic, t, data in messages if topic == '/mill/joint_states']
+    assert states == [(1000 + k, k) for k in range(0, steps, 10)]
+    errors = [(t, json.loads(data)['error']) for topic, t, data in messages if topic == contract.VIEW_TRACKING_ERROR]
+    assert [t for t, _ in errors] == [1000 + k for k in range(0, steps, 10)]
+    for _, error in errors:
+        assert [error[name] for name in names] == pytest.approx(lag, abs=1e-15)
+    assert [t for topic, t, _ in messages if topic == contract.VIEW_SCENE] == [1000 + 90]   # every 10th state
 
 
 def _layout_topics(machine) -> set[str]:
@@ -94,7 +141,7 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
     assert 'view' in ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
     port = int(re.search(r'ws://127\.0\.0\.1:(\d+)', (logs / 'view.log').read_text()).group(1))
     joint_states, status = '/joint_states', '/trajectory/goal_status'
-    wanted = (joint_states, TRACKING_ERROR, SCENE)
+    wanted = (joint_states, contract.VIEW_TRACKING_ERROR, contract.VIEW_SCENE)
     from websockets.sync.client import connect
     with connect(f'ws://127.0.0.1:{port}', subprotocols=[PROTOCOL], open_timeout=60) as socket:
         started = time.monotonic()
@@ -106,8 +153,9 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
         moved = subprocess.run([EXE, 'move', 'x=0.004', '--machine', 'trt_5axis', '--timeout', '600'], env=ros_env,
                                capture_output=True, text=True, timeout=700)
         assert moved.returncode == 0, moved.stdout + moved.stderr
-        client.until(lambda: len(client.received.get(joint_states, [])) >= 30 and client.received.get(SCENE)
-                     and client.received.get(TRACKING_ERROR), 'messages of every subscribed channel')
+        client.until(lambda: len(client.received.get(joint_states, [])) >= 30
+                     and client.received.get(contract.VIEW_SCENE) and client.received.get(contract.VIEW_TRACKING_ERROR),
+                     'messages of every subscribed channel')
         elapsed = time.monotonic() - started
     # the documented rate, from above (a busy machine only makes fewer): at most the newest
     # contract.VIEW_STEP_QOS.depth states per sample, sample_rate samples a second (+ 1)
@@ -115,7 +163,7 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
     most = contract.VIEW_STEP_QOS.depth * (parameters.VIEW.spec('sample_rate').default * elapsed + 1)
     assert len(steps) <= most, (len(steps), elapsed)
     assert steps == sorted(set(steps))                    # each once, in order
-    error = json.loads(client.received[TRACKING_ERROR][-1][1])
+    error = json.loads(client.received[contract.VIEW_TRACKING_ERROR][-1][1])
     assert set(error['error']) == set(trt.axis_names) and error['time'] > 0
     ros_supervisor.children['bringup'].signal_group(signal.SIGINT)
     assert ros_supervisor.wait('bringup', timeout=120) == 0
@@ -129,11 +177,16 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
         reader = make_reader(f)
         topics = {c.topic for c in reader.get_summary().channels.values()}
         viewed = [step_of(trt, m.data) for _, c, m in reader.iter_messages(topics=[joint_states])]
+        times = {topic: [m.log_time for _, _, m in reader.iter_messages(topics=[topic])]
+                 for topic in (joint_states, contract.VIEW_TRACKING_ERROR, contract.VIEW_SCENE)}
     assert _layout_topics(trt) <= topics, _layout_topics(trt) - topics       # every panel finds its topic
     with Bag(bag) as recorded:
         all_steps = [step_of(trt, m.data) for m in recorded.messages([joint_states])]
     every = round(ViewConfig().period / trt.control_period)
     assert viewed == [step for step in all_steps if step % every == 0]          # exactly the decimated ones
+    # the derived channels at the recorded times of the states they come from
+    assert set(times[contract.VIEW_TRACKING_ERROR]) <= set(times[joint_states]) and times[contract.VIEW_TRACKING_ERROR]
+    assert set(times[contract.VIEW_SCENE]) <= set(times[joint_states]) and times[contract.VIEW_SCENE]
 
 
 def step_of(machine, data: bytes) -> int:

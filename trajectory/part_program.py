@@ -92,7 +92,7 @@ def plan_program(program, machine, kinematics: Kinematics | None = None) -> Prog
     try:
         if not isinstance(machine, MachineConfig):
             machine = load_machine(machine)
-        kinematics = kinematics or Kinematics.from_config(machine)
+        kinematics = Kinematics.from_config(machine) if kinematics is None else kinematics
         pieces = gcode.pieces(program, gcode.tool_axis_of(kinematics, machine))
     except gcode.GcodeError as exc:
         return failed(PlanStatus.INVALID_INPUT, f'{program.source}:{exc.line}: {exc}')

@@ -191,7 +191,7 @@ def plan_program_text(machine: MachineConfig, text: str, source: str) -> tuple[R
     stop = next((m for m in read.program.motions[:-1] if m.stop_after), None)
     if stop is not None:
         return None, (f'{source}:{stop.line}: an M0 program stop follows this block, and a program sent on '
-                      f'{contract.PROGRAM.name} runs unattended (machine-ctrl send waits for Enter at an M0)')
+                      f'{source} runs unattended (machine-ctrl send waits for Enter at an M0)')
     result = part_program.plan_program(read.program, machine, _kinematics_of(machine))
     return (result.reference(), '') if result.ok else (None, result.reason)
 

@@ -117,6 +117,7 @@ class Bringup:
         self.log_dir = Path(log_dir or tempfile.mkdtemp(prefix='machine_ctrl_bringup_'))
         self.graph = Supervisor(env, log_dir=self.log_dir, stop_timeout=5.0)
         self.recorder = Supervisor(env, log_dir=self.log_dir, stop_timeout=RECORDER_STOP_TIMEOUT)
+        self.viewer = Supervisor(env, log_dir=self.log_dir, stop_timeout=5.0)
         self.report: list[str] = []
         self.stopped = False
 
@@ -129,7 +130,7 @@ class Bringup:
         if self.record is not None:      # parameter files beside the logs
             self.recorder.start('recorder', recorder_spec(self.machine, self.record, self.specs, self.namespace).argv(self.log_dir))
         if self.view is not None:        # a process of its own, also beside a single-process graph
-            self.graph.start_nodes([view_spec(self.machine, self.view, self.namespace)], self.log_dir)
+            self.viewer.start_nodes([view_spec(self.machine, self.view, self.namespace)], self.log_dir)
         if self.single_process:
             self.graph.start('graph', single_process_argv(self.specs, self.log_dir))
             return
@@ -138,7 +139,15 @@ class Bringup:
     def check(self) -> None:
         """Raise processes.ChildExited when a node process has ended on its own. The
         recorder's end raises it only before the graph is ready; later it is a lost
-        recording (:meth:`lose_recording`)."""
+        recording (:meth:`lose_recording`). So does the view's: later it is a notice, and the
+        graph runs on (nothing of the machine depends on its view)."""
+        view = self.viewer.children.get('view')
+        if view is not None and not view.stopping and not view.running():
+            if not self.ready:
+                self.viewer.check()
+            view.stopping = True
+            self.notices.append(f'the live view exited with code {view.returncode} (its log: {view.log_path}); '
+                                'the graph keeps running')
         child = self.recorder.children.get('recorder')
         if child is not None and not child.stopping and not child.running():
             if not self.ready:
@@ -180,6 +189,7 @@ class Bringup:
         if self.stopped:
             return self.report
         self.stopped = True
+        self.viewer.stop_all()
         self.graph.stop_all()
         if 'recorder' not in self.recorder.children:
             return []

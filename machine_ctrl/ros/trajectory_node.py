@@ -235,7 +235,7 @@ class TrajectoryNode(Node):
         """A G-code program's text: read and planned in the planner process (plan_program_text),
         played as a tool path is. A String has no header: the goal is stamped with the sim
         time it came (as home)."""
-        lines = msg.data.count('\n') + 1
+        lines = len(msg.data.splitlines()) or 1
         stamp, label = self.clock.split(self.session.step), f'program of {lines} line{"s" if lines > 1 else ""}'
         if not self.session.may_accept('program', stamp, label):
             return

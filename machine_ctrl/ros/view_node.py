@@ -7,7 +7,10 @@ the view's own
 /view/tracking_error and /view/scene (commanded path and measured tool-tip trace in 3D).
 
 Open it in Foxglove: "Open connection", ws://HOST:PORT, then import the machine's layout
-config/foxglove/<machine>.json (machine_ctrl/view/layout.py; README "Live view"). The per-step streams are read best
+config/foxglove/<machine>.json (machine_ctrl/view/layout.py; README "Live view"). What the
+view cannot read (a state without the machine's axes: the view started for another
+machine) is warned (throttled) and counted on /diagnostics (1 Hz: forwarded, taken, refused,
+the last refusal). The per-step streams are read best
 effort (contract.VIEW_STEP_QOS): a slow view loses messages, it never holds up a writer; the
 latched ones as a late joiner gets them. The server sends to clients from its own threads
 (Rust), so a slow client does not hold up this node either.
@@ -18,10 +21,11 @@ import foxglove
 
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
-from machine_ctrl.ros.node_common import main_for
+from machine_ctrl.ros.node_common import main_for, rejections, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 from machine_ctrl.ros.recorder_node import message_class
 from machine_ctrl.view.live_view import SessionView, ViewConfig
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 
 # What the view reads, and how. Of the per-step streams only those the layout plots and
@@ -43,18 +47,21 @@ class ViewNode(Node):
         self.machine = machine_parameter(self)
         values = declare_parameters(self, parameters.VIEW)
         self.foxglove_context = foxglove.Context()
-        self.view = SessionView(self.machine, self.foxglove_context, ViewConfig(), self.get_namespace(), sampled=True)
+        self.rejections = rejections(self)         # what the view could not read, warned (throttled)
+        self.view = SessionView(self.machine, self.foxglove_context, ViewConfig(), self.get_namespace(), sampled=True,
+                                refused=self.rejections.add)
         try:
             self.server = foxglove.start_server(name=f'machine_ctrl {self.machine.name}', host=values.host,
                                                 port=values.port, context=self.foxglove_context)
         except Exception as exc:  # noqa: BLE001 - foxglove raises its own error types; the reason is what matters
             self.get_logger().fatal(f'cannot start the Foxglove server on {values.host}:{values.port}: {exc}')
             raise SystemExit(1) from None
+        self.server_address = f'{values.host}:{self.server.port}'
         # The per-step streams are read by a node of their own that no executor spins: their
         # newest messages wait in its readers (contract.VIEW_STEP_QOS) until the sampling timer
         # takes them, so the messages in between cost this process nothing.
         self.sampler = Node(f'{name}_sampler', namespace=self.get_namespace(), context=self.context,
-                            enable_rosout=False, start_parameter_services=False)
+                            use_global_arguments=False, enable_rosout=False, start_parameter_services=False)
         self.sampled = []
         for topic, qos in VIEWED:
             name_, type_name = self.resolve_topic_name(topic.name), topic.type
@@ -66,8 +73,11 @@ class ViewNode(Node):
                 self.create_subscription(message_class(type_name), topic.name,
                                          lambda data, n=name_, t=type_name: self.view.take(n, t, data),
                                          ros_io.qos(qos), raw=True)
-        self.create_timer(1.0 / values.sample_rate, self.sample)
-        self.get_logger().info(f'ready: Foxglove WebSocket server on ws://{values.host}:{self.server.port} '
+        wall_timer(self, 1.0 / values.sample_rate, self.sample)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
+                                              ros_io.qos(contract.DIAGNOSTICS.qos))
+        wall_timer(self, 1.0, self.publish_status)
+        self.get_logger().info(f'ready: Foxglove WebSocket server on ws://{self.server_address} '
                                f'(layout: config/foxglove/{self.machine.name}.json)')
 
     def sample(self) -> None:
@@ -79,6 +89,15 @@ class ViewNode(Node):
                     if taken is None:
                         break
                     self.view.take(name, type_name, taken[0])
+
+    def publish_status(self) -> None:
+        """1 Hz on /diagnostics: messages forwarded and refused, the last refusal."""
+        view, refused = self.view, self.rejections
+        level = DiagnosticStatus.WARN if refused.count else DiagnosticStatus.OK
+        values = {'forwarded': sum(view.forwarded.values()), 'taken': sum(view.counts.values()),
+                  'refused': refused.count, 'last_refusal': refused.last}
+        self.pub_diag.publish(ros_io.diagnostics(self.get_clock().now().to_msg(), self.get_name(), level,
+                                                 f'serving ws://{self.server_address}', values))
 
     def destroy_node(self):
         self.server.stop()

@@ -2,8 +2,8 @@
 analysis plots (machine_ctrl/recording/plots.py) over the view's channels
 (machine_ctrl/view/live_view.py), for the live view and a viewed bag alike.
 
-* 3D: /view/scene, the commanded tool path and the measured tool-tip trace (path_xy.png, in
-  3D), in the machine's workpiece frame;
+* 3D: the view's scene (contract.VIEW_SCENE), the commanded tool path and the measured
+  tool-tip trace (path_xy.png, in 3D), in the machine's workpiece frame;
 * Plot "tracking error": reference − measured per axis (errors.png, top);
 * Plot "contour error": tool-tip and orientation contour error magnitudes (errors.png, bottom);
 * Plot "axis positions": the measured positions from the joint states;
@@ -22,14 +22,14 @@ from pathlib import Path
 
 from machine_ctrl import contract
 from machine_ctrl.model.config import MachineConfig, load_machine
-from machine_ctrl.view.live_view import SCENE, TRACKING_ERROR
 
 MACHINES = ('micromill_9axis', 'trt_5axis', 'fts_lathe', 'robot_piezo')
 
 
 def _plot(title: str, paths: list[tuple[str, str]]) -> dict:
-    return {'title': title, 'paths': [{'value': value, 'label': label, 'enabled': True, 'timestampMethod': 'receiveTime'}
-                                      for value, label in paths],
+    return {'title': title,
+            'paths': [{'value': value, 'label': label, 'enabled': True, 'timestampMethod': 'receiveTime'}
+                      for value, label in paths],
             'showXAxisLabels': True, 'showYAxisLabels': True, 'showLegend': True, 'legendDisplay': 'floating',
             'isSynced': True, 'xAxisVal': 'timestamp', 'sidebarDimension': 240}
 
@@ -47,17 +47,18 @@ def layout(machine: MachineConfig, namespace: str = '') -> dict:
     axes = machine.axis_names
     panels = {
         '3D!scene': {'followTf': machine.workpiece_frame, 'followMode': 'follow-pose', 'scene': {},
-                     'topics': {SCENE: {'visible': True}}, 'layers': {}, 'transforms': {}, 'publish': {},
+                     'topics': {contract.VIEW_SCENE: {'visible': True}}, 'layers': {}, 'transforms': {}, 'publish': {},
                      'cameraState': {'perspective': True, 'distance': 0.05, 'phi': 60, 'thetaOffset': 45,
                                      'target': [0, 0, 0], 'targetOffset': [0, 0, 0], 'fovy': 45, 'near': 0.0001,
                                      'far': 100}},
         'Plot!tracking': _plot('tracking error (reference - measured), m or rad',
-                               [(f'{TRACKING_ERROR}.error.{axis}', axis) for axis in axes]),
+                               [(f'{contract.VIEW_TRACKING_ERROR}.error.{axis}', axis) for axis in axes]),
         'Plot!contour': _plot('contour error', [
             (f'{topic(contract.CONTOUR_TOOL_TIP_MAGNITUDE)}.data', 'tool tip, m'),
             (f'{topic(contract.CONTOUR_ORIENTATION_MAGNITUDE)}.data', 'orientation, rad')]),
         'Plot!positions': _plot('axis positions (measured), m or rad',
-                                [(f'{topic(contract.JOINT_STATES)}.position[{i}]', axis) for i, axis in enumerate(axes)]),
+                                [(f'{topic(contract.JOINT_STATES)}.position[{i}]', axis)
+                                 for i, axis in enumerate(axes)]),
         'RawMessages!status': {'topicPath': topic(contract.TRAJECTORY_STATUS), 'diffEnabled': False,
                                'diffMethod': 'custom', 'diffTopicPath': '', 'showFullMessageForDiff': False,
                                'expansion': 'all'},

@@ -10,23 +10,26 @@ and logs, on the channels of a foxglove Context:
   decode a bag. The per-step streams (``contract.PER_STEP_TOPICS`` and the contour errors,
   one message per control step) are decimated to one message every ``ViewConfig.period``
   of sim time: by their header stamp where they have one (a multiple of the period), else
-  every n-th message — unless the caller samples them itself (`sampled`: the view node
-  takes the newest message of each at a wall rate, so that the messages it leaves cost it
+  every n-th message counted from the first (the Float64 magnitudes) — unless the caller
+  samples them itself (`sampled`: the view node takes the newest message of each at a wall rate, so that the messages it leaves cost it
   nothing). The rest (goal status, trajectory status, diagnostics, reference chunks, the
   URDF) pass whole;
-* ``/view/tracking_error`` (JSON: sim time s, per-axis reference − measured position, m or
-  rad), as ``errors.png`` of ``machine-ctrl analyze`` (machine_ctrl/recording/plots.py);
-* ``/view/scene`` (foxglove.SceneUpdate, in the machine's workpiece frame, m): the
-  commanded tool path (forward kinematics of the reference rows) and the measured tool-tip
-  trace (of the decimated joint states), the last ``ViewConfig.trace_points`` of each, as
-  ``path_xy.png`` in 3D.
+* ``contract.VIEW_TRACKING_ERROR`` (JSON: sim time s, per-axis reference − measured
+  position, m or rad, from /reference as ``machine-ctrl analyze``), as ``errors.png``
+  (machine_ctrl/recording/plots.py);
+* ``contract.VIEW_SCENE`` (foxglove.SceneUpdate, in the machine's workpiece frame, m): the
+  commanded tool path (forward kinematics of the /reference rows) and the measured tool-tip
+  trace (of the forwarded joint states), the last ``ViewConfig.trace_points`` of each, as
+  ``path_xy.png`` in 3D. Both are logged at the log time of the joint state they come from
+  (a bag's, or now).
 
 Where the messages go is the Context's sinks: the WebSocket server of ``machine-ctrl view``
 (a live graph: machine_ctrl/ros/view_node.py) or an MCAP file (``machine-ctrl view --bag``:
 a recorded session with the same channels, so the machine's layout, config/foxglove/<machine>.json
 of machine_ctrl/view/layout.py, opens both).
-A message the view cannot read (a foreign type, a bad CDR) is counted in ``skipped`` with
-its reason and not forwarded; the view never raises on what a node sent.
+A message the view cannot read (a foreign type, a bad CDR, a state or chunk without the
+machine's axes) is not forwarded: ``take`` returns False, its reason in ``skipped`` and
+given to ``refused``; the view never raises on what a node sent.
 """
 from __future__ import annotations
 
@@ -47,14 +50,13 @@ from machine_ctrl.recording.analysis import machine_of
 from machine_ctrl.recording.bag import Bag
 from machine_ctrl.recording.recorder import namespace_of
 
-SCENE = '/view/scene'
-TRACKING_ERROR = '/view/tracking_error'
 # The per-step streams: one message per control step, decimated.
 PER_STEP = frozenset(t.name for t in contract.PER_STEP_TOPICS) | frozenset(
     t.name for t in (contract.CONTOUR_TOOL_TIP, contract.CONTOUR_TOOL_TIP_MAGNITUDE, contract.CONTOUR_ORIENTATION,
                      contract.CONTOUR_ORIENTATION_MAGNITUDE))
 MAGNITUDES = frozenset((contract.CONTOUR_TOOL_TIP_MAGNITUDE.name, contract.CONTOUR_ORIENTATION_MAGNITUDE.name))
-_REFERENCE_TOPICS = (contract.REFERENCE.name, contract.TRAJECTORY_REFERENCE.name)
+# assumed: 16 joint-name lists (a graph has one or two; more is a publisher varying its names)
+COLUMNS_KEPT = 16
 _TRACKING_SCHEMA = {'type': 'object', 'properties': {
     'time': {'type': 'number', 'description': 'sim time, s'},
     'error': {'type': 'object', 'description': 'reference - measured position per axis, m or rad',
@@ -93,8 +95,9 @@ class SessionView:
     names the view recognises (the channels keep the full names)."""
 
     def __init__(self, machine: MachineConfig, context: foxglove.Context, config: ViewConfig = ViewConfig(),
-                 namespace: str = '', sampled: bool = False):
+                 namespace: str = '', sampled: bool = False, refused=None):
         self.machine, self.context, self.config, self.sampled = machine, context, config, sampled
+        self.refused = refused or (lambda _topic, _reason: None)
         self.namespace = namespace.rstrip('/')
         self.kinematics = Kinematics.from_config(machine)
         self.clock = contract.StepClock(machine.control_period)
@@ -104,9 +107,11 @@ class SessionView:
         self.counts: collections.Counter = collections.Counter()      # messages taken per topic
         self.forwarded: collections.Counter = collections.Counter()
         self.skipped: dict[str, str] = {}                             # topic -> the last reason
-        self.scene = SceneUpdateChannel(SCENE, context=context)
-        self.tracking = foxglove.Channel(TRACKING_ERROR, message_encoding='json', context=context, schema=foxglove.Schema(
-            name='machine_ctrl/TrackingError', encoding='jsonschema', data=json.dumps(_TRACKING_SCHEMA).encode()))
+        self.scene = SceneUpdateChannel(contract.VIEW_SCENE, context=context)
+        self.tracking = foxglove.Channel(
+            contract.VIEW_TRACKING_ERROR, message_encoding='json', context=context,
+            schema=foxglove.Schema(name='machine_ctrl/TrackingError', encoding='jsonschema',
+                                   data=json.dumps(_TRACKING_SCHEMA).encode()))
         self._states = cdr.JointStateDecoder()
         self._chunks = cdr.ChunkDecoder()
         self._columns: dict[tuple, np.ndarray | None] = {}
@@ -144,11 +149,12 @@ class SessionView:
                 return False
             channel = self._channel(topic, type_name, definition)
             if local == contract.JOINT_STATES.name:
-                self._joint_state(data)
-            elif local in _REFERENCE_TOPICS:
+                self._joint_state(data, log_time)
+            elif local == contract.REFERENCE.name:
                 self._chunk(data)
         except (cdr.InvalidMessage, msgdefs.DefinitionNotFound, ValueError) as exc:
             self.skipped[topic] = f'{type(exc).__name__}: {exc}'
+            self.refused(topic, self.skipped[topic])
             return False
         channel.log(bytes(data), log_time=log_time)
         self.forwarded[topic] += 1
@@ -159,42 +165,44 @@ class SessionView:
         header's stamp), or every `every`-th (no header: the Float64 magnitudes)."""
         if self._local(topic) in MAGNITUDES:
             return (self.counts[topic] - 1) % self.every == 0
-        return self._step(*contract.split_ns(cdr.stamp_ns(data))) % self.every == 0
-
-    def _step(self, sec: int, nanosec: int) -> int:
-        return self.clock.step_at(sec, nanosec)
+        return self.clock.step_of_ns(cdr.stamp_ns(data)) % self.every == 0
 
     def _positions(self, names) -> np.ndarray | None:
         """Column of each machine axis in a message's joint names (None: an axis missing)."""
         key = tuple(names)
         if key not in self._columns:
+            if len(self._columns) >= COLUMNS_KEPT:
+                self._columns.clear()
             index = {name: i for i, name in enumerate(key)}
             self._columns[key] = (np.array([index[a] for a in self.machine.axis_names])
                                   if all(a in index for a in self.machine.axis_names) else None)
         return self._columns[key]
 
-    def _joint_state(self, data: bytes) -> None:
+    def _joint_state(self, data: bytes, log_time: int | None) -> None:
         state = self._states.decode(data)
         columns = self._positions(state.name)
         if columns is None or len(state.position) != len(state.name):
             raise ValueError('a joint state without every axis of the machine')
         q = np.asarray(state.position)[columns]
-        step = self._step(state.sec, state.nanosec)
+        step = self.clock.step_at(state.sec, state.nanosec)
         self._trace.append(self.kinematics.forward(q)[0])
         row = self._reference_row(step)
         if row is not None:
             error = {name: float(e) for name, e in zip(self.machine.axis_names, row - q)}
-            self.tracking.log(json.dumps({'time': contract.seconds(state.sec, state.nanosec), 'error': error}))
+            self.tracking.log(json.dumps({'time': contract.seconds(state.sec, state.nanosec), 'error': error}),
+                              log_time=log_time)
         self._states_forwarded += 1
         if self._states_forwarded % self.config.scene_every == 0:
-            self.scene.log(self.scene_update(state.sec, state.nanosec))
+            self.scene.log(self.scene_update(state.sec, state.nanosec), log_time=log_time)
 
     def _chunk(self, data: bytes) -> None:
         chunk = self._chunks.decode(data)
-        columns = self._positions(chunk.joint_names)
-        if columns is None or not len(chunk.positions):
+        if not len(chunk.positions):
             return
-        first = self._step(chunk.sec, chunk.nanosec)
+        columns = self._positions(chunk.joint_names)
+        if columns is None or chunk.positions.shape[1] != len(chunk.joint_names):
+            raise cdr.InvalidMessage('a reference chunk without a position of every axis of the machine')
+        first = self.clock.step_at(chunk.sec, chunk.nanosec)
         rows = chunk.positions[:, columns]
         self._reference.append((first, rows))
         for k in range(-first % self.every, len(rows), self.every):     # the path every `every` steps

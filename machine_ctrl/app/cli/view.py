@@ -76,7 +76,8 @@ def _view_bag(args) -> int:
     try:
         config = ViewConfig() if args.period is None else ViewConfig(period=args.period)
         view = view_bag(args.bag, args.out, args.machine, config)
-    except ValueError as exc:           # BagError, AnalysisError, a bad period
+    except (ValueError, OSError) as exc:     # BagError, AnalysisError, a bad period; the output not writable
+        Path(args.out).unlink(missing_ok=True)          # no partial file left to refuse the next try
         return error('view', exc)
     for topic in sorted(view.counts):
         print(f'{topic}: {view.forwarded[topic]} of {view.counts[topic]} messages'
