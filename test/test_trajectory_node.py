@@ -318,7 +318,10 @@ def test_every_goal_has_an_id_and_its_lifecycle_on_the_goal_status(micromill, gr
                 check=graph.check)
     assert 'outside its stroke' in client.goal_entries[goal_id]['reason']
 
-    # cancel by id: stopped at rest short of the goal, then canceled
+    # cancel by id: stopped at rest short of the goal, then canceled (at a quarter of the
+    # feed, so that the move outlasts two service calls on a loaded machine)
+    client.set_feed_override(0.25)
+    client.wait(lambda: client.status()['feed_override_setting'] == '0.25', 'setting', check=graph.check)
     stamp = client.send_goal(['x_c'], [[-40e-3]])
     goal_id = client.wait_goal(stamp, ['executing'], check=graph.check)
     assert client.cancel(str(uuid.uuid4())) == (2, [])          # ERROR_UNKNOWN_GOAL_ID
@@ -327,6 +330,8 @@ def test_every_goal_has_an_id_and_its_lifecycle_on_the_goal_status(micromill, gr
     assert client.cancel(goal_id) == (3, [])                     # ERROR_GOAL_TERMINATED
     client.wait(lambda: client.status()['state'] == 'idle', 'idle', check=graph.check)
     assert client.reference()[1][-1][0] > -40e-3 + 1e-3
+    client.set_feed_override(1.0)
+    client.wait(lambda: client.status()['feed_override_setting'] == '1.0', 'setting', check=graph.check)
     n = len(client.statuses)
     assert client.call('/trajectory/home')[0]
     client.wait_states(n, ['running', 'idle'], check=graph.check)

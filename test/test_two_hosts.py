@@ -133,8 +133,11 @@ def test_hw_sim_on_one_host_the_controllers_on_another(hosts, ros_env, trt, tmp_
         assert reset.returncode == 0 and 'reset: True' in reset.stdout, reset.stdout + reset.stderr
         moved = control(EXE, 'move', 'x=0.002', '--machine', 'trt_5axis', '--timeout', '600')
         assert moved.returncode == 0, moved.stdout + moved.stderr
-        controllers.children['recorder'].signal_group(signal.SIGINT)
-        assert controllers.wait('recorder', timeout=120) == 0
+        # the graph first, then the recorder (as bringup stops them: the recorder drains until
+        # its publishers are gone, at most 30 s)
+        for supervisor, name in ((drives, 'hw_sim'), (controllers, 'graph'), (controllers, 'recorder')):
+            supervisor.children[name].signal_group(signal.SIGINT)
+            assert supervisor.wait(name, timeout=120) == 0, name
 
     clock = contract.StepClock(trt.control_period)
     with Bag(bag) as recorded:
