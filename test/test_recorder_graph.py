@@ -303,8 +303,9 @@ def test_run_is_at_least_two_seconds_and_every_message_is_recorded(live, readbac
 
 def test_flow_control_held_the_graph_while_the_recorder_was_stopped(live):
     """The recorder reported at most the step hw_sim was at when it was stopped, so hw_sim
-    may take WINDOW + 1 more steps and then holds, with every command in hand: no 'missing
-    command' fault although the hold outlasts command_timeout."""
+    may take WINDOW + 1 more steps and then holds, with every command in hand, and no fault.
+    (A hold longer than command_timeout is no fault either: test_hw_sim_faults.py on the
+    graph with a 0.5 s command_timeout, test_hw_sim_session.py on a given clock.)"""
     pause = live[3]
     assert 0 <= pause['steps'] <= WINDOW + 1, pause
     assert pause['holds'] >= 1 and pause['fault'] is None, pause
