@@ -153,16 +153,18 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
         moved = subprocess.run([EXE, 'move', 'x=0.004', '--machine', 'trt_5axis', '--timeout', '600'], env=ros_env,
                                capture_output=True, text=True, timeout=700)
         assert moved.returncode == 0, moved.stdout + moved.stderr
-        client.until(lambda: len(client.received.get(joint_states, [])) >= 30
+        client.until(lambda: len({step_of(trt, data) for _, data in client.received.get(joint_states, [])}) >= 30
                      and client.received.get(contract.VIEW_SCENE) and client.received.get(contract.VIEW_TRACKING_ERROR),
-                     'messages of every subscribed channel')
+                     'messages of every subscribed channel (30 steps of the joint states)')
         elapsed = time.monotonic() - started
     # the documented rate, from above (a busy machine only makes fewer): at most the newest
     # contract.VIEW_STEP_QOS.depth states per sample, sample_rate samples a second (+ 1)
     steps = [step_of(trt, data) for _, data in client.received[joint_states]]
     most = contract.VIEW_STEP_QOS.depth * (parameters.VIEW.spec('sample_rate').default * elapsed + 1)
     assert len(steps) <= most, (len(steps), elapsed)
-    assert steps == sorted(set(steps))                    # each once, in order
+    # in order; a step may come again: hw_sim re-sends the state of a step it holds (a loaded
+    # run saw 2221 nine times), and the view forwards what it reads
+    assert steps == sorted(steps)
     error = json.loads(client.received[contract.VIEW_TRACKING_ERROR][-1][1])
     assert set(error['error']) == set(trt.axis_names) and error['time'] > 0
     ros_supervisor.children['bringup'].signal_group(signal.SIGINT)
