@@ -339,8 +339,8 @@ def test_a_stopped_hw_sim_aborts_the_goal_naming_it_and_faults_itself_when_conti
     # lease, 6 s, may run out after 2/3 of it) does not, and the trajectory node goes idle
     client.wait(lambda: client.diag('hw_sim', 'fault').startswith('hw_sim stalled: its process did not run for')
                 or client.status().get('state') == 'idle', 'hw_sim back', GUARD, graph.check)
-    if client.status().get('state') == 'fault':
-        assert float(client.diag('hw_sim', 'fault').split(' for ')[1].split(' s')[0]) > COMMAND_TIMEOUT
+    if client.status().get('state') == 'fault':     # the stall is printed to 0.1 s: 5.04 s reads '5.0'
+        assert float(client.diag('hw_sim', 'fault').split(' for ')[1].split(' s')[0]) >= COMMAND_TIMEOUT
     reset_and_move(client, graph, still=False)
     assert abs(client.truth[0] - target) > 0.5e-3 - 1e-4     # the aborted goal did not go on (+0.5 mm since)
 

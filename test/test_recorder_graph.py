@@ -54,7 +54,7 @@ def _wait_matched(node, topics, timeout=30.0):
     """Until this participant has matched a subscriber on every topic (the recorder's)."""
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    from machine_ctrl.ros.recorder_node import message_class
+    from machine_ctrl.ros.messages import message_class
     probes = []
     for name, type_name in topics.items():
         durability = DurabilityPolicy.TRANSIENT_LOCAL if name == '/reference' else DurabilityPolicy.VOLATILE
@@ -231,7 +231,7 @@ def _decoded_reprs(topic, datas):
     serializations of one message can differ in their padding."""
     from rclpy.serialization import deserialize_message
 
-    from machine_ctrl.ros.recorder_node import message_class
+    from machine_ctrl.ros.messages import message_class
     cls = message_class(TOPICS[topic])
     return [repr(deserialize_message(d, cls)) for d in datas]
 

@@ -9,6 +9,7 @@ exact in both directions.
 from __future__ import annotations
 
 import functools
+import importlib
 
 import numpy as np
 import pinocchio as pin
@@ -25,6 +26,7 @@ from trajectory_msgs.msg import JointTrajectory
 from machine_ctrl import contract
 from machine_ctrl.recording.cdr import ChunkData, ChunkDecoder, NotUniform, encode_chunk
 from machine_ctrl.model.errors import InvalidMessage
+from machine_ctrl.recording.msgdefs import split_type
 
 
 def qos(spec: contract.Qos) -> QoSProfile:
@@ -269,3 +271,12 @@ def diagnostics(stamp: Time, name: str, level: bytes, message: str, values: dict
     array.header.stamp = stamp
     array.status = [status]
     return array
+
+
+def message_class(type_name: str):
+    """The rclpy message class of 'pkg/msg/Type'; LookupError if not importable."""
+    package, name = split_type(type_name)
+    try:
+        return getattr(importlib.import_module(f'{package}.msg'), name)
+    except (ImportError, AttributeError):
+        raise LookupError(f'message type {type_name} is not installed') from None

@@ -43,7 +43,6 @@ or not empty) ends the node at once (exit 2, one line).
 """
 from __future__ import annotations
 
-import importlib
 import signal
 import sys
 import time
@@ -58,11 +57,12 @@ from rclpy.task import Future
 
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.ros.messages import message_class
 from machine_ctrl.recording import recorder
 from machine_ctrl.recording.bag import BagError, qos_profile
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
-from machine_ctrl.recording.msgdefs import DefinitionNotFound, split_type
+from machine_ctrl.recording.msgdefs import DefinitionNotFound
 from machine_ctrl.ros.node_common import DefaultExecutor, qos, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters
 
@@ -73,15 +73,6 @@ STATUS_PERIOD = 1.0    # s (wall) between /diagnostics once the recording has st
 # the latest progress only matters; transient local so that an hw_sim that starts later
 # learns at once that a recorder is there and how far it is
 PROGRESS_QOS = qos(contract.PROGRESS_QOS)    # with its liveliness lease: hw_sim learns a stop
-
-
-def message_class(type_name: str):
-    """The rclpy message class of 'pkg/msg/Type'; LookupError if not importable."""
-    package, name = split_type(type_name)
-    try:
-        return getattr(importlib.import_module(f'{package}.msg'), name)
-    except (ImportError, AttributeError):
-        raise LookupError(f'message type {type_name} is not installed') from None
 
 
 def offered_profile(qos) -> dict:

@@ -23,7 +23,7 @@ from machine_ctrl.recording.bag import Bag
 from machine_ctrl.recording.recorder import namespace_of
 from machine_ctrl import parameters
 from machine_ctrl.ros.node_parameters import declare_parameters
-from machine_ctrl.ros.recorder_node import message_class
+from machine_ctrl.ros.messages import message_class
 
 MIN_DEPTH = 1000     # assumed: a burst at a high rate factor outruns a 10-deep queue
 

@@ -16,8 +16,8 @@ Inputs (every one validated; a refused goal moves nothing and its reason is publ
   whole (trajectory/part_program.py: each piece at its program feed, the `feed` parameter
   not used, exact stops between pieces), then run as a tool path (approach, hold, resume,
   stop, cancel and the feed override alike). A program that cannot be read or planned is
-  refused with `program: planning failed: /trajectory/program:LINE: reason`, nothing moved; one with an M0 before its
-  last motion too (on a topic nobody is there to go on after the stop; `machine-ctrl send`
+  refused (`program: planning failed: /trajectory/program:LINE: reason`), nothing moved;
+  one with an M0 before its last motion too (on a topic nobody is there to go on after the stop; `machine-ctrl send`
   waits for Enter).
 * `/trajectory/feed_override` (std_msgs/Float64): fraction 0..1 of the planned feed, for
   the motion under way and the next ones; a change is a smooth ramp (trajectory/stream.py)

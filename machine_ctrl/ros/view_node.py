@@ -3,35 +3,35 @@ server (foxglove-sdk) on `host`:`port`, fed by machine_ctrl/view/live_view.py wi
 node reads (raw CDR, not decoded here): joint states, servo commands and the contour error
 magnitudes (per-step streams: the newest message of each taken `sample_rate` times a wall
 second), reference chunks, goal status, trajectory status, diagnostics and the URDF, plus
-the view's own
-/view/tracking_error and /view/scene (commanded path and measured tool-tip trace in 3D).
+the view's own /view/tracking_error and /view/scene (commanded path and measured tool-tip
+trace in 3D).
 
 Open it in Foxglove: "Open connection", ws://HOST:PORT, then import the machine's layout
 config/foxglove/<machine>.json (machine_ctrl/view/layout.py; README "Live view"). What the
 view cannot read (a state without the machine's axes: the view started for another
 machine) is warned (throttled) and counted on /diagnostics (1 Hz: forwarded, taken, refused,
-the last refusal). The per-step streams are read best
-effort (contract.VIEW_STEP_QOS): a slow view loses messages, it never holds up a writer; the
-latched ones as a late joiner gets them. The server sends to clients from its own threads
+the last refusal). The per-step streams are read best effort (contract.VIEW_STEP_QOS): a
+slow view loses messages, it never holds up a writer; the latched ones as a late joiner
+gets them. The server sends to clients from its own threads
 (Rust), so a slow client does not hold up this node either.
 """
 from __future__ import annotations
 
 import foxglove
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.node import Node
 
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.ros.node_common import main_for, rejections, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
-from machine_ctrl.ros.recorder_node import message_class
+from machine_ctrl.ros.messages import message_class
 from machine_ctrl.view.live_view import SessionView, ViewConfig
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.node import Node
 
 # What the view reads, and how. Of the per-step streams only those the layout plots and
-# the commands: each per-step message costs this process an rclpy callback (~20 µs) before
-# the decimation can drop it, at the graph's rate (bench/view_cost.py); the dual-stage
-# offsets and the contour error vectors are left to the bag.
+# the commands: Fast DDS still delivers every message of a stream into the view's reader,
+# at the graph's rate, before the sampling leaves most of them (bench/view_cost.py); the
+# dual-stage offsets and the contour error vectors are left to the bag.
 VIEWED = ((contract.JOINT_STATES, contract.VIEW_STEP_QOS), (contract.SERVO_COMMANDS, contract.VIEW_STEP_QOS),
           (contract.CONTOUR_TOOL_TIP_MAGNITUDE, contract.VIEW_STEP_QOS),
           (contract.CONTOUR_ORIENTATION_MAGNITUDE, contract.VIEW_STEP_QOS),

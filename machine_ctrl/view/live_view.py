@@ -11,8 +11,8 @@ and logs, on the channels of a foxglove Context:
   one message per control step) are decimated to one message every ``ViewConfig.period``
   of sim time: by their header stamp where they have one (a multiple of the period), else
   every n-th message counted from the first (the Float64 magnitudes) — unless the caller
-  samples them itself (`sampled`: the view node takes the newest message of each at a wall rate, so that the messages it leaves cost it
-  nothing). The rest (goal status, trajectory status, diagnostics, reference chunks, the
+  samples them itself (`sampled`: the view node takes the newest message of each at a wall
+  rate, so that the messages it leaves never reach Python). The rest (goal status, trajectory status, diagnostics, reference chunks, the
   URDF) pass whole;
 * ``contract.VIEW_TRACKING_ERROR`` (JSON: sim time s, per-axis reference − measured
   position, m or rad, from /reference as ``machine-ctrl analyze``), as ``errors.png``
