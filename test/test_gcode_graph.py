@@ -47,6 +47,10 @@ def test_send_runs_a_program_piece_by_piece_and_leaves_the_feed_as_it_was(ros_su
         client.wait(lambda: any(info.node_name == 'trajectory'
                                 for info in client.node.get_subscriptions_info_by_topic(topic)),
                     'the trajectory node reading the program topic')
+        # a goal's /diagnostics entry is published once per change, on a volatile topic: the
+        # client must hear the trajectory node there (its 1 Hz status) before the first program,
+        # or on a loaded machine the first entry can go out before the two are matched
+        client.wait(lambda: 'trajectory' in client.diagnostics_heard, "the trajectory node's /diagnostics")
 
         def run(text: str) -> tuple[str, str]:
             """Publish a program; (its goal's end state, the reason in its /diagnostics entry)."""

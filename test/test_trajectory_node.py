@@ -126,6 +126,9 @@ def client(micromill, graph, ros_env):
             # readiness (a race that failed once under load with an immediate assert)
             c.wait(lambda: c.status().get('streamed_to_step', '') not in ('', None),
                    'the trajectory node to stream', 60, graph.check)
+            # goal entries go out once per change on the volatile /diagnostics: heard the node
+            # there first, so that the first goal's entries are not published before the match
+            c.wait(lambda: 'trajectory' in c.diagnostics_heard, "the trajectory node's /diagnostics", 60, graph.check)
             yield c
         finally:
             c.close()

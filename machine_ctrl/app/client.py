@@ -58,6 +58,10 @@ class MachineClient:
         self.goal_ids: dict[tuple[int, int], str] = {}     # request stamp -> goal id (uuid text)
         self.goal_states: dict[str, list[str]] = {}        # goal id -> states seen, in order
         self.goal_entries: dict[str, dict] = {}            # goal id -> its newest /diagnostics values
+        # the names of the /diagnostics statuses heard: a node's name here means this client's
+        # reader is matched with that node's writer (a goal entry it publishes from now on
+        # arrives; /diagnostics is volatile, so one published before is lost to a new client)
+        self.diagnostics_heard: set[str] = set()
         node.create_subscription(DiagnosticStatus, contract.TRAJECTORY_STATUS.name, self.statuses.append,
                                  ros_io.qos(contract.LATCHED_READER_QOS))
         node.create_subscription(Bool, contract.READY.name, self._on_ready, ros_io.qos(contract.READY.qos))
@@ -115,6 +119,7 @@ class MachineClient:
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
+            self.diagnostics_heard.add(status.name)
             values = {kv.key: kv.value for kv in status.values}
             if 'goal_id' in values and 'status_code' in values:
                 self.goal_entries[values['goal_id']] = values
