@@ -1,7 +1,8 @@
 """Offline runner: steps exactly the plant, servo and coupling objects the nodes use, in a
 plain loop without ROS — for experiments, tests and benchmarks. Per step k:
 
-    measurement k  ->  dual-stage offsets  ->  servo commands  ->  plant step k -> k+1
+    measurement k  ->  dual-stage offsets  ->  contour corrections  ->  servo commands
+                   ->  plant step k -> k+1
 
 which is the lock-step graph's order (design.md "Time"), so both give the same numbers.
 """
@@ -13,6 +14,7 @@ import numpy as np
 
 from hw_sim.simulator import MachineSimulator
 from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.control.contour_coupling import ContourCoupling
 from machine_ctrl.control.dual_stage import DualStageCoupling, apply_offsets
 from machine_ctrl.model.reference import Reference
 from machine_ctrl.control.servo import ServoGroup
@@ -35,6 +37,7 @@ class RunRecord:
     fault: str | None = None
     saturations: int = 0
     fine_axes: tuple[str, ...] = field(default_factory=tuple)
+    contour_invalid: dict[str, int] | None = None    # with contour control: steps per channel without a valid estimate
 
     def column(self, array: np.ndarray, axis: str) -> np.ndarray:
         return array[:, self.axis_names.index(axis)]
@@ -42,18 +45,26 @@ class RunRecord:
 
 def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         laws: dict[str, str] | None = None, feedforward: bool = True, steps: int | None = None,
-        progress=None, initial_position=None, forces: dict[str, np.ndarray] | None = None) -> RunRecord:
+        progress=None, initial_position=None, forces: dict[str, np.ndarray] | None = None,
+        contour_control: bool = False) -> RunRecord:
     """Run `reference` for `steps` steps (default its length; past its end the last
     position is held) from `initial_position` (default where the reference starts; hw_sim
     starts at its `initial_position` parameter, the machine's home by default). `forces`:
     per axis an external force (N) per step on its moving mass (MachineSimulator.set_force;
-    the last value holds past the array's end)."""
+    the last value holds past the array's end). `contour_control`: the machine's cross-coupled
+    contour control on from the start (machine_ctrl/control/contour_coupling.py; past the
+    reference's end its correction fades out)."""
     steps = len(reference) if steps is None else steps
     start = reference.position[0] if initial_position is None else initial_position
     simulator = MachineSimulator(machine, initial_position=start)
     servo = ServoGroup(machine, machine.axis_names, laws, feedforward)
     coupling = DualStageCoupling(machine, dual_stage=dual_stage)
     fine_index = [machine.axis_names.index(a) for a in coupling.fine_axes]
+    contour = None
+    if contour_control:
+        contour = ContourCoupling(machine, enabled=True)
+        contour.add_reference(0, reference.position, reference.velocity, reference.acceleration)
+        contour_index = [machine.axis_names.index(a) for a in contour.axes]
     n = len(machine.axes)
     names = ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')
     rows = [[] for _ in names]            # per step one tuple each; arrays at the end (cheaper per step)
@@ -68,8 +79,11 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
             simulator.set_force(axis, f[min(k, len(f) - 1)])
         measured = simulator.measurement
         offsets = coupling.step(ref_pos, measured.position).offsets
-        commands = servo.step(apply_offsets(ref_pos, fine_index, offsets), ref_vel, ref_acc,
-                                measured.position, measured.velocity, measured.acceleration)
+        servo_ref = apply_offsets(ref_pos, fine_index, offsets)
+        if contour is not None:
+            servo_ref = apply_offsets(servo_ref, contour_index, contour.step(k, measured.position).corrections)
+        commands = servo.step(servo_ref, ref_vel, ref_acc, measured.position, measured.velocity,
+                              measured.acceleration)
         reference_rows.append(ref_pos)
         measured_rows.append(measured.position)
         velocity_rows.append(measured.velocity)
@@ -84,4 +98,5 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     return RunRecord(machine.axis_names, machine.control_period,
                      offsets=np.array(offsets_rows, dtype=float).reshape(steps, len(fine_index)),
                      fault=simulator.fault, saturations=coupling.saturation_count,
-                     fine_axes=coupling.fine_axes, **rec)
+                     fine_axes=coupling.fine_axes,
+                     contour_invalid=None if contour is None else dict(contour.invalid_steps), **rec)

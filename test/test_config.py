@@ -64,6 +64,23 @@ BAD_CONFIGS = {
                       r'axes\.x_c\.drive\.type: must be one of .*got .hydraulic.'),
     'axis missing': (('  c_f:\n', '  c_f_removed:\n'), None, r'axes\.c_f_removed: unknown axis'),
     'bad yaml': (('name: micromill_9axis', 'name: [unclosed'), None, r'cannot read'),
+    'contour control: unknown axis': (('axes: [x_f, y_f, z_f]', 'axes: [x_f, y_g]'), None,
+                                      r"contour_control\.axes: unknown axis 'y_g'"),
+    'contour control: no linear axis': (('axes: [x_f, y_f, z_f]', 'axes: [a_f, b_f]'), None,
+                                        r'contour_control\.axes: the tool-tip channel needs at least one linear axis'),
+    'contour control: orientation without rotary axis': (
+        ('  fade: 0.01                   # s, assumed: a hundred',
+         '  orientation: {proportional: 1.0, integral: 10.0}\n  fade: 0.01 # s, assumed: a hundred'), None,
+        r'contour_control\.orientation: the orientation channel needs a rotary axis among axes'),
+    'contour control: negative gain': (('    proportional: 1.0          # assumed: the correction equals',
+                                        '    proportional: -1.0          # assumed: the correction equals'), None,
+                                       r'contour_control\.tool_tip\.proportional: must be >= 0, got -1'),
+    'contour control: zero fade': (('  fade: 0.01                   # s, assumed: a hundred',
+                                    '  fade: 0.0 # s, assumed: a hundred'), None,
+                                   r'contour_control\.fade: must be > 0, got 0'),
+    'contour control: unknown estimator': (('estimator: compensated       # Sencer Eq. (26)',
+                                            'estimator: exact       # Sencer Eq. (26)'), None,
+                                           r'contour_control\.estimator: must be one of'),
 }
 
 

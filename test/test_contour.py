@@ -225,3 +225,16 @@ def test_the_trt_eq35_statistics_leave_out_only_the_steps_marked_invalid_and_say
     valid = result['orientation_valid']
     assert summary['trt_5axis']['orientation_validity']['invalid_steps'] == int((~valid).sum())
     assert np.all(orientation[valid] <= result['orientation_bound'][valid])
+
+
+def test_the_cross_coupled_contour_control_halves_the_trt_eq35_contour_error_within_the_drive_limits(trt_eq35_run):
+    """[7/8] part 2: the mean tool-tip contour error of the Eq. (35) path at least 2x below
+    uncoupled sliding mode, the orientation's lower too, no drive at its command limit, no
+    fault; the estimates it could not use are few (the path's start)."""
+    coupled = trt_eq35_run[0]['trt_5axis']['contour_control']
+    tip, axis = coupled['tool_tip_um'], coupled['orientation_urad']
+    assert coupled['fault'] is None
+    assert tip['uncoupled']['mean'] / tip['coupled']['mean'] >= 2.0, tip
+    assert tip['coupled']['max'] < tip['uncoupled']['max'] and axis['coupled']['mean'] < axis['uncoupled']['mean']
+    assert coupled['command_use']['coupled'] < 1.0, coupled['command_use']
+    assert sum(coupled['invalid_steps'].values()) < 100, coupled['invalid_steps']

@@ -52,16 +52,18 @@ def test_runs_in_other_processes_give_the_same_numbers(micromill):
 
 
 def test_experiment_command_json_is_one_object():
-    """The CLI wiring, on the first 3000 steps of the square (both modes and their at-rest
-    runs; the whole square runs in test_square_artefact.py)."""
+    """The CLI wiring, on the first 3000 steps of the square (the three modes, the micromill
+    having a contour_control section, and their at-rest runs; the whole square runs in
+    test_square_artefact.py)."""
     exe = str(Path(sys.executable).parent / 'machine-ctrl')
     result = subprocess.run([exe, 'experiment', 'square', '--json', '--steps', '3000'], capture_output=True, text=True,
                             timeout=300)
     assert result.returncode == 0, result.stderr
     data = json.loads(result.stdout)
-    assert set(data) == {'smc', 'dsfd', 'measured', 'true', 'at_rest', 'noise_floor', 'encoder_count_um', 'steps',
-                         'notes'}
-    for mode in ('smc', 'dsfd'):
+    assert set(data) == {'smc', 'dsfd', 'ccc', 'measured', 'true', 'at_rest', 'noise_floor', 'command_use',
+                         'encoder_count_um', 'steps', 'notes'}
+    assert set(data['command_use']) == {'smc', 'dsfd', 'ccc'} and max(data['command_use'].values()) < 1.0
+    for mode in ('smc', 'dsfd', 'ccc'):
         assert set(data[mode]) == set(data['measured'][mode]) == set(data['true'][mode]) == set(STAT_KEYS)
         for key in STAT_KEYS:      # a figure at the noise floor is not reported as a result: null
             expected = None if key in data['noise_floor'][mode] else data['measured'][mode][key]

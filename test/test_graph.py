@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from machine_ctrl import contract
-from machine_ctrl.ros.graph import default_graph
+from machine_ctrl.ros.graph import NodeSpec, default_graph
 from hw_sim.offline import run
 from ros_fixtures import ProgressReporter
 from trajectory.contours import circle
@@ -76,8 +76,10 @@ def offline(micromill):
     return run(micromill, reference, steps=STEPS)
 
 
-def record_graph(micromill, ros_node, ros_supervisor, single_process, contour='circle', during=None):
-    """The first STEPS states of the graph; `during()` runs once the nodes are started."""
+def record_graph(micromill, ros_node, ros_supervisor, single_process, contour='circle', during=None,
+                 servo_fine=None):
+    """The first STEPS states of the graph; `during()` runs once the nodes are started;
+    `servo_fine`: parameters of that node over the defaults (a process per node only)."""
     recorder = StateRecorder(ros_node('recorder'), micromill)
     window = ProgressReporter.WINDOW
     try:
@@ -89,8 +91,9 @@ def record_graph(micromill, ros_node, ros_supervisor, single_process, contour='c
                                            str(micromill.yaml_path), '--hw-sim', 'min_subscribers=4',
                                            '--hw-sim', f'recorder_window={window}'])
         else:
-            ros_supervisor.start_nodes(default_graph(micromill, contour, hw_sim={'min_subscribers': 4,
-                                                                                 'recorder_window': window}))
+            specs = default_graph(micromill, contour, hw_sim={'min_subscribers': 4, 'recorder_window': window})
+            ros_supervisor.start_nodes([NodeSpec(s.name, s.module, s.cls, {**s.parameters, **servo_fine})
+                                        if servo_fine and s.name == 'servo_fine' else s for s in specs])
         if during is not None:
             during()
         recorder.wait_for(STEPS, timeout=120, supervisor=ros_supervisor)
@@ -114,6 +117,18 @@ def test_multi_process_graph_equals_offline_runner(micromill, offline, ros_node,
 
 def test_single_process_graph_equals_offline_runner(micromill, offline, ros_node, ros_supervisor):
     assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=True), offline)
+
+
+def test_the_contour_control_in_servo_fine_equals_the_offline_runner(micromill, ros_node, ros_supervisor):
+    """[7/8] part 2: servo_fine holds x_f y_f z_f, the coupled axes, takes the whole /reference
+    in chunks and estimates each step's contour error itself; the states are those of the
+    offline runner with the contour control on, bit for bit (contour_coupling.py: the tool rows
+    an estimate sees depend on the step alone), and not those without it."""
+    reference, _ = circle(micromill)
+    coupled = run(micromill, reference, steps=STEPS, contour_control=True)
+    assert not np.array_equal(coupled.measured, run(micromill, reference, steps=STEPS).measured)
+    assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=False,
+                                      servo_fine={'contour_control': True}), coupled)
 
 
 def test_the_fts_lathe_graph_at_199_6_khz_with_its_acceleration_loop_equals_the_offline_runner(

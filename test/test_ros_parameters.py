@@ -121,6 +121,8 @@ class TestTrtGraph:
              "'Type.DOUBLE' got 'Type.INTEGER'"),                                                # wrong type
             (servo, 'feedforward', 'maybe', "Setting parameter failed: Wrong parameter type, expected "
              "'Type.BOOL' got 'Type.STRING'"),
+            (servo, 'contour_control', '1', "Setting parameter failed: Wrong parameter type, expected "
+             "'Type.BOOL' got 'Type.INTEGER'"),
             (servo, 'use_sim_time', 'false', f'Setting parameter failed: use_sim_time: {reason}, got false'),
             (servo, 'machine', 'micromill_9axis', 'Setting parameter failed: Trying to set a read-only '
              'parameter: machine.'),                                                             # another machine
@@ -151,14 +153,19 @@ class TestTrtGraph:
     def test_live_changes_take_effect_at_the_next_step(self, ros_env, trt_graph):
         servo = '/servo_coarse'
         assert wait_status(ros_env, 'servo_coarse', feedforward=True)['gains.x.gain'] == '700.0'
+        assert wait_status(ros_env, 'servo_coarse', contour_control=False)['contour_control_status'] == 'off'
         printed = in_parallel([(param_set, ros_env, servo, 'gains.x.gain', '600.0'),
                                (param_set, ros_env, servo, 'feedforward', 'false'),
+                               (param_set, ros_env, servo, 'contour_control', 'true'),
                                (param_set, ros_env, '/contour_error', 'estimator', 'basic')])
-        assert printed == ['Set parameter successful'] * 3
+        assert printed == ['Set parameter successful'] * 4
         # the law runs with the new gain; feed-forward is off from a step at rest (the hold
-        # streams rest rows, and hw_sim steps); the estimator formula is the basic one
-        values = wait_status(ros_env, 'servo_coarse', **{'gains.x.gain': 600.0, 'feedforward': False})
+        # streams rest rows, and hw_sim steps); the contour control runs (servo_coarse holds
+        # every axis of trt_5axis's); the estimator formula is the basic one
+        values = wait_status(ros_env, 'servo_coarse', **{'gains.x.gain': 600.0, 'feedforward': False,
+                                                         'contour_control': True})
         assert values['feedforward_requested'] == '' and values['gains.y.gain'] == '500.0', values
+        assert values['contour_control_status'] in ('active', 'fading'), values
         assert int(values['answered_step']) > 0
         wait_status(ros_env, 'contour_error', estimator='basic')
         assert in_parallel([(param_get, ros_env, servo, 'gains.x.gain'),

@@ -34,6 +34,7 @@ from machine_ctrl.contour.estimation import (ESTIMATORS, OrientationEstimator, T
 from machine_ctrl.contour.truth import true_orientation_errors, true_tool_tip_errors
 from machine_ctrl.model.kinematics import Kinematics
 from hw_sim.offline import run
+from machine_ctrl.experiments.tracking import command_use
 from trajectory.sencer_path import sencer_reference
 
 UM = 1e6
@@ -141,10 +142,32 @@ def experiment(progress=lambda text: None, helix: bool = True) -> tuple[dict, di
                                                            for i, n in enumerate(names)},
                              'orientation_validity': validity_statistics(
                                  deviation, valid, result['orientation_bound'], result['orientation_reason'], UM)}}
+    progress('trt_5axis: Eq. (35) run with the cross-coupled contour control')
+    summary['trt_5axis']['contour_control'] = coupled_comparison(machine, kinematics, reference, trajectory,
+                                                                 record, result)
     series = {'period': machine.control_period, 'result': result, 'drives': drives, 'rotary': names}
     if helix:
         summary['micromill_9axis_helix'] = helix_run(progress)
     return summary, series
+
+
+def coupled_comparison(machine, kinematics: Kinematics, reference, trajectory: ToolTrajectory, record,
+                       result: dict) -> dict:
+    """The same run with the machine's cross-coupled contour control on (README "Contour
+    control"): mean and max of the true tool-tip (um) and orientation (urad) contour errors,
+    uncoupled vs coupled, the largest |command| / command_limit of any axis, and the steps
+    whose estimate the coupling could not use (per channel)."""
+    coupled = run(machine, reference, contour_control=True)
+    poses = [kinematics.forward(q) for q in coupled.measured]
+    tip = {'uncoupled': np.linalg.norm(result['true_tip'], axis=1),
+           'coupled': np.linalg.norm(true_tool_tip_errors(trajectory, np.array([x[0] for x in poses])), axis=1)}
+    axis = {'uncoupled': np.linalg.norm(result['true_orientation'], axis=1),
+            'coupled': np.linalg.norm(true_orientation_errors(trajectory, np.array([x[1] for x in poses])), axis=1)}
+    def mean_max(errors):
+        return {k: {'mean': float(v.mean() * UM), 'max': float(v.max() * UM)} for k, v in errors.items()}
+    return {'fault': coupled.fault, 'tool_tip_um': mean_max(tip), 'orientation_urad': mean_max(axis),
+            'command_use': {'uncoupled': command_use(machine, record), 'coupled': command_use(machine, coupled)},
+            'invalid_steps': coupled.contour_invalid}
 
 
 def helix_run(progress) -> dict:
@@ -245,7 +268,24 @@ def table(summary: dict) -> str:
         lines.append('  invalid: steps the estimator marks invalid (bound above tolerance; NaN on the node), '
                      'excluded from the statistics; "max dev there": the largest deviation among them; '
                      '"over bound": valid steps deviating more than their own bound')
+        if 'contour_control' in data:
+            lines += coupled_table(data['contour_control'])
     return '\n'.join(lines)
+
+
+def coupled_table(data: dict) -> list[str]:
+    """seed | uncoupled | coupled (the seeds have no coupled run: Sencer's Part II is not among them)."""
+    lines = ['  cross-coupled contour control (README "Contour control"), true contour errors over the whole run:',
+             f'  {"":24s} {"seed":>6s} {"uncoupled":>10s} {"coupled":>10s} {"ratio":>7s}']
+    for name, unit, values in (('tool tip', 'um', data['tool_tip_um']), ('orientation', 'urad', data['orientation_urad'])):
+        for stat in ('mean', 'max'):
+            u, c = values['uncoupled'][stat], values['coupled'][stat]
+            lines.append(f'  {f"{stat} {name} ({unit})":24s} {"-":>6s} {u:10.3f} {c:10.3f} {u / c:6.2f}x')
+    use = data['command_use']
+    lines.append(f'  largest |command| / command_limit of any axis: uncoupled {use["uncoupled"]:.3f}, coupled '
+                 f'{use["coupled"]:.3f}; steps without a valid estimate (correction fading): '
+                 f'{json.dumps(data["invalid_steps"])}; fault: {data["fault"] or "none"}')
+    return lines
 
 
 def _jsonable(value):

@@ -95,10 +95,18 @@ def noise_floor(stats: dict[str, float], rest: dict[str, float], count_um: float
 
 
 RUN_LABELS = ('smc', 'smc_at_rest', 'dsfd', 'dsfd_at_rest')     # contouring's runs, in order
+# with coupled=True, also the dual stage with the cross-coupled contour control on (README
+# "Contour control"), and its at-rest twin
+COUPLED_LABELS = RUN_LABELS + ('ccc', 'ccc_at_rest')
+MODES = {'smc': (False, False), 'dsfd': (True, False), 'ccc': (True, True)}     # (dual stage, contour control)
+
+
+def run_labels(coupled: bool) -> tuple[str, ...]:
+    return COUPLED_LABELS if coupled else RUN_LABELS
 
 
 def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | None = None,
-               on_run=None, workers: int | None = None) -> dict:
+               on_run=None, workers: int | None = None, coupled: bool = False) -> dict:
     """For kind 'circle' or 'square': {'smc': stats, 'dsfd': stats} (encoder-measured, um, as
     the thesis measured), plus 'true' {'smc', 'dsfd'} (against the simulator's true
     positions), 'at_rest' {'smc', 'dsfd'} (encoder-measured, machine holding the start point
@@ -108,40 +116,52 @@ def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | No
     'dsfd_at_rest' (:data:`RUN_LABELS`) — go in up to `workers` processes (default: the
     available CPUs; the same numbers, experiments/parallel.py); `progress(label, steps,
     steps)` as each is done, in that order, and `on_run(label, reference, record)`, e.g. to
-    write it as a bag (``machine-ctrl experiment circle|square --record DIR`` does)."""
+    write it as a bag (``machine-ctrl experiment circle|square --record DIR`` does).
+    `coupled`: also 'ccc' and 'ccc_at_rest' (:data:`COUPLED_LABELS`), the dual stage with the
+    machine's cross-coupled contour control on (machine_ctrl/control/contour_coupling.py)."""
     reference, contour = getattr(contours, kind)(machine)
     steps = len(reference) if steps is None else steps
     rest_reference = at_rest(reference)
     count_um = encoder_count(machine) * 1e6
-    runs = [(label, dual, ref, twin) for label, dual in (('smc', False), ('dsfd', True))
+    modes = ('smc', 'dsfd', 'ccc') if coupled else ('smc', 'dsfd')
+    runs = [(label, MODES[label], ref, twin) for label in modes
             for ref, twin in ((reference, False), (rest_reference, True))]
     names = [f'{label} at rest' if twin else label for label, _, _, twin in runs]
     done = None if progress is None else (lambda i: progress(f'{kind} {names[i]}', steps, steps))
-    outcomes = parallel.run_all(_contour_run, [(machine, ref, dual, steps, contour, not twin, on_run is not None)
-                                               for _, dual, ref, twin in runs], workers, done)
-    result = {'true': {}, 'at_rest': {}, 'noise_floor': {}, 'encoder_count_um': count_um, 'steps': steps}
-    for (label, _, ref, twin), name, (fault, measured, true, record) in zip(runs, names, outcomes):
+    outcomes = parallel.run_all(_contour_run, [(machine, ref, mode, steps, contour, not twin, on_run is not None)
+                                               for _, mode, ref, twin in runs], workers, done)
+    result = {'true': {}, 'at_rest': {}, 'noise_floor': {}, 'command_use': {}, 'encoder_count_um': count_um,
+              'steps': steps}
+    for (label, _, ref, twin), name, (fault, measured, true, use, record) in zip(runs, names, outcomes):
         if fault:
             raise RuntimeError(f'{kind} {name}: the simulated machine faulted: {fault}')
         if twin:
             result['at_rest'][label] = measured
         else:
-            result[label], result['true'][label] = measured, true
+            result[label], result['true'][label], result['command_use'][label] = measured, true, use
         if on_run is not None:
             on_run(name.replace(' ', '_'), ref, record)
-    for label in ('smc', 'dsfd'):
+    for label in modes:
         result['noise_floor'][label] = noise_floor(result[label], result['at_rest'][label], count_um)
     return result
 
 
-def _contour_run(machine: MachineConfig, reference: Reference, dual_stage: bool, steps: int,
+def _contour_run(machine: MachineConfig, reference: Reference, mode: tuple[bool, bool], steps: int,
                  contour: contours.Contour, true: bool, keep: bool):
     """One run of :func:`contouring`: (fault, measured statistics, true statistics if `true`
-    else None, the record if `keep` else None)."""
-    record = run(machine, reference, dual_stage=dual_stage, steps=steps)
+    else None, the largest |command| / command_limit of any axis, the record if `keep` else
+    None); `mode`: (dual stage, contour control)."""
+    dual_stage, contour_control = mode
+    record = run(machine, reference, dual_stage=dual_stage, steps=steps, contour_control=contour_control)
     return (record.fault, contour_statistics(record, reference, contour),
             contour_statistics(record, reference, contour, source='true') if true else None,
-            record if keep else None)
+            command_use(machine, record), record if keep else None)
+
+
+def command_use(machine: MachineConfig, record) -> float:
+    """The largest |command| / command_limit of any axis over a run (1: a drive at its limit)."""
+    limits = np.array([machine.axis(a).drive.command_limit for a in record.axis_names])
+    return float(np.abs(record.commands / limits).max())
 
 
 COARSE_AMPLITUDE = 50e-6   # m: large against presliding (~4 um) so friction does not dominate

@@ -305,6 +305,28 @@ class CartesianCoupling:
 
 
 @dataclass(frozen=True)
+class ContourChannelGains:
+    """The PI compensator of one contour-error channel of the cross-coupled contour control
+    (machine_ctrl/control/contour_coupling.py): correction = k_p eps + k_i integral(eps)."""
+    proportional: float = _nonnegative()      # k_p, 1
+    integral: float = _nonnegative()          # k_i, 1/s
+
+
+@dataclass(frozen=True)
+class ContourControlConfig:
+    """Cross-coupled contour control (machine_ctrl/control/contour_coupling.py): the live
+    contour-error estimates fed back to the reference of `axes` through the kinematics.
+    `tool_tip` acts through the linear axes among `axes`, `orientation` (None: no orientation
+    channel) through the rotary ones; `fade`: the time constant with which the correction goes
+    to zero while the estimate is invalid or the control is switched off."""
+    axes: tuple[str, ...]
+    tool_tip: ContourChannelGains
+    orientation: ContourChannelGains | None = None
+    estimator: str = field(default='compensated', metadata={'choices': ('basic', 'shifted', 'compensated')})
+    fade: float = _positive(default=0.01)     # s
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     seed: int = 0             # seeds every random source of hw_sim
     substeps: int = 1         # plant integration steps per control period (nonlinear plants)
@@ -351,6 +373,7 @@ class MachineConfig:
     dual_stage: tuple[DualStagePair, ...] = ()
     simulation: SimulationConfig = SimulationConfig()
     cartesian_dual_stage: CartesianCoupling | None = None
+    contour_control: ContourControlConfig | None = None
 
     @property
     def axis_names(self) -> tuple[str, ...]:
@@ -577,13 +600,14 @@ def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
         if 'cartesian_dual_stage' in top.data else None
     simulation = _read(top.section('simulation'), SimulationConfig) if 'simulation' in top.data \
         else SimulationConfig()
-    top._used.update(('dual_stage', 'simulation', 'cartesian_dual_stage'))
+    contour = _contour_control(top.section('contour_control'), axes) if 'contour_control' in top.data else None
+    top._used.update(('dual_stage', 'simulation', 'cartesian_dual_stage', 'contour_control'))
     top.finish()
     for axis, value in zip(axes, home):
         if not axis.in_stroke(value):
             raise ConfigError(f'{path}: home.{axis.name}: {value:g} is outside the stroke {axis.stroke}')
     return MachineConfig(name, description, path, urdf_path, control_period, workpiece_frame,
-                         tool_frame, tuple(axes), home, dual_stage, simulation, cartesian)
+                         tool_frame, tuple(axes), home, dual_stage, simulation, cartesian, contour)
 
 
 FLEXURE_ONLY = ('flexure', 'current_loop', 'sensor_bandwidth', 'sensor_noise_density', 'current_noise', 'accelerometer',
@@ -697,6 +721,32 @@ def _cartesian_dual_stage(s: _Section, axes: list[AxisConfig], pairs) -> Cartesi
     if any(by_name[n].kind != 'linear' or by_name[n].stroke is None for n in roles['fine']):
         s.fail('fine axes must be linear with a stroke', 'fine')
     return CartesianCoupling(roles['coarse'], roles['fine'])
+
+
+def _contour_control(s: _Section, axes: list[AxisConfig]) -> ContourControlConfig:
+    by_name = {a.name: a for a in axes}
+    raw = s._get('axes', _REQUIRED)
+    if not (isinstance(raw, list) and raw and all(isinstance(n, str) for n in raw)):
+        s.fail('must be a non-empty list of axis names', 'axes')
+    unknown = [n for n in raw if n not in by_name]
+    if unknown:
+        s.fail(f'unknown axis {", ".join(map(repr, unknown))}', 'axes')
+    if len(set(raw)) != len(raw):
+        s.fail('names an axis twice', 'axes')
+    uncontrolled = [n for n in raw if by_name[n].control is None]
+    if uncontrolled:
+        s.fail(f'{", ".join(uncontrolled)}: no control section (the correction moves a servo\'s reference)', 'axes')
+    linear = [n for n in raw if by_name[n].kind == 'linear']
+    rotary = [n for n in raw if by_name[n].kind == 'rotary']
+    if not linear:
+        s.fail('the tool-tip channel needs at least one linear axis', 'axes')
+    hints = typing.get_type_hints(ContourControlConfig)
+    values = {f.name: _value(s, f, hints[f.name]) for f in fields(ContourControlConfig)
+              if f.name != 'axes' and (f.name in s.data or f.default is MISSING)}
+    s.finish()
+    if values.get('orientation') is not None and not rotary:
+        s.fail('the orientation channel needs a rotary axis among axes', 'orientation')
+    return ContourControlConfig(tuple(raw), **values)
 
 
 def config_dirs() -> list[Path]:

@@ -18,9 +18,13 @@ computed, so no controller state is ever advanced twice.
 
 Parameters (machine_ctrl/parameters.py SERVO): `axes` must name controlled axes of the
 machine, each once. Live: `feedforward` (switched at the first step whose reference is at
-rest on every axis of the node) and `gains.<axis>.<gain>`, one per live gain of each axis's
-law (control/law.py: a new parameter set, checked by the law, applied between two steps).
-Their values in effect are in the node's /diagnostics status.
+rest on every axis of the node), `gains.<axis>.<gain>`, one per live gain of each axis's
+law (control/law.py: a new parameter set, checked by the law, applied between two steps),
+and `contour_control`, the machine's cross-coupled contour control
+(control/contour_coupling.py: on from the next step, fading in from zero; off fades out),
+offered by the node that holds every coupled axis (it then takes the whole /reference and
+estimates the contour error of each step itself: a second node in the lock-step loop would
+cost a hop per step). Their values in effect are in the node's /diagnostics status.
 """
 from __future__ import annotations
 
@@ -32,6 +36,7 @@ from sensor_msgs.msg import Imu, JointState
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
+from machine_ctrl.control.contour_coupling import ContourCoupling, coupled_slots
 from machine_ctrl.control.dual_stage import apply_offsets
 from machine_ctrl.ros.node_common import main_for, subscribe_joint_states, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, gain_parameters, machine_parameter
@@ -47,10 +52,18 @@ class ServoNode(StepNode):
         table = parameters.NodeParameters(parameters.SERVO.executable, parameters.SERVO.parameters,
                                           parameters.SERVO.checks + (axes_check(self.machine, controlled),),
                                           parameters.SERVO.sim_time)
-        values = declare_parameters(self, table, {'axes': controlled}, names=('axes', 'feedforward'),
-                                    on_change={'feedforward': self.on_feedforward})
+        table = parameters.NodeParameters(table.executable, table.parameters,
+                                          table.checks + (contour_check(self.machine),), table.sim_time)
+        values = declare_parameters(self, table, {'axes': controlled}, names=('axes', 'feedforward', 'contour_control'),
+                                    on_change={'feedforward': self.on_feedforward,
+                                               'contour_control': self.on_contour_control})
         self.servo = ServoGroup(self.machine, values.axes, feedforward=values.feedforward)
         self.axes = self.servo.axis_names
+        self.contour = None             # the cross-coupled contour control, if this node holds its axes
+        if contour_axes(self.machine, self.axes):
+            self.contour = ContourCoupling(self.machine, enabled=values.contour_control)
+            self.contour_slots = coupled_slots(self.contour, self.axes)
+            self.own_columns = [self.machine.axis_names.index(a) for a in self.axes]
         self.declare_gains()
         fine = set(self.machine.fine_axes)
         self.fine_slots = [i for i, a in enumerate(self.axes) if a in fine]
@@ -69,7 +82,8 @@ class ServoNode(StepNode):
         self.pub = self.create_publisher(JointState, contract.SERVO_COMMANDS.name, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
-        self.start_stepping(self.machine, self.axes, self.pub, self.ready, self.compute, self.streaming)
+        self.start_stepping(self.machine, self.machine.axis_names if self.contour else self.axes, self.pub,
+                            self.ready, self.compute, self.streaming)
         if self.wait_for_offsets:
             subscribe_joint_states(self, contract.DUAL_STAGE_OFFSETS.name, self.on_offsets,
                                    lambda reason: self.rejections.add('offsets', reason))
@@ -108,6 +122,19 @@ class ServoNode(StepNode):
 
     def on_feedforward(self, on: bool) -> None:
         self.servo.set_feedforward(on)
+
+    def on_contour_control(self, on: bool) -> None:
+        if self.contour is not None:          # else refused by contour_check
+            self.contour.set_enabled(on)
+
+    def on_reference(self, first_step: int, positions, velocities, accelerations) -> None:
+        """With the contour control: every axis's rows, the node's own to the buffer."""
+        if self.contour is None:
+            return super().on_reference(first_step, positions, velocities, accelerations)
+        self.contour.add_reference(first_step, positions, velocities, accelerations)
+        own = self.own_columns
+        super().on_reference(first_step, *([[row[i] for i in own] for row in rows]
+                                           for rows in (positions, velocities, accelerations)))
 
     def on_offsets(self, msg: JointStateData) -> None:
         try:
@@ -164,6 +191,13 @@ class ServoNode(StepNode):
         ref_pos, ref_vel, ref_acc, _ = self.buffer.take(step, position)
         if offsets is not None:
             ref_pos = apply_offsets(ref_pos, self.fine_slots, offsets)
+        if self.contour is not None:
+            q = self.positions(msg, self.machine.axis_names)
+            if q is None:
+                return None
+            corrections = self.contour.step(step, q).corrections
+            ref_pos = apply_offsets(ref_pos, [slot for slot, _ in self.contour_slots],
+                                    [corrections[k] for _, k in self.contour_slots])
         acceleration = None
         if readings is not None:
             acceleration = [0.0] * len(self.axes)
@@ -191,10 +225,19 @@ class ServoNode(StepNode):
                   'rejected_messages': self.rejections.count,
                   'last_rejection': self.rejections.last, 'feedforward': self.servo.feedforward,
                   'feedforward_requested': '' if requested is None else requested,
+                  **self.contour_values(),
                   **{g.name: getattr(self.servo.servo(g.axis).law.gains, g.gain) for g in self.gains}}
         self.pub_diag.publish(ros_io.diagnostics(
             self.clock.stamp(step), self.get_name(), DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
             self.problem_text(), values))
+
+    def contour_values(self) -> dict:
+        """The contour control's state for /diagnostics (nothing when the node has none)."""
+        if self.contour is None:
+            return {}
+        return {'contour_control': self.contour.enabled, 'contour_control_status': self.contour.last.status.value,
+                'contour_control_reason': self.contour.last.reason,
+                **{f'contour_invalid_{k}_steps': v for k, v in self.contour.invalid_steps.items()}}
 
     def problem_text(self) -> str:
         """The status message: what went wrong so far, or 'ok'."""
@@ -245,6 +288,23 @@ class StepInput:
         if self.lost_step is not None and self.lost_step >= answered_step:
             return [f'{self.topic} (none for step {self.lost_step} within {timeout:g} s: not answered)']
         return []
+
+
+def contour_axes(machine, axes) -> bool:
+    """Whether a node of `axes` holds every axis of the machine's contour control."""
+    return machine.contour_control is not None and set(machine.contour_control.axes) <= set(axes)
+
+
+def contour_check(machine) -> parameters.Check:
+    """`contour_control` true only where the machine has one and the node holds its axes."""
+    def test(values):
+        if not values['contour_control'] or contour_axes(machine, values['axes']):
+            return None
+        if machine.contour_control is None:
+            return f'{machine.name} has no contour_control section in its machine config'
+        return (f'the node must hold every coupled axis ({" ".join(machine.contour_control.axes)}); '
+                f'it has {" ".join(values["axes"])}')
+    return parameters.Check('contour_control', ('axes', 'contour_control'), test, '')
 
 
 def axes_check(machine, controlled) -> parameters.Check:

@@ -18,8 +18,12 @@ runner, machine_ctrl.experiments and compensation/), one subcommand each; progre
   write each run as a bag, DIR/smc and DIR/dsfd, and their at-rest twins DIR/smc_at_rest and
   DIR/dsfd_at_rest (machine_ctrl.ros.run_bag, called here: the experiments layer is ROS-free).
   circle/square ``--steps N``: only the first N control steps of each run (a quick look).
+  On a machine with a ``contour_control`` section circle/square also run the dual stage with
+  the cross-coupled contour control ("ccc", and its at-rest twin) and print thesis | DSFD |
+  CCC.
 * ``contour [--json] [--plots DIR] [--quiet] [--no-helix]``: Sencer Figs. 9-10
-  (machine_ctrl.experiments.contour).
+  (machine_ctrl.experiments.contour), and the Eq. (35) run uncoupled vs with the
+  cross-coupled contour control.
 * ``geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis Tables 6.3/6.4, registered
   by the error-model group (errors.py).
 """
@@ -146,7 +150,7 @@ def contouring_notes(result: dict) -> list[str]:
              'encoder figure is the floor)',
              '"at rest": the same statistics with the machine holding the start point for as long '
              '(same mode, same simulated noise: hw_sim is seeded)']
-    for mode in ('smc', 'dsfd'):
+    for mode in result['noise_floor']:
         floor = result['noise_floor'][mode]
         if not floor:
             continue
@@ -159,13 +163,16 @@ def contouring_notes(result: dict) -> list[str]:
 
 
 def contouring_json(result: dict) -> dict:
-    """The --json object: 'smc'/'dsfd' hold the results, null where the cell is the noise
-    floor; 'measured' every encoder figure; 'true', 'at_rest', 'noise_floor',
-    'encoder_count_um', 'steps', 'notes'."""
+    """The --json object: 'smc'/'dsfd' (and 'ccc', the dual stage with the cross-coupled
+    contour control, where the machine has one) hold the results, null where the cell is the
+    noise floor; 'measured' every encoder figure; 'true', 'at_rest', 'noise_floor',
+    'command_use' (largest |command| / command_limit of any axis), 'encoder_count_um',
+    'steps', 'notes'."""
+    modes = tuple(result['noise_floor'])
     out = {mode: {k: (None if k in result['noise_floor'][mode] else v) for k, v in result[mode].items()}
-           for mode in ('smc', 'dsfd')}
-    out['measured'] = {mode: result[mode] for mode in ('smc', 'dsfd')}
-    for key in ('true', 'at_rest', 'noise_floor', 'encoder_count_um', 'steps'):
+           for mode in modes}
+    out['measured'] = {mode: result[mode] for mode in modes}
+    for key in ('true', 'at_rest', 'noise_floor', 'command_use', 'encoder_count_um', 'steps'):
         out[key] = result[key]
     out['notes'] = contouring_notes(result)
     return out
@@ -198,8 +205,28 @@ def _print_contouring(kind: str, machine: str, result: dict) -> None:
             print(f'SMC/DSFD {label}: n/a, {" and ".join(at_floor)} at the noise floor (thesis {theirs:.2f}x)')
         else:
             print(f'SMC/DSFD {label}: {result["smc"][key] / result["dsfd"][key]:.2f}x (thesis {theirs:.2f}x)')
+    if 'ccc' in result:
+        _print_coupled(kind, result, cell)
     for note in contouring_notes(result):
         print(f'* {note}')
+
+
+def _print_coupled(kind: str, result: dict, cell) -> None:
+    """seed | uncoupled | coupled: the dual stage without and with the cross-coupled contour
+    control (README "Contour control"); the thesis has no coupled run."""
+    from machine_ctrl.experiments.tracking import STAT_KEYS, THESIS
+    print('Cross-coupled contour control on the dual stage (DSFD + CCC); errors in um; the ratio is n/a where '
+          'a cell is the noise floor')
+    print(f'{"":22s} {"thesis":>9s} {"DSFD sim":>9s} {"CCC sim":>9s} {"at rest":>9s} {"true CCC":>9s}'
+          f' {"DSFD/CCC":>9s}')
+    for key, label in zip(STAT_KEYS, STAT_LABELS):
+        floor = key in result['noise_floor']['dsfd'] or key in result['noise_floor']['ccc']
+        ratio = 'n/a' if floor else f'{result["dsfd"][key] / result["ccc"][key]:.2f}x'
+        print(f'{label:22s} {THESIS[kind]["dsfd"][STAT_KEYS.index(key)]:9.3f} {cell("dsfd", key)} '
+              f'{cell("ccc", key)} {result["at_rest"]["ccc"][key]:9.3f} {result["true"]["ccc"][key]:9.3f} '
+              f'{ratio:>9s}')
+    print('largest |command| / command_limit of any axis: '
+          + ', '.join(f'{m.upper()} {result["command_use"][m]:.3f}' for m in result['command_use']))
 
 
 def _print_frf(machine: str, result: dict) -> None:
@@ -213,26 +240,27 @@ def _print_frf(machine: str, result: dict) -> None:
 
 
 def contouring(machine, kind: str, progress=None, steps: int | None = None, record_dir=None,
-               workers: int | None = None) -> dict:
+               workers: int | None = None, coupled: bool = False) -> dict:
     """machine_ctrl.experiments.tracking.contouring; with `record_dir`, each run is also
-    written as a bag, <record_dir>/<label> (tracking.RUN_LABELS), right after it ran."""
+    written as a bag, <record_dir>/<label> (tracking.run_labels), right after it ran."""
     from machine_ctrl.experiments import tracking
     def write_bag(label, reference, record):
         from machine_ctrl.ros.run_bag import write_run_bag     # imports rclpy: only when recording
         write_run_bag(Path(record_dir) / label, machine, reference, record, f'experiment {kind} {label}')
     return tracking.contouring(machine, kind, progress=progress, steps=steps,
-                               on_run=None if record_dir is None else write_bag, workers=workers)
+                               on_run=None if record_dir is None else write_bag, workers=workers, coupled=coupled)
 
 
 def cmd_experiment(args) -> int:
     machine = load_machine(args.machine)
     progress = None if args.quiet else _progress
+    coupled = machine.contour_control is not None      # circle/square: also the dual stage with it
     if args.record is not None:
         try:
             if args.name == 'frf':
                 raise ValueError('--record is for circle and square')
-            from machine_ctrl.experiments.tracking import RUN_LABELS
-            for label in RUN_LABELS:
+            from machine_ctrl.experiments.tracking import run_labels
+            for label in run_labels(coupled):
                 fresh_directory(os.path.join(args.record, label))
         except ValueError as exc:
             return error('experiment', exc)
@@ -248,7 +276,7 @@ def cmd_experiment(args) -> int:
             _print_frf(machine.name, result)
         return 0
     result = contouring(machine, args.name, progress=progress, steps=args.steps, record_dir=args.record,
-                        workers=args.jobs)
+                        workers=args.jobs, coupled=coupled)
     if args.json:
         print(json.dumps(contouring_json(result)))
     else:
