@@ -218,10 +218,11 @@ def test_two_machines_in_two_namespaces_run_side_by_side_one_records_and_both_st
             (echo_until, cli_env, '/mill2/joint_states', 'sensor_msgs/msg/JointState', bool, mill2, 60.0, False))
         assert states1['name'] == ['x_c', 'y_c', 'z_c', 'x_f', 'y_f', 'z_f', 'a_f', 'b_f', 'c_f']
         assert states2['name'] == ['x', 'y', 'z', 'a', 'c']
-        topics = ros2(cli_env, 'topic', 'list').split()
+        listed, *infos = side_by_side((ros2, cli_env, 'topic', 'list'),
+                                      *((ros2, cli_env, 'topic', 'info', '-v', f'{ns}/clock') for ns in ('/mill1', '/mill2')))
+        topics = listed.split()
         assert '/clock' not in topics and '/joint_states' not in topics, topics     # nothing in the root
-        for ns in ('/mill1', '/mill2'):          # each clock heard by its own graph only
-            info = ros2(cli_env, 'topic', 'info', '-v', f'{ns}/clock')
+        for ns, info in zip(('/mill1', '/mill2'), infos):          # each clock heard by its own graph only
             readers = [line for line in info.splitlines() if line.startswith('Node namespace:')]
             assert readers and all(line.split(':', 1)[1].strip() == ns for line in readers), info
         goal = '{joint_names: [x_c], points: [{positions: [0.002]}]}'

@@ -12,7 +12,9 @@ stable outputs documented in the module:
 * recording.py: ``record DIR ...``, ``replay BAG ...``, ``analyze BAG [BAG2] ...``;
 * graph.py: ``bringup [MACHINE] ...``, ``send PATH ...``, ``move AXIS=VALUE ...``, ``demo``;
 * view.py: ``view [--bag BAG --out FILE]`` (Foxglove);
-* errors.py: ``fit-errors CSV ...`` (the geometric error model).
+* errors.py: ``fit-errors CSV ...`` (the geometric error model);
+* identify.py: ``identify AXIS [--machine M] [--out FILE] [--json]`` (a feed drive's rigid
+  body and friction, offline on hw_sim).
 
 A group sets on each of its subparsers ``run`` (the handler: args -> exit status), and
 optionally ``validate`` (args -> problem text or None; a problem is a usage error) and
@@ -33,11 +35,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from machine_ctrl.app.cli import errors, experiment, graph, machine, plan, recording, view
+from machine_ctrl.app.cli import errors, experiment, graph, identify, machine, plan, recording, view
 from machine_ctrl.model.errors import ConfigError
 
 # in the order of the root help
-COMMAND_GROUPS = (machine, experiment, plan, recording, graph, view, errors)
+COMMAND_GROUPS = (machine, experiment, plan, recording, graph, view, errors, identify)
 
 
 def build_parser() -> argparse.ArgumentParser:

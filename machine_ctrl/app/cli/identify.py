@@ -1,0 +1,61 @@
+"""``machine-ctrl identify AXIS [--machine M] [--out FILE] [--json] [--jobs N]``: identify a
+feed drive's rigid body, friction curve and friction along the stroke, offline on hw_sim
+(machine_ctrl.experiments.identify). The table prints seed | true | identified | error; the
+identified values as a machine-YAML fragment go to FILE with ``--out``; ``--json`` prints
+{"status", "reason", "axis", "rigid_body": {...}, "steady": {...}, "true": {...},
+"seed": {...}, "speeds": [...], "forces": [[...], [...]]} (m/s and N; the fits'
+dataclasses as mappings). Progress on stderr; exit 1 when the identification is refused
+(the reason on stderr).
+"""
+from __future__ import annotations
+
+import json
+import sys
+
+from machine_ctrl.app.cli.common import error
+from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser('identify', help="identify an axis's rigid body and friction (offline, on hw_sim)",
+                                   description=__doc__.split('\n\n')[0].replace('``', ''))
+    parser.add_argument('axis', help='a controlled linear axis with a force drive, e.g. x_c')
+    parser.add_argument('--machine', default=DEFAULT_MACHINE, help=f'machine name or YAML (default {DEFAULT_MACHINE})')
+    parser.add_argument('--out', metavar='FILE', help='write the identified values as a machine-YAML fragment')
+    parser.add_argument('--json', action='store_true', help='one JSON object on stdout')
+    parser.add_argument('--jobs', type=int, metavar='N', help='runs in up to N processes (default: the available CPUs)')
+    parser.set_defaults(run=cmd_identify)
+
+
+def cmd_identify(args) -> int:
+    import dataclasses
+    import enum
+
+    from machine_ctrl.experiments import identify
+    machine = load_machine(args.machine)
+    if args.axis not in machine.axis_names:
+        return error('identify', f'{machine.name} has no axis {args.axis!r} (axes: {", ".join(machine.axis_names)})')
+    if args.jobs is not None and args.jobs < 1:
+        return error('identify', f'--jobs must be a whole number > 0, got {args.jobs}')
+    print(f'identifying {args.axis} of {machine.name} offline on hw_sim ...', file=sys.stderr, flush=True)
+    result = identify.identify(machine, args.axis, workers=args.jobs)
+    if args.json:
+        def plain(value):
+            if dataclasses.is_dataclass(value):
+                return plain(dataclasses.asdict(value))
+            if isinstance(value, dict):
+                return {k: plain(v) for k, v in value.items()}
+            if isinstance(value, (list, tuple)):
+                return [plain(v) for v in value]
+            return value.value if isinstance(value, enum.Enum) else value
+        print(json.dumps(plain(result)))
+    else:
+        print(identify.table(result))
+    if result['status'] != 'ok':
+        print(f'machine-ctrl: identify: {result["reason"]}', file=sys.stderr)
+        return 1
+    if args.out:
+        with open(args.out, 'w') as out:
+            out.write(identify.yaml_fragment(machine, result))
+        print(f'wrote {args.out}', file=sys.stderr)
+    return 0

@@ -1,0 +1,255 @@
+"""Identify a feed drive on the simulated machine (issue [8/8], part 1; Yuen thesis section
+4.2.1-4.2.2), offline on hw_sim as a user would on the machine: the axis runs under its own
+servo about the middle of its stroke, the others hold home, and only what the machine gives
+is used (the applied command,
+the encoder positions) with the drive's data-sheet force constant K = K_a K_t.
+
+* **Rigid body**: a Schroeder multisine position reference (FREQUENCIES, equal velocity
+  amplitude per tone, scaled to half the axis's velocity and acceleration limits and 40 % of
+  its half stroke) on a slow sine over 80 % of the stroke (SWEEP), raised-cosine ends, for
+  DURATION; m, b, the Coulomb levels and the friction's variation along the stroke by least
+  squares with 95 % intervals (machine_ctrl.identification.rigid_body.fit_rigid_body; samples
+  slower than MIN_SPEED left out).
+* **Stribeck curve and viscous friction**: constant-speed runs at SPEEDS in both directions,
+  each holding its speed for HOLD centred on the stroke's middle; the mean force over each hold
+  against its speed gives F_s, F_c, w1, w2 per direction and b
+  (fit_steady_friction), with the friction's variation along the stroke found by the
+  rigid-body fit averaged over each run's positions, and a bristle term: the LuGre bristles
+  sliding over that variation add a force in proportion to v, which left out would be taken
+  for b (fit_steady_friction).
+
+The result holds the identified values beside the simulator's true ones (hw_sim knows them:
+the machine config's drive and plant.friction) and the seed's (thesis Tables 4.1/4.2), and a
+YAML fragment in the machine-config format (:func:`yaml_fragment`).
+
+    machine-ctrl identify AXIS [--machine M] [--out FILE] [--json]
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hw_sim.offline import run
+from machine_ctrl.experiments import parallel
+from machine_ctrl.identification.rigid_body import FitStatus, fit_rigid_body, fit_steady_friction
+from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.model.reference import Reference
+
+# assumed: tones from 0.5 to 8 Hz: below the servo's bandwidth (~30 Hz on the coarse axes, Fig.
+# 4.10), so the axis follows them, and above the friction's slow variation along the stroke
+FREQUENCIES = (0.5, 0.8, 1.25, 2.0, 3.15, 5.0, 8.0)     # Hz
+SWEEP = 0.25                # Hz, assumed: a slow sine over 80 % of the stroke under the tones, so the
+                            # friction is seen along the stroke (its variation, fit_rigid_body)
+DURATION = 8.0              # s, assumed: two periods of the sweep, four of the lowest tone
+RAMP = 0.5                  # s, raised-cosine fade in and out of the multisine
+MIN_SPEED = 5e-3            # m/s, assumed: 4x the largest Stribeck velocity w2 of Table 4.2 (1.79 mm/s)
+# m/s, assumed: from 1/20 of the smallest Stribeck velocity of Table 4.2 to 2/3 of the x_c limit
+SPEEDS = tuple(float(v) for v in np.geomspace(5e-5, 0.1, 10))
+# assumed: friction wavelengths from 5 to 100 mm looked for along the stroke (those longer than
+# the multisine's span are not tried: fit_rigid_body)
+WAVELENGTHS = tuple(float(w) for w in np.geomspace(5e-3, 0.1, 61))
+# s at constant speed, assumed: at least 0.25 s (2500 steps at 10 kHz) and 50 um of travel, 12x
+# the bristles' presliding g/sigma0 (4 um on x_c): the mean is taken over 40-90 % of the hold,
+# after they have settled
+HOLD = 0.25
+HOLD_TRAVEL = 50e-6         # m
+SPEED_ACCELERATION = 0.5    # m/s^2, assumed: the ramps to and from each speed
+# Yuen thesis Table 4.1 (m^, b^) and Table 4.2 (friction, +/- directions), as in the micromill config
+SEED = {'x_c': {'mass': 21.19, 'static': (36.38, 29.03), 'coulomb': (39.74, 26.74)},
+        'y_c': {'mass': 59.17}, 'z_c': {'mass': 17.61}}
+
+
+def multisine(machine: MachineConfig, axis: str) -> Reference:
+    """The rigid-body excitation of `axis` (module docstring); every other axis at home."""
+    config = machine.axis(axis)
+    period = machine.control_period
+    t = np.arange(int(round(DURATION / period))) * period
+    n = len(FREQUENCIES)
+    x = np.zeros_like(t)
+    for i, f in enumerate(FREQUENCIES):
+        phase = -math.pi * i * (i + 1) / n                        # Schroeder: a low crest factor
+        x += np.sin(2 * math.pi * f * t + phase) / f
+    fade = np.ones_like(t)
+    ramp = t < RAMP
+    fade[ramp] = 0.5 - 0.5 * np.cos(math.pi * t[ramp] / RAMP)
+    fade[t > t[-1] - RAMP] = fade[ramp][::-1][:int((t > t[-1] - RAMP).sum())]
+    x *= fade
+    v, a = np.gradient(x, period), np.gradient(np.gradient(x, period), period)
+    half_stroke = 0.5 * (config.stroke[1] - config.stroke[0])
+    sweep = 0.4 * half_stroke * np.sin(2 * math.pi * SWEEP * t) * fade        # across the stroke
+    sweep_v = np.gradient(sweep, period)
+    sweep_a = np.gradient(sweep_v, period)
+    scale = min(0.5 * config.limits.velocity / np.abs(v).max(), 0.5 * config.limits.acceleration / np.abs(a).max(),
+                0.4 * half_stroke / np.abs(x).max())
+    return _single_axis(machine, axis, sweep + scale * x, sweep_v + scale * v, sweep_a + scale * a)
+
+
+def constant_speed(machine: MachineConfig, axis: str, speed: float) -> tuple[Reference, slice]:
+    """A run holding `speed` (signed) for HOLD (or HOLD_TRAVEL) centred on the stroke's middle, with
+    SPEED_ACCELERATION ramps and a rest at each end; and the steps of 40-90 % of the hold."""
+    period = machine.control_period
+    ramp = abs(speed) / SPEED_ACCELERATION
+    steps = [int(round(d / period)) for d in (0.05, ramp, max(HOLD, HOLD_TRAVEL / abs(speed)), ramp, 0.05)]
+    v = np.concatenate((np.zeros(steps[0]), np.linspace(0, speed, steps[1], endpoint=False), np.full(steps[2], speed),
+                        np.linspace(speed, 0, steps[3]), np.zeros(steps[4])))
+    a = np.gradient(v, period)
+    x = np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * period)))
+    start = steps[0] + steps[1]
+    x -= x[start + 13 * steps[2] // 20]                  # the middle of the stroke in the middle of the steps averaged
+    middle = slice(start + 4 * steps[2] // 10, start + 9 * steps[2] // 10)
+    return _single_axis(machine, axis, x, v, a), middle
+
+
+def _single_axis(machine: MachineConfig, axis: str, x, v, a) -> Reference:
+    """`axis` at the middle of its stroke + x (the offline run starts there), the others at home."""
+    index = machine.axis_names.index(axis)
+    pos = np.tile(np.asarray(machine.home, float), (len(x), 1))
+    vel, acc = np.zeros_like(pos), np.zeros_like(pos)
+    pos[:, index] = 0.5 * sum(machine.axis(axis).stroke) + np.asarray(x)
+    vel[:, index], acc[:, index] = v, a
+    return Reference(machine.axis_names, machine.control_period, pos, vel, acc)
+
+
+def _force_and_position(machine: MachineConfig, axis: str, reference: Reference):
+    """The run of `reference`: (force over each step k-1..k+1 from the applied commands, the
+    encoder position at k), N and m, aligned for central differences."""
+    record = run(machine, reference)
+    if record.fault:
+        raise RuntimeError(f'{axis}: the simulated machine faulted: {record.fault}')
+    i = machine.axis_names.index(axis)
+    effort = record.effort[:, i]
+    force = machine.axis(axis).drive.gain * 0.5 * (effort[:-1] + effort[1:])
+    return force, record.measured[:-1, i]
+
+
+def _rigid_body_run(machine: MachineConfig, axis: str):
+    force, position = _force_and_position(machine, axis, multisine(machine, axis))
+    return fit_rigid_body(force, position, machine.control_period, MIN_SPEED, WAVELENGTHS)
+
+
+def _speed_run(machine: MachineConfig, axis: str, speed: float) -> tuple[float, np.ndarray]:
+    """The mean force over the middle of the hold at `speed` (N) and the positions there."""
+    reference, middle = constant_speed(machine, axis, speed)
+    force, position = _force_and_position(machine, axis, reference)
+    return float(force[middle].mean()), position[middle]
+
+
+def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> dict:
+    """The identification of `axis` (module docstring): {'status', 'reason', 'axis', 'rigid_body',
+    'steady', 'true', 'seed', 'speeds', 'forces'}."""
+    config = machine.axis(axis)
+    friction = config.plant.friction if config.plant is not None else None
+    if config.kind != 'linear' or config.drive.mass is None or config.control is None or config.stroke is None \
+            or friction is None:
+        return {'status': 'refused', 'reason': f'{axis}: identify takes a controlled linear axis with a stroke, a '
+                                               f'force drive (mass, damping) and guideway friction, not a '
+                                               f'{config.kind} {config.drive.type} axis', 'axis': axis}
+    jobs = [(machine, axis)] + [(machine, axis, sign * v) for sign in (1.0, -1.0) for v in SPEEDS]
+    functions = [_rigid_body_run] + [_speed_run] * (len(jobs) - 1)
+    try:
+        outcomes = parallel.run_all(_call, list(zip(functions, jobs)), workers)
+    except RuntimeError as exc:             # the simulated machine faulted (stroke, limits)
+        return {'status': 'refused', 'reason': str(exc), 'axis': axis}
+    body = outcomes[0]
+    forces = np.abs(np.array([force for force, _ in outcomes[1:]])).reshape(2, len(SPEEDS))
+    result = {'axis': axis, 'rigid_body': body, 'speeds': list(SPEEDS), 'forces': forces.tolist(),
+              'true': true_values(machine, axis), 'seed': SEED.get(axis, {})}
+    if body.status is not FitStatus.OK:
+        return {**result, 'status': 'refused', 'reason': f'rigid body: {body.reason}'}
+    scales, slopes = np.ones_like(forces), None
+    if body.variation is not None:      # s(x) = 1 + A sin(k x + phase) and ds/dx, averaged over each run
+        k, slopes = 2 * math.pi / body.variation.wavelength, np.zeros_like(forces)
+        for i, (_, positions) in enumerate(outcomes[1:]):
+            d, j = i // len(SPEEDS), i % len(SPEEDS)
+            angle = k * positions + body.variation.phase[d]
+            scales[d, j] = float(np.mean(1.0 + body.variation.amplitude[d] * np.sin(angle)))
+            slopes[d, j] = float(np.mean(body.variation.amplitude[d] * k * np.cos(angle)))
+    steady = fit_steady_friction(np.tile(SPEEDS, (2, 1)), forces, scales, slopes)
+    result['steady'] = steady
+    if steady.status is not FitStatus.OK:
+        return {**result, 'status': 'refused', 'reason': f'steady friction: {steady.reason}'}
+    return {**result, 'status': 'ok', 'reason': ''}
+
+
+def _call(function, job):
+    return function(*job)
+
+
+def true_values(machine: MachineConfig, axis: str) -> dict:
+    """What hw_sim simulates for `axis`: drive mass and damping, plant friction (N, m/s)."""
+    config = machine.axis(axis)
+    out = {'mass': config.drive.mass, 'viscous': config.drive.damping}
+    friction = config.plant.friction if config.plant is not None else None
+    if friction is not None:
+        out.update(static=friction.static, coulomb=friction.coulomb, omega1=friction.omega1, omega2=friction.omega2,
+                   variation=friction.variation, variation_wavelength=friction.variation_wavelength,
+                   sigma0=friction.sigma0, sigma1=friction.sigma1)
+    return out
+
+
+def yaml_fragment(machine: MachineConfig, result: dict) -> str:
+    """The identified values as a fragment of the machine YAML (to merge by hand, or to give to
+    the tools that take one), each with its 95 % interval or fit residual in a comment."""
+    body, steady, axis = result['rigid_body'], result['steady'], result['axis']
+    fits = steady.curves
+
+    def pair(name):
+        return f'[{getattr(fits[0], name):.5g}, {getattr(fits[1], name):.5g}]'
+    worst = max(f.worst_relative_residual for f in fits)
+    lines = [f'# machine-ctrl identify {axis} --machine {machine.name}: offline on hw_sim (simulation.seed '
+             f'{machine.simulation.seed})',
+             'axes:',
+             f'  {axis}:',
+             '    drive:',
+             f'      mass: {body.mass.value:.5g}        # kg, +-{body.mass.half_width:.2g} (95 %), rigid-body fit',
+             f'      damping: {steady.viscous:.5g}     # N*s/m, from the constant-speed runs',
+             '    plant:',
+             '      friction:                # the Stribeck curve (Eq. 4.41), (positive, negative) direction; '
+             f'worst fit residual {100 * worst:.1f} %',
+             f'        static: {pair("static")}',
+             f'        coulomb: {pair("coulomb")}',
+             f'        omega1: {pair("omega1")}',
+             f'        omega2: {pair("omega2")}']
+    if body.variation is not None:
+        v = body.variation
+        lines += [f'        variation: {0.5 * sum(v.amplitude):.3g}        # (positive, negative): '
+                  f'{v.amplitude[0]:.3g}, {v.amplitude[1]:.3g}; phase at x = 0: {v.phase[0]:.2f}, {v.phase[1]:.2f} rad',
+                  f'        variation_wavelength: {v.wavelength:.4g}   # m']
+    return '\n'.join(lines) + '\n'
+
+
+def table(result: dict) -> str:
+    """seed | true (hw_sim) | identified | error, per parameter."""
+    if result['status'] != 'ok':
+        return f'{result["axis"]}: refused: {result["reason"]}'
+    body, steady, true, seed = result['rigid_body'], result['steady'], result['true'], result['seed']
+    lines = [f'{result["axis"]}: identified offline on hw_sim (the simulator\'s true values beside)',
+             f'  {"parameter":26s} {"seed":>9s} {"true":>9s} {"identified":>11s} {"95 %":>8s} {"error":>8s}']
+
+    def row(name, s, t, value, half=None):
+        lines.append(f'  {name:26s} {"-" if s is None else f"{s:.4g}":>9s} {t:9.4g} {value:11.4g} '
+                     f'{"" if half is None else f"{half:.2g}":>8s} {100 * (value / t - 1):7.2f}%')
+    row('mass (kg)', seed.get('mass'), true['mass'], body.mass.value, body.mass.half_width)
+    row('viscous (N s/m)', None, true['viscous'], steady.viscous)
+    for k, direction in enumerate(('positive', 'negative')):
+        for name, unit in (('static', 'N'), ('coulomb', 'N'), ('omega1', 'm/s'), ('omega2', 'm/s')):
+            row(f'{name} {direction} ({unit})', seed.get(name, (None, None))[k], true[name][k],
+                getattr(steady.curves[k], name))
+    if body.variation is not None and true.get('variation'):
+        v = body.variation
+        row('variation positive (1)', None, true['variation'], v.amplitude[0])
+        row('variation negative (1)', None, true['variation'], v.amplitude[1])
+        row('variation wavelength (m)', None, true['variation_wavelength'], v.wavelength)
+    if not math.isnan(steady.bristle_time) and 'sigma1' in true:
+        row('bristle term tau (s)', None, true['sigma1'] / true['sigma0'], steady.bristle_time)
+    if not math.isnan(steady.bristle_time):
+        lines.append('  tau: the steady fit\'s bristle term (fit_steady_friction), beside the true sigma1/sigma0: it '
+                     'also takes up the bristles\' lag behind the varying friction (g g\'/sigma0), so it is what keeps '
+                     'b right, not an identification of sigma1/sigma0')
+    lines.append(f'  rigid body from {body.samples} samples faster than {MIN_SPEED * 1e3:g} mm/s, residual '
+                 f'{body.residual_rms:.3g} N rms (its own b: {body.viscous.value:.4g} N s/m, Coulomb '
+                 f'{body.coulomb[0].value:.4g} / {body.coulomb[1].value:.4g} N); the steady-friction fit\'s worst '
+                 'relative residual: ' + ', '.join(f'{d} {100 * c.worst_relative_residual:.2f} %'
+                                                   for d, c in zip(('positive', 'negative'), steady.curves)))
+    return '\n'.join(lines)

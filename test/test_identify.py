@@ -1,0 +1,141 @@
+"""Identification of a feed drive (issue [8/8] part 1, begun: machine_ctrl/identification/
+rigid_body.py, machine_ctrl/experiments/identify.py, `machine-ctrl identify`): the fits on
+synthetic data of known parameters, the whole identification of the micromill's x_c on hw_sim
+against the simulator's true values (fixed seed), the YAML fragment loading as a machine
+config, and the refusals."""
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from machine_ctrl.identification.rigid_body import (FitStatus, fit_rigid_body, fit_steady_friction, lowpass,
+                                                    stribeck)
+from machine_ctrl.model.config import load_machine
+
+PERIOD = 1e-4
+
+
+def synthetic(seconds=8.0, noise=0.5, seed=3):
+    """A multisine over a slow sweep (x, v, a analytic) and the force of m = 20 kg, b = 30 N s/m,
+    F_c = (40, 25) N varying by 10 % along a 30 mm wavelength, with white noise."""
+    t = np.arange(int(seconds / PERIOD)) * PERIOD
+    tones = [(0.7, 4e-3), (1.9, 2e-3), (4.1, 1e-3)]
+    x = 0.02 * np.sin(2 * math.pi * 0.25 * t) + sum(amp * np.sin(2 * math.pi * f * t + f) for f, amp in tones)
+    v = 0.02 * 2 * math.pi * 0.25 * np.cos(2 * math.pi * 0.25 * t) + sum(
+        amp * 2 * math.pi * f * np.cos(2 * math.pi * f * t + f) for f, amp in tones)
+    a = -0.02 * (2 * math.pi * 0.25) ** 2 * np.sin(2 * math.pi * 0.25 * t) - sum(
+        amp * (2 * math.pi * f) ** 2 * np.sin(2 * math.pi * f * t + f) for f, amp in tones)
+    scale = 1.0 + 0.1 * np.sin(2 * math.pi * x / 0.03)
+    force = 20.0 * a + 30.0 * v + scale * np.where(v > 0, 40.0, -25.0)
+    return force + np.random.default_rng(seed).normal(0.0, noise, len(t)), x
+
+
+def test_the_rigid_body_fit_finds_known_parameters_with_narrow_intervals():
+    """Within 3 % of the parameters the data was made with (measured < 0.6 %), each interval
+    under 5 % wide. The intervals do not all hold the true value (b: 30.09 +- 0.02): the residual
+    of filtered data is not white, as rigid_body.py says."""
+    force, x = synthetic()
+    fit = fit_rigid_body(force, x, PERIOD, 5e-3, np.geomspace(5e-3, 0.1, 61))
+    assert fit.status is FitStatus.OK, fit.reason
+    for estimate, true in ((fit.mass, 20.0), (fit.viscous, 30.0), (fit.coulomb[0], 40.0), (fit.coulomb[1], 25.0)):
+        assert estimate.within(true, 0.03), (estimate, true)
+        assert 0 < estimate.half_width < 0.05 * true
+    assert fit.variation.wavelength == pytest.approx(0.03, rel=0.03)
+    assert fit.variation.amplitude == pytest.approx((0.1, 0.1), rel=0.1)
+
+
+def test_the_steady_friction_fit_finds_the_stribeck_curve_and_b():
+    speeds = np.geomspace(5e-5, 0.1, 10)
+    curves = ((36.0, 40.0, 1.3e-3, 1.8e-3), (29.0, 27.0, 0.34e-3, 0.45e-3))
+    forces = np.array([stribeck(speeds, *c) + 25.0 * speeds for c in curves])
+    fit = fit_steady_friction(np.tile(speeds, (2, 1)), forces)
+    assert fit.status is FitStatus.OK, fit.reason
+    assert fit.viscous == pytest.approx(25.0, rel=1e-3)
+    for found, true in zip(fit.curves, curves):
+        assert (found.static, found.coulomb, found.omega1, found.omega2) == pytest.approx(true, rel=1e-3)
+
+
+@pytest.mark.parametrize('force, position, reason', [
+    (np.zeros(500), np.zeros(500), '500 samples: at least 1000 needed'),
+    (np.zeros(2000), np.zeros(1999), 'must be equally long'),
+    (np.full(2000, np.nan), np.zeros(2000), 'NaN or inf'),
+    (np.zeros(20000), np.linspace(0.0, 0.01, 20000), 'not both directions'),     # one way only
+])
+def test_data_that_cannot_give_a_rigid_body_is_refused_with_the_reason(force, position, reason):
+    fit = fit_rigid_body(force, position, PERIOD, 5e-3)
+    assert fit.status is FitStatus.REFUSED and reason in fit.reason, fit.reason
+
+
+def test_steady_friction_data_that_cannot_give_a_curve_is_refused_with_the_reason():
+    speeds = np.tile(np.geomspace(1e-4, 0.1, 6), (2, 1))
+    assert 'at least 5 needed' in fit_steady_friction(speeds[:, :4], np.ones((2, 4))).reason
+    assert 'finite and > 0' in fit_steady_friction(speeds, -np.ones((2, 6))).reason
+    assert 'two decades' in fit_steady_friction(np.tile(np.linspace(0.01, 0.1, 6), (2, 1)), np.ones((2, 6))).reason
+    assert 'must be (2, n) arrays' in fit_steady_friction(speeds[0], np.ones(6)).reason
+
+
+def test_the_filter_is_zero_phase():
+    t = np.arange(20000) * PERIOD
+    slow = np.sin(2 * math.pi * 2.0 * t)
+    assert np.abs(lowpass(slow, PERIOD) - slow)[2000:-2000].max() < 1e-6
+
+
+@pytest.fixture(scope='module')
+def x_c(micromill):
+    from machine_ctrl.experiments.identify import identify
+    return identify(micromill, 'x_c', workers=1)
+
+
+def test_x_c_of_the_simulated_micromill_is_identified_near_what_hw_sim_simulates(x_c):
+    """Against the simulator's true values (the machine config's drive and plant.friction),
+    seed 1: mass and b within 3 % (measured 1.3 %, 1.6 %), the static and Coulomb levels within
+    10 % as the issue asks (measured < 0.5 %), the Stribeck velocities and the variation along
+    the stroke within 10 % (measured < 1.5 %)."""
+    assert x_c['status'] == 'ok', x_c['reason']
+    true, body, steady = x_c['true'], x_c['rigid_body'], x_c['steady']
+    assert body.mass.within(true['mass'], 0.03)
+    assert steady.viscous == pytest.approx(true['viscous'], rel=0.03)
+    for d, curve in enumerate(steady.curves):
+        for name in ('static', 'coulomb', 'omega1', 'omega2'):
+            assert getattr(curve, name) == pytest.approx(true[name][d], rel=0.10), (name, d)
+    assert body.variation.wavelength == pytest.approx(true['variation_wavelength'], rel=0.05)
+    assert body.variation.amplitude == pytest.approx((true['variation'],) * 2, rel=0.10)
+
+
+def test_the_yaml_fragment_merged_into_the_machine_config_loads_with_the_identified_values(micromill, x_c, tmp_path):
+    import shutil
+
+    from machine_ctrl.experiments.identify import yaml_fragment
+    fragment = yaml.safe_load(yaml_fragment(micromill, x_c))
+    config = yaml.safe_load(micromill.yaml_path.read_text())
+
+    def merge(into, update):
+        for key, value in update.items():
+            if isinstance(value, dict):
+                merge(into.setdefault(key, {}), value)
+            else:
+                into[key] = value
+    merge(config, fragment)
+    shutil.copy(micromill.urdf_path, tmp_path)
+    config['simulation']['error_map'] = str(micromill.simulation.error_map_path(micromill.yaml_path))
+    path = tmp_path / 'identified.yaml'
+    path.write_text(yaml.safe_dump(config))
+    axis = load_machine(path).axis('x_c')
+    steady = x_c['steady']
+    assert axis.drive.mass == pytest.approx(x_c['rigid_body'].mass.value, rel=1e-4)
+    assert axis.drive.damping == pytest.approx(steady.viscous, rel=1e-4)
+    assert axis.plant.friction.coulomb == pytest.approx(tuple(c.coulomb for c in steady.curves), rel=1e-4)
+    assert axis.plant.friction.variation_wavelength == pytest.approx(x_c['rigid_body'].variation.wavelength, rel=1e-3)
+
+
+def test_an_axis_without_a_force_drive_and_friction_is_refused_and_the_command_says_why(micromill, capsys):
+    from machine_ctrl.app import cli
+    from machine_ctrl.experiments.identify import identify
+    for axis in ('a_f', 'x_f'):
+        result = identify(micromill, axis)
+        assert result['status'] == 'refused' and 'guideway friction' in result['reason'], result
+    assert cli.main(['identify', 'x_f']) == 1
+    assert 'identify takes a controlled linear axis' in capsys.readouterr().err
+    assert cli.main(['identify', 'q_q']) == 2
+    assert "micromill_9axis has no axis 'q_q'" in capsys.readouterr().err
