@@ -323,7 +323,7 @@ SERVO = NodeParameters('servo_node', (
                   constraint="as in the machine config: > 0 or >= 0; the law's conditions", live=True, template=True),
     ParameterSpec('contour_control', BOOL, False, description="the machine's cross-coupled contour control "
                   '(machine config contour_control; README "Contour control"); live: on from the next step, the '
-                  'correction growing from zero; off: it fades out (time constant fade)', live=True,
+                  'correction fading in from zero; off: it fades out (time constant fade)', live=True,
                   constraint='true only on the node holding every coupled axis of a machine with a contour_control '
                   'section'),
     ParameterSpec('wait_for_offsets', BOOL, None, description='fine axes of a dual-stage coupling wait for '

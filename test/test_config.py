@@ -72,6 +72,9 @@ BAD_CONFIGS = {
         ('  fade: 0.01                   # s, assumed: a hundred',
          '  orientation: {proportional: 1.0, integral: 10.0}\n  fade: 0.01 # s, assumed: a hundred'), None,
         r'contour_control\.orientation: the orientation channel needs a rotary axis among axes'),
+    'contour control: rotary axis without orientation channel': (
+        ('axes: [x_f, y_f, z_f]', 'axes: [x_f, y_f, z_f, a_f]'), None,
+        r'contour_control\.axes: a_f: a rotary axis takes the orientation correction, and there is no orientation'),
     'contour control: negative gain': (('    proportional: 1.0          # assumed: the correction equals',
                                         '    proportional: -1.0          # assumed: the correction equals'), None,
                                        r'contour_control\.tool_tip\.proportional: must be >= 0, got -1'),

@@ -46,40 +46,54 @@ def correction(machine, coupling, result, axis):
     return result.corrections[coupling.axes.index(axis)]
 
 
+def decay_of(machine):
+    """exp(-T/fade): the factor by which a channel's proportional weight rises (1 - (1 - w) d)
+    with valid estimates and falls (w d) without, per step."""
+    return math.exp(-machine.control_period / machine.contour_control.fade)
+
+
 def test_the_error_across_the_path_is_corrected_and_the_error_along_it_is_not(micromill):
     """Koren's CCC on a line along x: a lag of 3 um along the path (x_c behind) is no contour
-    error; 0.2 um of y_f across it is, and y_f's reference moves back by (k_p + k_i T) times it
-    at the first step; x_f and z_f stay."""
+    error; 0.2 um of y_f across it is, and y_f's reference moves back by (k_p w + k_i T) times
+    it, w = 1 - d^2 at the second step of a fresh coupling; x_f and z_f stay."""
     reference = line(micromill)
     coupling = coupling_on(micromill, reference)
-    gains, period = micromill.contour_control.tool_tip, micromill.control_period
+    gains, period, d = micromill.contour_control.tool_tip, micromill.control_period, decay_of(micromill)
     k = ROWS // 2
     coupling.step(k - 1, reference.position[k - 1])             # at the path: nothing to correct
     result = coupling.step(k, displaced(micromill, reference, k, x_c=-3e-6, y_f=0.2e-6))
     assert result.status is CouplingStatus.ACTIVE and result.reason == ''
     assert correction(micromill, coupling, result, 'y_f') == pytest.approx(
-        -(gains.proportional + gains.integral * period) * 0.2e-6, rel=1e-6)
+        -(gains.proportional * (1 - d * d) + gains.integral * period) * 0.2e-6, rel=1e-6)
     assert abs(correction(micromill, coupling, result, 'x_f')) < 1e-15
     assert abs(correction(micromill, coupling, result, 'z_f')) < 1e-15
 
 
 def test_the_integral_adds_k_i_T_eps_per_step_and_new_gains_take_over_without_a_step(micromill):
+    """A constant contour error eps from a fresh coupling: step n gives k_p w_n eps + the
+    integral, w_n = 1 - d^n. A new k_i changes only what is added from then on; a new k_p moves
+    the correction by (Delta k_p) w eps."""
     reference = line(micromill)
     coupling = coupling_on(micromill, reference)
-    gains, period, eps = micromill.contour_control.tool_tip, micromill.control_period, 0.2e-6
+    gains, period, eps, d = micromill.contour_control.tool_tip, micromill.control_period, 0.2e-6, decay_of(micromill)
+    kp = gains.proportional
 
     def y_f(k):
         return -correction(micromill, coupling, coupling.step(k, displaced(micromill, reference, k, y_f=eps)), 'y_f')
 
+    def w(n):
+        return 1 - d ** n
+
     k = ROWS // 2
     first, second = y_f(k), y_f(k + 1)
-    assert second - first == pytest.approx(gains.integral * period * eps, rel=1e-6)
+    assert first == pytest.approx((kp * w(1) + gains.integral * period) * eps, rel=1e-6)
+    assert second - first == pytest.approx((kp * (w(2) - w(1)) + gains.integral * period) * eps, rel=1e-6)
     coupling.retune(dataclasses.replace(micromill.contour_control, tool_tip=dataclasses.replace(gains, integral=500.0)))
     third = y_f(k + 2)
-    assert third - second == pytest.approx(500.0 * period * eps, rel=1e-6)    # the integral kept, not rescaled
+    assert third - second == pytest.approx((kp * (w(3) - w(2)) + 500.0 * period) * eps, rel=1e-6)   # integral kept
     coupling.retune(dataclasses.replace(coupling.config, tool_tip=ContourChannelGains(3.0, 500.0)))
     fourth = y_f(k + 3)
-    assert fourth - third == pytest.approx((3.0 - gains.proportional) * eps + 500.0 * period * eps, rel=1e-6)
+    assert fourth - third == pytest.approx((3.0 * w(4) - kp * w(3) + 500.0 * period) * eps, rel=1e-6)
 
 
 def test_without_a_valid_estimate_the_correction_fades_and_resumes_from_there(micromill):
@@ -87,7 +101,7 @@ def test_without_a_valid_estimate_the_correction_fades_and_resumes_from_there(mi
     exp(-T/fade) per step, the status says why; with the rows back it is corrected again."""
     reference = line(micromill)
     coupling = coupling_on(micromill, reference)
-    decay = math.exp(-micromill.control_period / micromill.contour_control.fade)
+    decay = decay_of(micromill)
     k = ROWS // 2
     before = coupling.step(k, displaced(micromill, reference, k, y_f=0.2e-6)).corrections
     q = displaced(micromill, reference, k, y_f=0.2e-6)
@@ -112,10 +126,13 @@ def test_an_invalid_estimate_is_not_used(micromill):
     assert result.corrections == (0.0, 0.0, 0.0)
 
 
-def test_switched_off_it_fades_out_then_costs_nothing_and_switched_on_starts_from_zero(micromill):
+def test_switched_off_it_fades_out_then_costs_nothing_and_switched_on_fades_in_from_zero(micromill):
+    """Off: the correction decays by d per step until it is below 1 fm, then OFF (zeros, nothing
+    computed). On again under the same contour error: it starts from zero, the first step's
+    correction being (k_p (1 - d) + k_i T) eps, no step of k_p eps."""
     reference = line(micromill)
     coupling = coupling_on(micromill, reference)
-    decay = math.exp(-micromill.control_period / micromill.contour_control.fade)
+    decay = decay_of(micromill)
     k, eps = 1000, 0.2e-6
     on = coupling.step(k, displaced(micromill, reference, k, y_f=eps))
     coupling.set_enabled(False)
@@ -134,7 +151,7 @@ def test_switched_off_it_fades_out_then_costs_nothing_and_switched_on_starts_fro
     result = coupling.step(k, displaced(micromill, reference, k, y_f=eps))
     assert result.status is CouplingStatus.ACTIVE
     assert -correction(micromill, coupling, result, 'y_f') == pytest.approx(
-        (gains.proportional + gains.integral * micromill.control_period) * eps, rel=1e-6)
+        (gains.proportional * (1 - decay) + gains.integral * micromill.control_period) * eps, rel=1e-5)
 
 
 @pytest.mark.parametrize('change, reason', [

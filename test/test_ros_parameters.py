@@ -174,6 +174,20 @@ class TestTrtGraph:
         trt_graph.check()
 
 
+def test_contour_control_is_refused_with_the_reason_where_the_node_cannot_run_it(micromill, fts_lathe):
+    """The check servo_node declares for `contour_control` (a set, at start or live, is refused
+    with this text): the node must hold every coupled axis of a machine that has a
+    contour_control section."""
+    from machine_ctrl.ros.servo_node import contour_check
+    check = contour_check(micromill)
+    assert check.test({'axes': ['x_f', 'y_f', 'z_f', 'a_f'], 'contour_control': True}) is None
+    assert check.test({'axes': ['x_c', 'y_c', 'z_c'], 'contour_control': False}) is None       # off: anywhere
+    assert check.test({'axes': ['x_c', 'y_c', 'z_c'], 'contour_control': True}) == \
+        'the node must hold every coupled axis (x_f y_f z_f); it has x_c y_c z_c'
+    assert contour_check(fts_lathe).test({'axes': ['w'], 'contour_control': True}) == \
+        'fts_lathe has no contour_control section in its machine config'
+
+
 # --- micromill: the switches that are also services -------------------------------------------------
 
 @pytest.fixture(scope='class')

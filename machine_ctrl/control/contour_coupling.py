@@ -28,25 +28,30 @@ commands, so through a proportional position loop the two are the same.
 
 **Only valid estimates** (machine_ctrl/contour/validity.py): an estimate whose bound on
 |estimate - true contour error| is above the tolerance (a join, a corner, a reversal, the
-last rows of a stop, a path end) is not used. Its channel then freezes: the last valid eps
-and the integral both decay with the time constant `fade` (machine config), so the
-correction goes smoothly to zero while the estimates stay invalid and resumes from where it
-is when they come back. A correction is never stepped.
+last rows of a stop, a path end) is not used. Its channel then holds the last valid eps and
+lets the weight w of the proportional term and the integral decay with the time constant
+`fade` (machine config): the correction goes smoothly to zero while the estimates stay
+invalid. With valid estimates back, w rises to 1 with the same time constant, so the
+proportional term k_p w eps is not stepped in either (the correction moves by at most
+k_p (1 - exp(-T/fade)) |eps| more than eps itself moves in a step).
 
 **On and off at run time** (:meth:`ContourCoupling.set_enabled`): switched off, both channels
 fade out the same way; switched on, they start from where the fade has left them (zero after
-a few `fade`s), with a fresh estimator (steps skipped while off break the step order it
-relies on). While off and faded out the block costs nothing per step: no forward kinematics,
-no estimate. The reference rows are kept as axis rows and converted to tool rows
+a few `fade`s) and fade in, with a fresh estimator (steps skipped while off break the step
+order it relies on). While off and faded out the block costs nothing per step: no forward
+kinematics, no estimate. The reference rows are kept as axis rows and converted to tool rows
 (:func:`machine_ctrl.contour.estimation.tool_reference`) only while on, in blocks of BLOCK
-steps aligned on the step count, up to the end of the block holding step + HORIZON: which
+steps aligned on the step count, up to the end of the block holding step + HORIZON. Which
 rows an estimate sees is then a function of the step alone, so the servo node (reference
-streamed in chunks, 3000 rows ahead) computes what the offline runner (the whole reference at
-once) computes, bit for bit.
+streamed in chunks, 3000 rows ahead) computes what the offline runner (the whole reference
+at once) computes, bit for bit: with the control on from the start and the stream ahead of
+each step's block (a lagging stream, or a chunk re-sent from an earlier step, which drops
+the rows after it until they come again, leaves an estimate fewer rows; it may then be
+invalid and fade).
 
 **Gains** (machine YAML ``contour_control``): live between two steps (:meth:`retune`); the
 integral is held as k_i * integral(eps), so a new k_i does not step the correction, and a new
-k_p steps it by (Delta k_p) eps, in proportion to the contour error.
+k_p steps it by (Delta k_p) w eps, in proportion to the contour error.
 
 Same shape as a control law (machine_ctrl/control/law.py) over several axes, like
 machine_ctrl/control/dual_stage.py: declared ``parameters``, ``reset()``, ``retune_problem``,
@@ -107,28 +112,32 @@ class AxisRows:
 
 
 class _Channel:
-    """One contour-error channel: the last valid estimate and the integral, decaying while
-    the estimate is invalid (module docstring)."""
+    """One contour-error channel (module docstring): the last valid estimate, the weight w of
+    the proportional term and the integral. With a valid estimate w rises towards 1, without
+    one it and the integral decay, both by the factor exp(-T/fade) per step, so the
+    proportional term k_p w eps neither steps in at a switch-on or a resume nor steps out."""
 
     def __init__(self):
         self.eps = np.zeros(3)
+        self.weight = 0.0
         self.integral = np.zeros(3)          # k_i * integral(eps): a new k_i does not step it
 
-    def update(self, gains: ContourChannelGains, eps, period: float) -> None:
+    def update(self, gains: ContourChannelGains, eps, period: float, factor: float) -> None:
         self.eps = np.asarray(eps, float)
+        self.weight = 1.0 - (1.0 - self.weight) * factor
         self.integral = self.integral + gains.integral * period * self.eps
 
     def decay(self, factor: float) -> None:
-        self.eps = self.eps * factor
+        self.weight *= factor
         self.integral = self.integral * factor
 
     def correction(self, gains: ContourChannelGains) -> np.ndarray:
-        return gains.proportional * self.eps + self.integral
+        return gains.proportional * self.weight * self.eps + self.integral
 
     @property
     def quiet(self) -> bool:
         """Faded out: below 1 fm (frad), far under any sensor."""
-        return max(np.abs(self.eps).max(), np.abs(self.integral).max()) < 1e-15
+        return max(self.weight * np.abs(self.eps).max(), np.abs(self.integral).max()) < 1e-15
 
 
 CHANNELS = ('tool_tip', 'orientation')
@@ -143,11 +152,11 @@ class ContourCoupling:
                   'orientation correction'),
         Parameter('estimator', '', 'the tool-tip estimator, Sencer Eqs. (20), (22) or (26)'),
         Parameter('tool_tip.proportional', '1', 'k_p, the share of eps added to the tool tip\'s reference',
-                  live='a step of (Delta k_p) eps in the correction, ~ the contour error'),
+                  live='a step of (Delta k_p) w eps in the correction, ~ the contour error'),
         Parameter('tool_tip.integral', '1/s', 'k_i, integral gain on eps',
                   live='the integrator holds k_i * integral(eps): no step'),
         Parameter('orientation.proportional', '1', 'k_pO, the share of eps_o added to the tool axis\'s reference',
-                  live='a step of (Delta k_pO) eps_o in the correction, ~ the contour error'),
+                  live='a step of (Delta k_pO) w eps_o in the correction, ~ the contour error'),
         Parameter('orientation.integral', '1/s', 'k_iO, integral gain on eps_o',
                   live='the integrator holds k_iO * integral(eps_o): no step'),
         Parameter('fade', 's', 'time constant of the correction\'s decay while its estimate is invalid or the '
@@ -173,7 +182,6 @@ class ContourCoupling:
         self.trajectory = ToolTrajectory(self.period)
         self.history = self.trajectory.horizon + 2      # the rows an estimate may look back at, and 2
         self.enabled = bool(enabled)
-        self.invalid_steps = {'tool_tip': 0, 'orientation': 0}
         self.reset()
 
     # -- the reference ---------------------------------------------------------------------
@@ -237,6 +245,7 @@ class ContourCoupling:
 
     def reset(self) -> None:
         self.channels = {name: _Channel() for name in CHANNELS}
+        self.invalid_steps = {name: 0 for name in CHANNELS}
         self.last = CouplingStep((0.0,) * len(self.axes), CouplingStatus.OFF)     # the last step's output
         self._estimators()
         self._synced = False            # tool rows are made while on only
@@ -296,7 +305,7 @@ class ContourCoupling:
         reasons = []
         for name, estimate in estimates.items():
             if estimate.valid:
-                self.channels[name].update(getattr(self.config, name), estimate.vector, self.period)
+                self.channels[name].update(getattr(self.config, name), estimate.vector, self.period, decay)
             else:
                 self.channels[name].decay(decay)
                 self.invalid_steps[name] += 1

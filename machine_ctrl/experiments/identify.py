@@ -6,7 +6,8 @@ the encoder positions) with the drive's data-sheet force constant K = K_a K_t.
 
 * **Rigid body**: a Schroeder multisine position reference (FREQUENCIES, equal velocity
   amplitude per tone, scaled to half the axis's velocity and acceleration limits and 40 % of
-  its half stroke) on a slow sine over 80 % of the stroke (SWEEP), raised-cosine ends, for
+  its half stroke) on a slow sine of 40 % of the half stroke (SWEEP; together they stay within
+  80 % of it), raised-cosine ends, for
   DURATION; m, b, the Coulomb levels and the friction's variation along the stroke by least
   squares with 95 % intervals (machine_ctrl.identification.rigid_body.fit_rigid_body; samples
   slower than MIN_SPEED left out).
@@ -39,7 +40,7 @@ from machine_ctrl.model.reference import Reference
 # assumed: tones from 0.5 to 8 Hz: below the servo's bandwidth (~30 Hz on the coarse axes, Fig.
 # 4.10), so the axis follows them, and above the friction's slow variation along the stroke
 FREQUENCIES = (0.5, 0.8, 1.25, 2.0, 3.15, 5.0, 8.0)     # Hz
-SWEEP = 0.25                # Hz, assumed: a slow sine over 80 % of the stroke under the tones, so the
+SWEEP = 0.25                # Hz, assumed: a slow sine of 40 % of the half stroke under the tones, so the
                             # friction is seen along the stroke (its variation, fit_rigid_body)
 DURATION = 8.0              # s, assumed: two periods of the sweep, four of the lowest tone
 RAMP = 0.5                  # s, raised-cosine fade in and out of the multisine
@@ -142,9 +143,13 @@ def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> d
     friction = config.plant.friction if config.plant is not None else None
     if config.kind != 'linear' or config.drive.mass is None or config.control is None or config.stroke is None \
             or friction is None:
-        return {'status': 'refused', 'reason': f'{axis}: identify takes a controlled linear axis with a stroke, a '
-                                               f'force drive (mass, damping) and guideway friction, not a '
-                                               f'{config.kind} {config.drive.type} axis', 'axis': axis}
+        missing = [what for what, absent in (
+            ('a linear joint', config.kind != 'linear'), ('a force drive (mass, damping)', config.drive.mass is None),
+            ('a servo law', config.control is None), ('a stroke', config.stroke is None),
+            ('guideway friction (plant.friction)', friction is None)) if absent]
+        return {'status': 'refused', 'axis': axis,
+                'reason': f'{axis}: identify takes a controlled linear axis with a stroke, a force drive and guideway '
+                          f'friction; {axis} lacks {", ".join(missing)}'}
     jobs = [(machine, axis)] + [(machine, axis, sign * v) for sign in (1.0, -1.0) for v in SPEEDS]
     functions = [_rigid_body_run] + [_speed_run] * (len(jobs) - 1)
     try:

@@ -746,6 +746,9 @@ def _contour_control(s: _Section, axes: list[AxisConfig]) -> ContourControlConfi
     s.finish()
     if values.get('orientation') is not None and not rotary:
         s.fail('the orientation channel needs a rotary axis among axes', 'orientation')
+    if values.get('orientation') is None and rotary:
+        s.fail(f'{", ".join(rotary)}: a rotary axis takes the orientation correction, and there is no orientation '
+               f'channel', 'axes')
     return ContourControlConfig(tuple(raw), **values)
 
 

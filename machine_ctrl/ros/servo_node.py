@@ -172,7 +172,9 @@ class ServoNode(StepNode):
 
     def compute(self, step: int, msg: JointStateData) -> bytes | None:
         measured = self.positions(msg, self.axes, velocities=True)
-        if measured is None:
+        # every axis for the contour control, read before any input of the step is taken
+        q = None if self.contour is None else self.positions(msg, self.machine.axis_names)
+        if measured is None or (self.contour is not None and q is None):
             return None
         position, velocity = measured
         complete = not self.accelerometer_axes or self._accelerations_of(step)
@@ -192,9 +194,6 @@ class ServoNode(StepNode):
         if offsets is not None:
             ref_pos = apply_offsets(ref_pos, self.fine_slots, offsets)
         if self.contour is not None:
-            q = self.positions(msg, self.machine.axis_names)
-            if q is None:
-                return None
             corrections = self.contour.step(step, q).corrections
             ref_pos = apply_offsets(ref_pos, [slot for slot, _ in self.contour_slots],
                                     [corrections[k] for _, k in self.contour_slots])

@@ -30,6 +30,7 @@ def register(subparsers) -> None:
 def cmd_identify(args) -> int:
     import dataclasses
     import enum
+    import math
 
     from machine_ctrl.experiments import identify
     machine = load_machine(args.machine)
@@ -47,6 +48,8 @@ def cmd_identify(args) -> int:
                 return {k: plain(v) for k, v in value.items()}
             if isinstance(value, (list, tuple)):
                 return [plain(v) for v in value]
+            if isinstance(value, float) and math.isnan(value):
+                return None                  # JSON has no NaN: a value not there
             return value.value if isinstance(value, enum.Enum) else value
         print(json.dumps(plain(result)))
     else:
