@@ -372,6 +372,21 @@ def test_a_fault_drops_the_motion_holds_the_fault_step_and_refuses_until_reset(m
     assert session.accept_joint_goal(['x_c'], [[rows[2501][0] + 1e-3]], [0.0])
 
 
+def test_a_lock_step_fault_reported_before_a_step_already_seen_is_stale_and_ignored(micromill, out):
+    """A lock-step hw_sim holds its step while faulted: a fault of step 2500 arriving when the
+    machine has run to step 3000 was reset since (a report held up by a link that was down,
+    test_two_hosts); the goal goes on. One of the current step faults the session."""
+    session = session_of(micromill, out, start_step=0)
+    session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
+    session.tick(3000)
+    session.machine_status(True, 'missing command for x_c', '2500', holds_step=True)
+    assert session.state != State.FAULT and session.goal is not None
+    assert out.logs[-1] == ('ignored a fault reported at step 2500, before step 3000 the machine has run since '
+                            '(reset): missing command for x_c')
+    session.machine_status(True, 'missing command for x_c', '3000', holds_step=True)
+    assert session.state == State.FAULT and out.goal_changes[-1][1] == 'aborted'
+
+
 def test_a_fault_while_planning_drops_the_plan(micromill, out):
     session = session_of(micromill, out, start_step=0)
     session.planning('path of 24 points')

@@ -221,6 +221,7 @@ class Session:
         self.stream: ReferenceStream | None = None
         self.state = State.IDLE
         self.step = 0                       # newest sim step seen
+        self.clock_step = 0                 # the sim step of the latest tick (a restarted hw_sim starts again at 0)
         self.fault = ''
         self.override_setting = 1.0
         self.rejections = Rejections(outputs.warn)
@@ -257,7 +258,7 @@ class Session:
         """The sim time is at `step`: keep `lookahead` rows streamed ahead; the goal is
         executing once the sim time reaches its motion; a motion that has played out ends
         (idle; the goal succeeded, or canceled after a stop)."""
-        self.step = max(self.step, step)
+        self.step, self.clock_step = max(self.step, step), step
         self._fill()
         if self.state not in (State.RUNNING, State.HOLDING):
             return
@@ -440,7 +441,7 @@ class Session:
             if self.held is not None:        # at rest already (or braking): drop the program
                 self.held, self.stopping = None, True
                 self._canceling(reason)
-                self.tick(self.step)
+                self.tick(self.clock_step)
                 return Answer(True, 'held motion dropped')
             return self._answer(True, lambda: self._stopping(self._change_feed(0.0, State.HOLDING, stop=True),
                                                              reason))
@@ -642,10 +643,20 @@ class Session:
         if goal is not None:
             self.goals.set(goal, GoalState.ABORTED, f'machine faulted: {reason}')
 
-    def machine_status(self, faulted: bool, reason: str = '', step_text: str = '') -> None:
+    def machine_status(self, faulted: bool, reason: str = '', step_text: str = '', holds_step: bool = False) -> None:
         """hw_sim's status: `faulted` with the fault `reason` and the fault step (text, as
         hw_sim reports it), or healthy (a reset clears the fault: idle; not while hw_sim is
-        lost)."""
+        lost). `holds_step`: hw_sim holds its step while faulted (lock-step), so a fault reported
+        at a step older than the sim time of the latest tick has been reset since. It is a
+        report delayed on its way, e.g. queued while a link between hosts was down and
+        delivered after the reset (README "Two hosts"), and is ignored: it would abort a goal of
+        the reset machine. (The latest tick, not the newest step ever: a restarted hw_sim
+        counts from 0 again.)"""
+        if (faulted and holds_step and step_text.isascii() and step_text.isdigit()
+                and int(step_text) < self.clock_step):
+            self.out.log(f'ignored a fault reported at step {step_text}, before step {self.clock_step} the machine '
+                         f'has run since (reset): {reason}')
+            return
         if faulted and (self.state != State.FAULT or self._await_fault_step):
             self._await_fault_step = False
             self.fault = reason

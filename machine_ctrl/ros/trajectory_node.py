@@ -335,7 +335,8 @@ class TrajectoryNode(Node):
             values = {kv.key: kv.value for kv in status.values}
             self.session.machine_heard(time.monotonic())
             self.session.machine_status(status.level == DiagnosticStatus.ERROR,
-                                        values.get('fault', status.message), values.get('step', ''))
+                                        values.get('fault', status.message), values.get('step', ''),
+                                        holds_step=values.get('mode') == 'lockstep')
         if not self.session.awaiting_plan:
             self.planning = None                     # a fault drops the plan under way
 
