@@ -69,7 +69,7 @@ import numpy as np
 from machine_ctrl.contour.estimation import (OrientationEstimator, ToolTipEstimator, ToolTrajectory,
                                              tool_reference)
 from machine_ctrl.contour.validity import machine_tolerances
-from machine_ctrl.control.law import Parameter, value_problem
+from machine_ctrl.control.law import Parameter, retune_checked, value_problem
 from machine_ctrl.model.config import ContourChannelGains, ContourControlConfig, MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 
@@ -182,6 +182,7 @@ class ContourCoupling:
         self.trajectory = ToolTrajectory(self.period)
         self.history = self.trajectory.horizon + 2      # the rows an estimate may look back at, and 2
         self.enabled = bool(enabled)
+        self._decay = math.exp(-self.period / config.fade)     # per step, while a channel fades
         self.reset()
 
     # -- the reference ---------------------------------------------------------------------
@@ -238,10 +239,9 @@ class ContourCoupling:
 
     def retune(self, config: ContourControlConfig) -> None:
         """From the next step (ValueError with the reason, nothing changed, when refused)."""
-        problem = self.retune_problem(config)
-        if problem is not None:
-            raise ValueError(problem)
+        retune_checked(self, config)
         self.config = config
+        self._decay = math.exp(-self.period / config.fade)
 
     def reset(self) -> None:
         self.channels = {name: _Channel() for name in CHANNELS}
@@ -273,12 +273,10 @@ class ContourCoupling:
             self._tool_rows(step)
         self.trajectory.drop_before(step - self.history)
         p, o, jacobian = self.kinematics.forward_and_jacobian(q)
-        decay = math.exp(-self.period / self.config.fade)
         if self.enabled:
-            reasons = self._update(step, p, o, decay)
+            reasons = self._update(step, p, o)
         else:
-            for channel in self.channels.values():
-                channel.decay(decay)
+            self._fade_all()
             reasons = ['switched off']
         tip = self.channels['tool_tip'].correction(self.config.tool_tip)
         corrections = np.zeros(len(self.axes))
@@ -292,11 +290,14 @@ class ContourCoupling:
                                  CouplingStatus.FADING if reasons else CouplingStatus.ACTIVE, '; '.join(reasons))
         return self.last
 
-    def _update(self, step: int, p, o, decay: float) -> list[str]:
+    def _fade_all(self) -> None:
+        for channel in self.channels.values():
+            channel.decay(self._decay)
+
+    def _update(self, step: int, p, o) -> list[str]:
         """Step the estimators and the channels; the reasons of the channels left to fade."""
         if not self.trajectory.has(step):
-            for channel in self.channels.values():
-                channel.decay(decay)
+            self._fade_all()
             return [f'no reference row for step {step}']
         row = self.trajectory.row(step)
         estimates = {'tool_tip': self.tip.estimate(self.trajectory, step, p.tolist(), row)}
@@ -305,9 +306,9 @@ class ContourCoupling:
         reasons = []
         for name, estimate in estimates.items():
             if estimate.valid:
-                self.channels[name].update(getattr(self.config, name), estimate.vector, self.period, decay)
+                self.channels[name].update(getattr(self.config, name), estimate.vector, self.period, self._decay)
             else:
-                self.channels[name].decay(decay)
+                self.channels[name].decay(self._decay)
                 self.invalid_steps[name] += 1
                 reasons.append(f'{name.replace("_", " ")} estimate invalid ({estimate.check.reason})')
         return reasons
