@@ -420,20 +420,56 @@ def test_analysis_of_the_recording_matches_the_offline_run(live_analysis, microm
 
 
 def test_replay_into_a_fresh_recording_gives_the_same_analysis(live, live_analysis, micromill, ros_supervisor,
-                                                                tmp_path):
+                                                                ros_node, tmp_path):
+    """The recorder's process is stopped (SIGSTOP) while the replay sends more than a
+    thousand states (counted by this test's own reader), then continued: it still records
+    every message, since the replay keeps a whole pass for a reader that falls behind (a
+    depth-1000 queue lost 3 of 20001 states on a loaded CI run, without a stop)."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
     from machine_ctrl.recording import analysis
     from machine_ctrl.recording.bag import Bag
     from machine_ctrl.recording.replay import clock_ns
+    from machine_ctrl.ros.messages import message_class
     bag, _, _, _ = live
     copy = tmp_path / 'replayed'
     topics = {t: TOPICS[t] for t in ('/joint_states', '/reference', '/clock')}
+    heard = []
+    node = ros_node('replay_counter')       # a reader of every replayed topic: the replay waits for 2
+    for name, type_name in topics.items():
+        node.create_subscription(message_class(type_name), name,
+                                 (lambda msg: heard.append(1)) if name == '/joint_states' else (lambda msg: None),
+                                 QoSProfile(depth=100_000, reliability=ReliabilityPolicy.RELIABLE))
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+
+    def spin_until(condition, what, timeout=120):
+        deadline = time.monotonic() + timeout
+        while not condition():
+            assert time.monotonic() < deadline, what
+            assert ros_supervisor['replay'].running() or condition(), ros_supervisor['replay'].tail()
+            executor.spin_once(timeout_sec=0.05)
+
     times = [time.monotonic()]
     ros_supervisor.start('recorder2', _recorder_argv(copy, topics, micromill.yaml_path))
     ros_supervisor.wait_for_line('recorder2', 'recording to', timeout=60)
     times.append(time.monotonic())
-    ros_supervisor.start('replay', [sys.executable, '-m', 'machine_ctrl.app.cli', 'replay', str(bag), '--rate', '2',
-                                    '--topics', *topics, '--wait-for-subscribers', '1'])
-    assert ros_supervisor.wait('replay', timeout=240) == 0, ros_supervisor['replay'].tail()
+    ros_supervisor.start('replay', [sys.executable, '-m', 'machine_ctrl.app.cli', 'replay', str(bag), '--rate', '4',
+                                    '--topics', *topics, '--wait-for-subscribers', '2'])
+    try:
+        spin_until(lambda: len(heard) > 0, 'no replayed state reached this test')
+        ros_supervisor['recorder2'].signal_group(signal.SIGSTOP)
+        try:
+            stopped_at = len(heard)
+            spin_until(lambda: len(heard) >= stopped_at + 1500, 'the replay did not go on while the recorder stopped')
+        finally:
+            ros_supervisor['recorder2'].signal_group(signal.SIGCONT)
+        print(f'replay: the recorder stopped from state {stopped_at} to {len(heard)}')
+        assert len(heard) < STEPS, 'the replay ended before the recorder went on: nothing was tested'
+        assert ros_supervisor.wait('replay', timeout=240) == 0, ros_supervisor['replay'].tail()
+    finally:
+        executor.shutdown()
     times.append(time.monotonic())
     ros_supervisor.stop('recorder2')
     assert ros_supervisor['recorder2'].returncode == 0

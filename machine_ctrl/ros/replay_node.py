@@ -4,8 +4,12 @@ Parameters: ``bag`` (directory or .mcap), ``rate`` (factor on the recorded timin
 ``topics`` (empty: all), ``start_offset`` (s into the bag), ``loop``, ``wait_for_subscribers``
 (start only once every publisher has this many matched subscriptions, e.g. a recorder),
 ``wait_timeout`` (s for that). Publishers offer the recorded QoS (reliability, durability)
-with a queue of at least ``MIN_DEPTH``. At the end it waits until every subscriber has
-acknowledged everything, prints the counts and exits.
+and keep a whole pass (KEEP_LAST, depth = the pass's message count): a reliable subscriber
+that falls behind (its process starved of CPU, or stopped) gets every message later, where
+a shorter queue dropped the oldest unacknowledged ones (a loaded CI run: a recorder fed at
+rate 2 lost 3 of 20001 states with depth 1000). The depth is a bound, not allocated up
+front, and the queue holds at most one pass, which this node holds in memory anyway. At the
+end it waits until every subscriber has acknowledged everything, prints the counts and exits.
 """
 from __future__ import annotations
 
@@ -25,13 +29,12 @@ from machine_ctrl import parameters
 from machine_ctrl.ros.node_parameters import declare_parameters
 from machine_ctrl.ros.messages import message_class
 
-MIN_DEPTH = 1000     # assumed: a burst at a high rate factor outruns a 10-deep queue
 
-
-def publisher_qos(offers: list[dict]) -> QoSProfile:
-    """The first recorded offer's reliability/durability (reliable, volatile if none)."""
+def publisher_qos(offers: list[dict], pass_length: int) -> QoSProfile:
+    """The first recorded offer's reliability/durability (reliable, volatile if none), a
+    queue for `pass_length` messages (no fewer than offered)."""
     offer = offers[0] if offers else {}
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(int(offer.get('depth', 0) or 0), MIN_DEPTH),
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(int(offer.get('depth', 0) or 0), pass_length, 1),
                       reliability=ReliabilityPolicy[str(offer.get('reliability', 'reliable')).upper()],
                       durability=DurabilityPolicy[str(offer.get('durability', 'volatile')).upper()])
 
@@ -71,7 +74,7 @@ class ReplayNode(Node):
             except LookupError as exc:
                 self.get_logger().fatal(f'{topic}: {exc}')
                 raise SystemExit(2) from None
-            self.publishers_by_topic[topic] = self.create_publisher(cls, topic, publisher_qos(offers.get(topic, [])))
+            self.publishers_by_topic[topic] = self.create_publisher(cls, topic, publisher_qos(offers.get(topic, []), len(self.messages)))
         self.counts = dict.fromkeys(self.publishers_by_topic, 0)
 
     def wait_for_subscribers(self) -> bool:
