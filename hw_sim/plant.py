@@ -63,7 +63,7 @@ class FrictionAxis(_Actuator):
                  position: float = 0.0):
         super().__init__(axis, rng)
         friction = axis.plant.friction
-        self.mass, self.viscous = axis.drive.mass, axis.drive.damping
+        self.mass, self.viscous = axis.plant.mass, axis.plant.damping     # the truth (drive: the belief)
         self.curve = StribeckCurve(friction.static, friction.coulomb, friction.omega1, friction.omega2)
         self.sigma0, self.sigma1 = friction.sigma0, friction.sigma1
         self.variation = friction.variation
@@ -142,8 +142,8 @@ class LinearAxis(_HeldAxis):
 
     def __init__(self, axis: AxisConfig, period: float, rng: random.Random, position: float = 0.0):
         super().__init__(axis, rng)
-        m, b = axis.drive.mass, axis.drive.damping
         plant = axis.plant
+        m, b = plant.mass, plant.damping      # the truth (drive: the belief)
         if plant.resonance is None:
             a = np.array([[0.0, 1.0], [0.0, -b / m]])
             bvec = np.array([0.0, self.gain / m])

@@ -47,6 +47,10 @@ BAD_CONFIGS = {
                         r'joint x_c: stroke lower 0\.07 is not below upper 0\.05'),
     'negative mass': (('mass: 21.19', 'mass: -21.19'), None,
                       r'micromill_9axis\.yaml: axes\.x_c\.drive\.mass: must be > 0, got -21\.19'),
+    'negative true mass': (('      mass: 21.44 ', '      mass: -21.44 '), None,
+                           r'micromill_9axis\.yaml: axes\.x_c\.plant\.mass: must be > 0, got -21\.44'),
+    'no true mass': (('      mass: 21.44 ', '      # mass: 21.44 '), None,
+                     r"axes\.x_c\.plant: a linear_motor drive's plant needs mass and damping: the truth hw_sim simulates"),
     'unknown axis': (('  x_c:\n', '  x_cc:\n'), None,
                      r'micromill_9axis\.yaml: axes\.x_cc: unknown axis'),
     'malformed urdf': (None, ('</robot>', ''), r'micromill_9axis\.urdf: malformed URDF'),
@@ -85,6 +89,58 @@ BAD_CONFIGS = {
                                             'estimator: exact       # Sencer Eq. (26)'), None,
                                            r'contour_control\.estimator: must be one of'),
 }
+
+
+def test_the_plant_is_the_truth_and_the_drive_the_belief(micromill):
+    """x_c's plant carries a workpiece the controllers' Table 4.1 mass does not know; z_c's
+    plant has no mass of its own and simulates the drive's."""
+    x_c, z_c = micromill.axis('x_c'), micromill.axis('z_c')
+    assert (x_c.drive.mass, x_c.plant.mass) == (21.19, 21.44)
+    assert x_c.plant.damping == x_c.drive.damping == 25.05
+    assert z_c.plant.mass == z_c.drive.mass == 17.61 and z_c.plant.damping == z_c.drive.damping == 102.9
+
+
+def test_a_true_mass_on_a_drive_without_a_rigid_body_is_refused(tmp_path):
+    """robot_piezo's piezo stage is its closed loop (modes): a plant mass there means nothing."""
+    for suffix in ('yaml', 'urdf'):
+        text = (MACHINES / f'robot_piezo.{suffix}').read_text()
+        if suffix == 'yaml':
+            old = '  px: &piezo\n'
+            start = text.index(old)
+            plant = text.index('    plant:\n', start) + len('    plant:\n')
+            text = text[:plant] + '      mass: 1.0\n' + text[plant:]
+        (tmp_path / f'robot_piezo.{suffix}').write_text(text)
+    with pytest.raises(ConfigError, match=r'axes\.px\.plant: mass: a true rigid body apart from the drive\'s is only '
+                                          r'for linear_motor, maglev, servo_voltage drives'):
+        load_machine(tmp_path / 'robot_piezo.yaml')
+
+
+def test_a_belief_file_changes_the_controllers_values_and_not_the_plant(micromill, tmp_path):
+    belief = tmp_path / 'belief.yaml'
+    belief.write_text('axes:\n  x_c:\n    drive: {mass: 22.0, damping: 30.0}\n'
+                      '    control:\n      lugre_feedforward: {coulomb: 33.0}\n')
+    machine = load_machine('micromill_9axis', belief=[belief])
+    x_c, before = machine.axis('x_c'), micromill.axis('x_c')
+    assert (x_c.drive.mass, x_c.drive.damping, x_c.control.lugre_feedforward.coulomb) == (22.0, 30.0, 33.0)
+    assert x_c.control.lugre_feedforward.static == before.control.lugre_feedforward.static      # merged, not replaced
+    assert x_c.plant == before.plant and machine.axis('y_c') == micromill.axis('y_c')
+
+
+@pytest.mark.parametrize('text, message', [
+    ('axes:\n  x_c:\n    plant: {mass: 30.0}\n',
+     r'belief\.yaml: axes\.x_c\.plant: a belief file sets only drive\.mass, drive\.damping, control \(the plant is '
+     r'the truth hw_sim simulates\)'),
+    ('axes:\n  x_c:\n    drive: {force_constant: 50.0}\n',
+     r"axes\.x_c\.drive: force_constant: a belief file sets only the drive's mass and damping"),
+    ('axes:\n  q:\n    drive: {mass: 1.0}\n', r'belief\.yaml: axes\.q: unknown axis'),
+    ('control_period: 1.0e-3\naxes: {}\n', r'belief\.yaml: <top>: unknown key\(s\): control_period'),
+    ('axes:\n  x_c:\n    drive: {mass: -1.0}\n', r'axes\.x_c\.drive\.mass: must be > 0, got -1'),
+])
+def test_a_belief_file_beyond_the_controllers_values_is_refused(tmp_path, text, message):
+    belief = tmp_path / 'belief.yaml'
+    belief.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_machine('micromill_9axis', belief=[belief])
 
 
 @pytest.mark.parametrize('case', sorted(BAD_CONFIGS))

@@ -263,7 +263,7 @@ def test_ground_read_in_metres_gives_the_budgets_ground_error_in_the_closed_loop
      'axes.w.plant: loop_delay 6e-06 s must be shorter than the control period 5.01e-06 s'),
     (('      current_loop: {omega', '      resonance: {omega: 1.0, zeta: 0.1}\n      current_loop: {omega'),
      'axes.w.plant: friction, resonance and force_noise are not modelled for a voice_coil drive'),
-    (('    plant: {}                  # assumed: air bearing', '    plant: {loop_delay: 1.0e-6}  #'),
+    (('    plant:                   # assumed: air bearing', '    plant:\n      loop_delay: 1.0e-6  #'),
      'axes.c.plant: loop_delay: only for voice_coil drives'),
     (('sensor_noise_density: {density: 5.888e-12}', 'sensor_noise_density: {density: 5.888e-12, corner: 10.0}'),
      'axes.w.plant: sensor_noise_density: only white sensor noise is modelled (density; no corner, no peak, '

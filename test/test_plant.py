@@ -19,7 +19,7 @@ def test_rigid_table_axis_is_exact_under_constant_force(micromill):
     axis = table_axis(micromill)
     plant = LinearAxis(axis, 1e-4, random.Random(0))
     u = plant.apply(10.0)                           # command units, as quantized by the DAC
-    accel = u * axis.drive.gain / axis.drive.mass   # N / kg
+    accel = u * axis.drive.gain / axis.plant.mass   # N / kg, the true mass
     for _ in range(1000):
         plant.step(u)
     t = 0.1
@@ -38,7 +38,7 @@ def test_flexible_table_axis_has_unit_dc_gain_and_its_modes(micromill):
         plant.step(u)
         velocities.append(plant.velocity)
     accel = (velocities[-1] - velocities[-1001]) / 0.1
-    assert accel == pytest.approx(u * axis.drive.gain / axis.drive.mass, rel=1e-3)
+    assert accel == pytest.approx(u * axis.drive.gain / axis.plant.mass, rel=1e-3)
 
 
 def test_command_saturation_and_quantization(micromill):
@@ -65,8 +65,8 @@ def test_sliding_friction_is_the_stribeck_curve(micromill, u):
     curve = StribeckCurve(friction.static, friction.coulomb, friction.omega1, friction.omega2)
     v = 0.5 * (v0 + plant.velocity)
     assert abs(v) > 0.01
-    expected = u * axis.drive.gain - math.copysign(curve(v), v) - axis.drive.damping * v
-    assert axis.drive.mass * accel == pytest.approx(expected, rel=1e-3)
+    expected = u * axis.drive.gain - math.copysign(curve(v), v) - axis.plant.damping * v
+    assert axis.plant.mass * accel == pytest.approx(expected, rel=1e-3)
 
 
 def test_friction_varies_along_the_stroke(micromill):

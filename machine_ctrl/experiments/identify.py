@@ -20,8 +20,8 @@ the encoder positions) with the drive's data-sheet force constant K = K_a K_t.
   for b (fit_steady_friction).
 
 The result holds the identified values beside the simulator's true ones (hw_sim knows them:
-the machine config's drive and plant.friction) and the seed's (thesis Tables 4.1/4.2), and a
-YAML fragment in the machine-config format (:func:`yaml_fragment`).
+the machine config's plant section) and the seed's (thesis Tables 4.1/4.2), and a YAML
+fragment of the controllers' belief in the machine-config format (:func:`yaml_fragment`).
 
     machine-ctrl identify AXIS [--machine M] [--out FILE] [--json]
 """
@@ -33,7 +33,9 @@ import numpy as np
 
 from hw_sim.offline import run
 from machine_ctrl.experiments import parallel
-from machine_ctrl.identification.rigid_body import FitStatus, fit_rigid_body, fit_steady_friction
+from machine_ctrl.identification.disturbance_observer import (ObserverStatus, disturbance_observer,
+                                                              quantization_step, thesis_units)
+from machine_ctrl.identification.rigid_body import FitStatus, fit_rigid_body, fit_steady_friction, lugre_curve
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.reference import Reference
 
@@ -56,9 +58,12 @@ WAVELENGTHS = tuple(float(w) for w in np.geomspace(5e-3, 0.1, 61))
 HOLD = 0.25
 HOLD_TRAVEL = 50e-6         # m
 SPEED_ACCELERATION = 0.5    # m/s^2, assumed: the ramps to and from each speed
-# Yuen thesis Table 4.1 (m^, b^) and Table 4.2 (friction, +/- directions), as in the micromill config
-SEED = {'x_c': {'mass': 21.19, 'static': (36.38, 29.03), 'coulomb': (39.74, 26.74)},
-        'y_c': {'mass': 59.17}, 'z_c': {'mass': 17.61}}
+# Yuen thesis Table 4.1 (m^, b^), Table 4.2 (friction, +/- directions) and the observer gains
+# K_obs of Eqs. (4.38)-(4.40) (mm and V; designed from Table 4.1's m^ and b^)
+SEED = {'x_c': {'mass': 21.19, 'static': (36.38, 29.03), 'coulomb': (39.74, 26.74),
+                'observer': ((0.2227, 2.8518e-6), (285.1827, 0.0061), (-73.5388, -0.0020))},
+        'y_c': {'mass': 59.17, 'observer': ((0.1880, 1.9796e-6), (197.9680, 0.0034), (-76.1335, -0.0017))},
+        'z_c': {'mass': 17.61, 'observer': ((0.1993, 2.2430e-6), (224.3086, 0.0042), (-75.3177, -0.0018))}}
 
 
 def multisine(machine: MachineConfig, axis: str) -> Reference:
@@ -114,26 +119,40 @@ def _single_axis(machine: MachineConfig, axis: str, x, v, a) -> Reference:
 
 def _force_and_position(machine: MachineConfig, axis: str, reference: Reference):
     """The run of `reference`: (force over each step k-1..k+1 from the applied commands, the
-    encoder position at k), N and m, aligned for central differences."""
+    encoder position at k), N and m, aligned for central differences; and the applied commands."""
     record = run(machine, reference)
     if record.fault:
         raise RuntimeError(f'{axis}: the simulated machine faulted: {record.fault}')
     i = machine.axis_names.index(axis)
     effort = record.effort[:, i]
     force = machine.axis(axis).drive.gain * 0.5 * (effort[:-1] + effort[1:])
-    return force, record.measured[:-1, i]
+    return force, record.measured[:-1, i], effort
 
 
 def _rigid_body_run(machine: MachineConfig, axis: str):
-    force, position = _force_and_position(machine, axis, multisine(machine, axis))
-    return fit_rigid_body(force, position, machine.control_period, MIN_SPEED, WAVELENGTHS)
+    """The rigid-body fit, and the encoder's and the command's resolution as the run shows them."""
+    force, position, effort = _force_and_position(machine, axis, multisine(machine, axis))
+    fit = fit_rigid_body(force, position, machine.control_period, MIN_SPEED, WAVELENGTHS)
+    return fit, (quantization_step(position), quantization_step(effort))
 
 
 def _speed_run(machine: MachineConfig, axis: str, speed: float) -> tuple[float, np.ndarray]:
     """The mean force over the middle of the hold at `speed` (N) and the positions there."""
     reference, middle = constant_speed(machine, axis, speed)
-    force, position = _force_and_position(machine, axis, reference)
+    force, position, _ = _force_and_position(machine, axis, reference)
     return float(force[middle].mean()), position[middle]
+
+
+def observers(machine: MachineConfig, axis: str, mass: float, viscous: float, steps: tuple[float, float]) -> dict:
+    """The disturbance observer (thesis Eqs. 4.30-4.37) designed as the thesis did, from the
+    identified `mass` and `viscous` term and the resolutions `steps` (encoder m, command V) read
+    from the run, and from hw_sim's truth (the plant's mass and damping, the config's
+    resolutions): {'identified', 'true'} ObserverDesigns."""
+    config, period = machine.axis(axis), machine.control_period
+    gain = config.drive.gain
+    return {'identified': disturbance_observer(mass, viscous, gain, period, *steps),
+            'true': disturbance_observer(config.plant.mass, config.plant.damping, gain, period,
+                                         config.sensor_resolution, config.drive.command_resolution)}
 
 
 def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> dict:
@@ -156,7 +175,7 @@ def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> d
         outcomes = parallel.run_all(_call, list(zip(functions, jobs)), workers)
     except RuntimeError as exc:             # the simulated machine faulted (stroke, limits)
         return {'status': 'refused', 'reason': str(exc), 'axis': axis}
-    body = outcomes[0]
+    body, steps = outcomes[0]
     forces = np.abs(np.array([force for force, _ in outcomes[1:]])).reshape(2, len(SPEEDS))
     result = {'axis': axis, 'rigid_body': body, 'speeds': list(SPEEDS), 'forces': forces.tolist(),
               'true': true_values(machine, axis), 'seed': SEED.get(axis, {})}
@@ -174,6 +193,11 @@ def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> d
     result['steady'] = steady
     if steady.status is not FitStatus.OK:
         return {**result, 'status': 'refused', 'reason': f'steady friction: {steady.reason}'}
+    result['observer'] = observers(machine, axis, body.mass.value, steady.viscous, steps)
+    problems = [f'{which}: {design.reason}' for which, design in result['observer'].items()
+                if design.status is not ObserverStatus.OK]
+    if problems:
+        return {**result, 'status': 'refused', 'reason': f'disturbance observer: {"; ".join(problems)}'}
     return {**result, 'status': 'ok', 'reason': ''}
 
 
@@ -182,9 +206,9 @@ def _call(function, job):
 
 
 def true_values(machine: MachineConfig, axis: str) -> dict:
-    """What hw_sim simulates for `axis`: drive mass and damping, plant friction (N, m/s)."""
+    """What hw_sim simulates for `axis`: the plant's (true) mass, damping and friction (N, m/s)."""
     config = machine.axis(axis)
-    out = {'mass': config.drive.mass, 'viscous': config.drive.damping}
+    out = {'mass': config.plant.mass, 'viscous': config.plant.damping}
     friction = config.plant.friction if config.plant is not None else None
     if friction is not None:
         out.update(static=friction.static, coulomb=friction.coulomb, omega1=friction.omega1, omega2=friction.omega2,
@@ -195,7 +219,11 @@ def true_values(machine: MachineConfig, axis: str) -> dict:
 
 def yaml_fragment(machine: MachineConfig, result: dict) -> str:
     """The identified values as a fragment of the machine YAML (to merge by hand, or to give to
-    the tools that take one), each with its 95 % interval or fit residual in a comment."""
+    the tools that take one), each with its 95 % interval or fit residual in a comment. They are
+    the controllers' belief: the drive's mass and damping, and the LuGre feed-forward's curve
+    (Eqs. 4.59-4.61, :func:`lugre_curve`) where the axis's law has one; hw_sim's truth (the plant
+    section) is not touched. The two directions' Stribeck curves and the friction's variation
+    along the stroke, for which the laws have no place, are comments."""
     body, steady, axis = result['rigid_body'], result['steady'], result['axis']
     fits = steady.curves
 
@@ -204,24 +232,33 @@ def yaml_fragment(machine: MachineConfig, result: dict) -> str:
     worst = max(f.worst_relative_residual for f in fits)
     lines = [f'# machine-ctrl identify {axis} --machine {machine.name}: offline on hw_sim (simulation.seed '
              f'{machine.simulation.seed})',
-             'axes:',
-             f'  {axis}:',
-             '    drive:',
-             f'      mass: {body.mass.value:.5g}        # kg, +-{body.mass.half_width:.2g} (95 %), rigid-body fit',
-             f'      damping: {steady.viscous:.5g}     # N*s/m, from the constant-speed runs',
-             '    plant:',
-             '      friction:                # the Stribeck curve (Eq. 4.41), (positive, negative) direction; '
-             f'worst fit residual {100 * worst:.1f} %',
-             f'        static: {pair("static")}',
-             f'        coulomb: {pair("coulomb")}',
-             f'        omega1: {pair("omega1")}',
-             f'        omega2: {pair("omega2")}']
+             f'# Stribeck curve (Eq. 4.41), (positive, negative) direction, worst fit residual {100 * worst:.1f} %:',
+             f'#   static {pair("static")} N, coulomb {pair("coulomb")} N, omega1 {pair("omega1")} m/s, '
+             f'omega2 {pair("omega2")} m/s']
     if body.variation is not None:
         v = body.variation
-        lines += [f'        variation: {0.5 * sum(v.amplitude):.3g}        # (positive, negative): '
-                  f'{v.amplitude[0]:.3g}, {v.amplitude[1]:.3g}; phase at x = 0: {v.phase[0]:.2f}, {v.phase[1]:.2f} rad',
-                  f'        variation_wavelength: {v.wavelength:.4g}   # m']
+        lines.append(f'# friction along the stroke: +-{v.amplitude[0]:.3g} / +-{v.amplitude[1]:.3g} (positive / negative), '
+                     f'wavelength {v.wavelength:.4g} m, phase at x = 0 {v.phase[0]:.2f} / {v.phase[1]:.2f} rad')
+    lines += ['axes:',
+              f'  {axis}:',
+              '    drive:',
+              f'      mass: {body.mass.value:.5g}        # kg, +-{body.mass.half_width:.2g} (95 %), rigid-body fit',
+              f'      damping: {steady.viscous:.5g}     # N*s/m, from the constant-speed runs']
+    control = machine.axis(axis).control
+    if control is not None and control.lugre_feedforward is not None:
+        curve = lugre_curve(steady, result['speeds'])
+        lines += ['    control:',
+                  '      lugre_feedforward:       # sigma0, sigma1 as they were: no presliding run identifies them',
+                  f'        static: {curve.static:.5g}          # F_s, N, Eq. (4.60)',
+                  f'        coulomb: {curve.coulomb:.5g}         # F_c, N, Eq. (4.61)',
+                  f'        stribeck_velocity: {curve.stribeck_velocity:.4g}   # Omega_s, m/s, Eq. (4.59) fitted (Eq. 4.45)']
     return '\n'.join(lines) + '\n'
+
+
+def observer_steps(observer: dict) -> str:
+    """The resolutions the identified observer was designed with, as text."""
+    r_x, _, r_u, _ = observer['identified'].noise
+    return f'encoder {math.sqrt(12 * r_x) * 1e6:.4g} um, command {math.sqrt(12 * r_u) * 1e3:.4g} mV'
 
 
 def table(result: dict) -> str:
@@ -252,6 +289,16 @@ def table(result: dict) -> str:
         lines.append('  tau: the steady fit\'s bristle term (fit_steady_friction), beside the true sigma1/sigma0: it '
                      'also takes up the bristles\' lag behind the varying friction (g g\'/sigma0), so it is what keeps '
                      'b right, not an identification of sigma1/sigma0')
+    observer = result['observer']
+    identified, true_gain = thesis_units(observer['identified'].gain), thesis_units(observer['true'].gain)
+    seed_gain = seed.get('observer')
+    for i, state in enumerate(('x', 'v', 'd')):
+        for j, measured in enumerate(('x_m', 'v_m')):
+            row(f'K_obs {state} <- {measured}', None if seed_gain is None else seed_gain[i][j], true_gain[i, j],
+                identified[i, j])
+    lines.append(f'  K_obs in the thesis\'s mm and V (Eqs. 4.38-4.40); the seed\'s from Table 4.1 m^, b^ '
+                 f'(b^ before its correction, Eq. 4.43); identified from the fitted m, b and the run\'s resolutions '
+                 f'({observer_steps(observer)})')
     lines.append(f'  rigid body from {body.samples} samples faster than {MIN_SPEED * 1e3:g} mm/s, residual '
                  f'{body.residual_rms:.3g} N rms (its own b: {body.viscous.value:.4g} N s/m, Coulomb '
                  f'{body.coulomb[0].value:.4g} / {body.coulomb[1].value:.4g} N); the steady-friction fit\'s worst '

@@ -242,3 +242,31 @@ def fit_steady_friction(speeds, forces, scales=None, slopes=None) -> SteadyFrict
     curves = tuple(StribeckFit(FitStatus.OK, '', *(float(v) for v in q[4 * d:4 * d + 4]), float(worst[d]))
                    for d in range(2))
     return SteadyFrictionFit(FitStatus.OK, '', float(q[8]), curves, float(q[9]) if bristles else math.nan)
+
+
+@dataclass(frozen=True)
+class LuGreCurve:
+    """The symmetric g(v) = F_c + (F_s - F_c) exp(-|v|/Omega_s) of the LuGre feed-forward (thesis
+    Eq. 4.59 as corrected in seed-notes.md)."""
+    static: float                  # F_s, N, Eq. (4.60)
+    coulomb: float                 # F_c, N, Eq. (4.61)
+    stribeck_velocity: float       # Omega_s, m/s, least squares (Eq. 4.45)
+
+
+def lugre_curve(steady: SteadyFrictionFit, speeds) -> LuGreCurve:
+    """The feed-forward's curve from the two identified directions of `steady` (status OK): F_s
+    and F_c the means of the directions' levels (Eqs. 4.60, 4.61), and Omega_s minimizing the
+    squared difference (Eq. 4.45) to the mean of the two directions' curves (Eq. 4.41) at
+    `speeds` (m/s, > 0), searched on a log scale over three decades about them."""
+    from scipy.optimize import minimize_scalar
+    positive, negative = steady.curves
+    static = 0.5 * (positive.static + negative.static)
+    coulomb = 0.5 * (positive.coulomb + negative.coulomb)
+    speeds = np.abs(np.asarray(speeds, float))
+    mean = 0.5 * sum(stribeck(speeds, c.static, c.coulomb, c.omega1, c.omega2) for c in (positive, negative))
+
+    def cost(log_omega):
+        return float(np.sum((coulomb + (static - coulomb) * np.exp(-speeds / math.exp(log_omega)) - mean) ** 2))
+    low, high = math.log(speeds.min()) - 1.0, math.log(speeds.max()) + 1.0
+    best = minimize_scalar(cost, bounds=(low, high), method='bounded', options={'xatol': 1e-6})
+    return LuGreCurve(static, coulomb, math.exp(best.x))

@@ -15,9 +15,9 @@ import re
 import sys
 import types
 import typing
-from dataclasses import MISSING, dataclass, field, fields, is_dataclass
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import yaml
 
@@ -136,7 +136,12 @@ class AccelerometerConfig:
 
 @dataclass(frozen=True)
 class PlantConfig:
-    """What hw_sim simulates beyond the drive (rigid body, gain, saturation, quantization)."""
+    """What hw_sim simulates beyond the drive (gain, saturation, quantization). The drive's
+    mass and damping are the controllers' belief (what their laws are designed from); the
+    plant's are the truth hw_sim simulates, required for RIGID_BODY_DRIVES (README "Truth and
+    belief")."""
+    mass: float | None = _positive(default=None)      # as DriveConfig.mass
+    damping: float | None = _nonnegative(default=None)   # as DriveConfig.damping
     friction: FrictionConfig | None = None    # linear motors
     resonance: ModeConfig | None = None       # flexible table modes (lightly damped poles ...
     antiresonance: ModeConfig | None = None   # ... and zeros), DC gain 1
@@ -548,13 +553,60 @@ def _axis(s: _Section, name: str, joint: urdf.Joint) -> AxisConfig:
     return axis
 
 
-def load_machine(name_or_path: str | Path = DEFAULT_MACHINE) -> MachineConfig:
-    """Load a machine by name (``config/machines/<name>.yaml``) or by YAML path."""
-    path = resolve_machine(name_or_path)
+BELIEF_KEYS = ('drive.mass', 'drive.damping', 'control')     # what a belief file may set, per axis
+
+
+def _read_yaml(path: Path):
     try:
-        raw = yaml.load(path.read_text(), Loader=_Loader)
+        return yaml.load(path.read_text(), Loader=_Loader)
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f'{path}: cannot read: {_one_line(exc)}') from None
+
+
+def _merge_belief(raw: dict, path: Path) -> None:
+    """Merge the belief file `path` (``machine-ctrl identify --out``'s fragment: axes.<axis>.
+    drive.mass/damping and axes.<axis>.control.*) into the machine's `raw` mapping; anything
+    else, the plant above all (the truth hw_sim simulates), is refused."""
+    belief = _read_yaml(path)
+    top = _Section({} if belief is None else belief, path, '')
+    axes = top.section('axes')
+    top.finish()
+    known = raw.get('axes') if isinstance(raw, dict) and isinstance(raw.get('axes'), dict) else {}
+    for name, entry in axes.data.items():
+        if name not in known:
+            axes.fail(f'unknown axis (the machine has {", ".join(map(str, known))})', str(name))
+        section = axes.section(str(name))
+        target = known[name]
+        for key, value in section.data.items():
+            if key == 'drive':
+                drive = section.section('drive')
+                extra = sorted(set(drive.data) - {'mass', 'damping'})
+                if extra:
+                    drive.fail(f'{", ".join(extra)}: a belief file sets only the drive\'s mass and damping')
+                target.setdefault('drive', {}).update(drive.data)
+            elif key == 'control':
+                section.section('control')
+                _merge(target.setdefault('control', {}), value)
+            else:
+                section.fail(f'a belief file sets only {", ".join(BELIEF_KEYS)} (the plant is the truth hw_sim '
+                             f'simulates)', str(key))
+
+
+def _merge(into: dict, update: dict) -> None:
+    for key, value in update.items():
+        if isinstance(value, dict) and isinstance(into.get(key), dict):
+            _merge(into[key], value)
+        else:
+            into[key] = value
+
+
+def load_machine(name_or_path: str | Path = DEFAULT_MACHINE, belief: Sequence[str | Path] = ()) -> MachineConfig:
+    """Load a machine by name (``config/machines/<name>.yaml``) or by YAML path; `belief`: files
+    of the controllers' values (:func:`_merge_belief`) merged over the machine's own, in order."""
+    path = resolve_machine(name_or_path)
+    raw = _read_yaml(path)
+    for file in belief:
+        _merge_belief(raw, Path(file))
     top = _Section(raw, path, '')
     name = top.string('name')
     description = top.string('description', '')
@@ -626,12 +678,22 @@ def _drive_problem(drive: DriveConfig) -> str:
     return ''
 
 
+RIGID_BODY_DRIVES = ('linear_motor', 'maglev', 'servo_voltage')    # hw_sim: mass, damping, force
+
+
 def _plant_problem(axis: AxisConfig, period: float) -> str:
     """Why the plant section cannot be simulated with this drive and period, or ''."""
     plant, drive = axis.plant, axis.drive
     closed = drive.type in CLOSED_LOOP_DRIVES
     if plant is None:
         return ''
+    own_body = [k for k in ('mass', 'damping') if getattr(plant, k) is not None]
+    if own_body and drive.type not in RIGID_BODY_DRIVES:
+        return (f'{", ".join(own_body)}: a true rigid body apart from the drive\'s is only for '
+                f'{", ".join(RIGID_BODY_DRIVES)} drives')
+    if drive.type in RIGID_BODY_DRIVES and len(own_body) < 2:
+        return (f'a {drive.type} drive\'s plant needs mass and damping: the truth hw_sim simulates (the drive\'s '
+                f'are the controllers\' belief; the same numbers where they agree)')
     own = {'position_servo': ('servo',), 'piezo': ('modes', 'real_pole')}
     for kind, keys in own.items():
         used = [k for k in keys if getattr(plant, k)]

@@ -109,6 +109,9 @@ def register(subparsers) -> None:
         parser.add_argument('--record', metavar='DIR',
                             help=('also write each run as a bag, DIR/smc and DIR/dsfd' if name != 'frf'
                                   else argparse.SUPPRESS))     # frf: refused with one line, as before
+        parser.add_argument('--identified', metavar='FILE', action='append', default=[],
+                            help="the controllers' values from FILE (machine-ctrl identify --out) over the "
+                                 "machine's own; hw_sim's plant stays the truth (repeat for several axes)")
         parser.add_argument('--jobs', type=_whole_number, metavar='N',
                             help='run the independent simulations in up to N processes (default: the '
                                  'available CPUs; the same numbers whatever N)')
@@ -252,7 +255,9 @@ def contouring(machine, kind: str, progress=None, steps: int | None = None, reco
 
 
 def cmd_experiment(args) -> int:
-    machine = load_machine(args.machine)
+    machine = load_machine(args.machine, belief=args.identified)
+    if args.identified and not args.quiet:
+        print(f"the controllers' values from {', '.join(args.identified)}", file=sys.stderr)
     progress = None if args.quiet else _progress
     coupled = machine.contour_control is not None      # circle/square: also the dual stage with it
     if args.record is not None:

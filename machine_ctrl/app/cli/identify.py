@@ -1,10 +1,12 @@
 """``machine-ctrl identify AXIS [--machine M] [--out FILE] [--json] [--jobs N]``: identify a
-feed drive's rigid body, friction curve and friction along the stroke, offline on hw_sim
+feed drive's rigid body, friction curve and friction along the stroke, and design its
+disturbance observer, offline on hw_sim
 (machine_ctrl.experiments.identify). The table prints seed | true | identified | error; the
 identified values as a machine-YAML fragment go to FILE with ``--out``; ``--json`` prints
 {"status", "reason", "axis", "rigid_body": {...}, "steady": {...}, "true": {...},
-"seed": {...}, "speeds": [...], "forces": [[...], [...]]} (m/s and N; the fits'
-dataclasses as mappings). Progress on stderr; exit 1 when the identification is refused
+"seed": {...}, "speeds": [...], "forces": [[...], [...]], "observer": {"identified": {...},
+"true": {...}}} (SI: m/s, N, the observer gains per m and m/s; the fits' dataclasses as
+mappings). Progress on stderr; exit 1 when the identification is refused
 (the reason on stderr).
 """
 from __future__ import annotations
@@ -32,6 +34,8 @@ def cmd_identify(args) -> int:
     import enum
     import math
 
+    import numpy as np
+
     from machine_ctrl.experiments import identify
     machine = load_machine(args.machine)
     if args.axis not in machine.axis_names:
@@ -46,7 +50,7 @@ def cmd_identify(args) -> int:
                 return plain(dataclasses.asdict(value))
             if isinstance(value, dict):
                 return {k: plain(v) for k, v in value.items()}
-            if isinstance(value, (list, tuple)):
+            if isinstance(value, (list, tuple, np.ndarray)):
                 return [plain(v) for v in value]
             if isinstance(value, float) and math.isnan(value):
                 return None                  # JSON has no NaN: a value not there
