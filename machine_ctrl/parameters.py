@@ -257,6 +257,9 @@ SIM_TIME_REASON = (f"this node runs on hw_sim's simulated clock (topic {contract
                    '"Time"); it cannot be switched off')
 
 MACHINE = ParameterSpec('machine', STRING, DEFAULT_MACHINE, description='machine name (config/machines/) or path of its YAML file')
+BELIEF = ParameterSpec('belief', STRING_ARRAY, [''], description="files of the controllers' values (`machine-ctrl "
+                       "identify --out`) merged over the machine config's, in order; empty: the config's own. hw_sim "
+                       "keeps simulating the config's plant (README \"Truth and belief\")")
 INPUT_TIMEOUT = ParameterSpec('input_timeout', DOUBLE, 0.5, 's', 'wall time to wait for a missing reference row or '
                               'offsets once the stream has started, then go on without', low=0.0, low_open=True)
 CHUNK_STEPS = ParameterSpec('chunk_steps', INTEGER, 500, 'steps', 'rows per reference message', low=1)
@@ -305,6 +308,7 @@ HW_SIM = NodeParameters('hw_sim_node', (
 
 SERVO = NodeParameters('servo_node', (
     MACHINE,
+    BELIEF,
     ParameterSpec('axes', STRING_ARRAY, None, description='axes this node controls (machine axis names)',
                   default_text='every controlled axis', constraint='controlled axes of the machine, each once'),
     ParameterSpec('feedforward', BOOL, True, description='velocity, acceleration and friction feed-forward; '

@@ -77,9 +77,9 @@ def offline(micromill):
 
 
 def record_graph(micromill, ros_node, ros_supervisor, single_process, contour='circle', during=None,
-                 servo_fine=None):
+                 overrides=None):
     """The first STEPS states of the graph; `during()` runs once the nodes are started;
-    `servo_fine`: parameters of that node over the defaults (a process per node only)."""
+    `overrides`: {node name: parameters over its defaults} (a process per node only)."""
     recorder = StateRecorder(ros_node('recorder'), micromill)
     window = ProgressReporter.WINDOW
     try:
@@ -92,8 +92,9 @@ def record_graph(micromill, ros_node, ros_supervisor, single_process, contour='c
                                            '--hw-sim', f'recorder_window={window}'])
         else:
             specs = default_graph(micromill, contour, hw_sim={'min_subscribers': 4, 'recorder_window': window})
-            ros_supervisor.start_nodes([NodeSpec(s.name, s.module, s.cls, {**s.parameters, **servo_fine})
-                                        if servo_fine and s.name == 'servo_fine' else s for s in specs])
+            overrides = overrides or {}
+            ros_supervisor.start_nodes([NodeSpec(s.name, s.module, s.cls, {**s.parameters, **overrides[s.name]})
+                                        if s.name in overrides else s for s in specs])
         if during is not None:
             during()
         recorder.wait_for(STEPS, timeout=120, supervisor=ros_supervisor)
@@ -128,7 +129,24 @@ def test_the_contour_control_in_servo_fine_equals_the_offline_runner(micromill, 
     coupled = run(micromill, reference, steps=STEPS, contour_control=True)
     assert not np.array_equal(coupled.measured, run(micromill, reference, steps=STEPS).measured)
     assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=False,
-                                      servo_fine={'contour_control': True}), coupled)
+                                      overrides={'servo_fine': {'contour_control': True}}), coupled)
+
+
+def test_servo_nodes_with_a_belief_file_equal_the_offline_runner_with_it(micromill, offline, ros_node, ros_supervisor,
+                                                                          tmp_path):
+    """[8/8]: the servo nodes' `belief` (machine-ctrl identify --out files) changes the laws'
+    values while hw_sim keeps the machine's plant: the states are the offline runner's with
+    the same belief, bit for bit, and not the nominal run's."""
+    from machine_ctrl.model.config import load_machine
+    belief = tmp_path / 'x_c.yaml'
+    belief.write_text('axes:\n  x_c:\n    drive: {mass: 22.5, damping: 30.0}\n    control:\n'
+                      '      lugre_feedforward: {static: 32.5, coulomb: 33.0, stribeck_velocity: 0.04}\n')
+    reference, _ = circle(micromill)
+    expected = run(load_machine(micromill.yaml_path, belief=[belief]), reference, steps=STEPS)
+    assert not np.array_equal(expected.effort, offline.effort)
+    servo = {'belief': [str(belief)]}
+    assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=False,
+                                      overrides={'servo_coarse': servo, 'servo_fine': servo}), expected)
 
 
 def test_the_fts_lathe_graph_at_199_6_khz_with_its_acceleration_loop_equals_the_offline_runner(

@@ -212,6 +212,8 @@ START_REFUSALS = [
     ('servo_node', {'gains.x_c.gain': 0.0}, 'parameter gains.x_c.gain: must be > 0 V*s/m (V*s/rad), got 0.0'),
     ('servo_node', {'gains.x_c.gain': 5000.0}, 'parameter gains.x_c: gain: T (K_s / m_e + lambda) = 1.09 must be < 1 '
      '(the sampled loop would oscillate or diverge; K_s 5000, lambda 200, m_e 0.4667, T 0.0001)'),
+    ('servo_node', {'belief': ['/nonexistent/x_c.yaml']}, '/nonexistent/x_c.yaml: cannot read: [Errno 2] No such file '
+     "or directory: '/nonexistent/x_c.yaml'"),
     ('dual_stage_node', {'dual_stage': 'no'}, "parameter dual_stage: must be true or false, got string 'no'"),
     ('reference_node', {'chunk_steps': 600, 'lookahead_steps': 500},
      'parameter lookahead_steps: must be >= chunk_steps (600), got 500'),
@@ -275,6 +277,16 @@ def test_node_specs_are_typed_and_checked(micromill):
     for dual in (True, False):          # one name for the switch, everywhere
         (spec,) = [s for s in default_graph(micromill, dual_stage=dual) if s.name == 'dual_stage']
         assert spec.parameters == {'machine': str(micromill.yaml_path), 'dual_stage': dual}
+
+
+def test_bringup_gives_the_belief_files_to_the_servo_nodes_only(micromill, tmp_path, monkeypatch):
+    """`machine-ctrl bringup --identified FILE`: the servos' `belief`, as an absolute path (the
+    nodes may run elsewhere in the file system); hw_sim and the others keep the machine's."""
+    from machine_ctrl.app.bringup import graph_specs
+    monkeypatch.chdir(tmp_path)
+    specs = {s.name: s.parameters for s in graph_specs(micromill, belief=['x_c.yaml'])}
+    assert specs['servo_coarse']['belief'] == specs['servo_fine']['belief'] == [str(tmp_path / 'x_c.yaml')]
+    assert [name for name, parameters in specs.items() if 'belief' in parameters] == ['servo_coarse', 'servo_fine']
 
 
 def test_specs_file_and_parameters_file_keep_the_values(micromill, tmp_path):

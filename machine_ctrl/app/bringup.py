@@ -54,12 +54,12 @@ API = [(item.name, item.type.replace('/msg/', '/').replace('/srv/', '/'), item.d
 
 
 def graph_specs(machine: MachineConfig, dual_stage: bool = True, compensation: str | None = None,
-                record: bool = False, namespace: str = '') -> list[NodeSpec]:
+                record: bool = False, namespace: str = '', belief=()) -> list[NodeSpec]:
     """The bringup graph: the default graph with the trajectory node and contour_error, in
-    `namespace`; with a recording, hw_sim waits at step 0 for every joint-state reader and
-    the recorder."""
+    `namespace`, the servo nodes with the controllers' values of the `belief` files; with a
+    recording, hw_sim waits at step 0 for every joint-state reader and the recorder."""
     specs = default_graph(machine, contour=None, dual_stage=dual_stage, compensation_model=compensation,
-                          contour_error=True, namespace=namespace)
+                          contour_error=True, namespace=namespace, belief=belief)
     if not record:
         return specs
     hw = {'min_subscribers': sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1,
@@ -104,7 +104,7 @@ class Bringup:
     def __init__(self, machine: MachineConfig, *, single_process: bool = False, record: str | None = None,
                  dual_stage: bool = True, compensation: str | None = None, env=None,
                  log_dir: str | None = None, namespace: str = '', stop_on_recording_loss: bool = False,
-                 view: int | None = None):
+                 view: int | None = None, belief=()):
         self.machine, self.single_process, self.record = machine, single_process, record
         self.view = view                    # the live view's port (None: no view)
         self.stop_on_recording_loss = stop_on_recording_loss
@@ -112,7 +112,7 @@ class Bringup:
         self.recording_lost: str | None = None
         self.notices: list[str] = []        # lines for the shell (recording lost), taken by run()
         self.namespace = namespace
-        self.specs = graph_specs(machine, dual_stage, compensation, record is not None, namespace)
+        self.specs = graph_specs(machine, dual_stage, compensation, record is not None, namespace, belief)
         self.dual_stage, self.compensation = dual_stage, compensation
         self.log_dir = Path(log_dir or tempfile.mkdtemp(prefix='machine_ctrl_bringup_'))
         self.graph = Supervisor(env, log_dir=self.log_dir, stop_timeout=5.0)
@@ -361,6 +361,7 @@ def run(args, machine: MachineConfig) -> int:
                 Bringup(machine, single_process=args.single_process, record=args.record,
                         dual_stage=not args.no_dual_stage, compensation=args.compensation,
                         namespace=namespace, view=getattr(args, 'view', None),
+                        belief=getattr(args, 'identified', None) or (),
                         stop_on_recording_loss=bool(getattr(args, 'stop_on_recording_loss', False))) as bringup:
             try:
                 print(f'starting {len(bringup.specs)} nodes ({"one process" if args.single_process else "one process each"})'

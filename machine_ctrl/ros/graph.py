@@ -18,6 +18,7 @@ import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 import rclpy
 import yaml
@@ -173,7 +174,9 @@ def read_specs(path) -> list[NodeSpec]:
 
 def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_stage: bool = True,
                   hw_sim: dict | None = None, compensation_model: str | None = None,
-                  contour_error: bool = False, namespace: str = '') -> list[NodeSpec]:
+                  contour_error: bool = False, namespace: str = '', belief: Sequence[str] = ()) -> list[NodeSpec]:
+    """The nodes of `machine`'s graph; `belief`: files of the controllers' values, given to the
+    servo nodes (their `belief` parameter)."""
     fine_types = {machine.axis(name).drive.type for name in machine.fine_axes}
     controlled = [a for a in machine.axes if a.control is not None]
     fine = [a.name for a in controlled if a.drive.type in fine_types]
@@ -194,10 +197,11 @@ def default_graph(machine: MachineConfig, contour: str | None = 'circle', dual_s
                                 {**common, 'contour': contour}))
         start = [float(v) for v in contour_reference(machine, contour).position[0]]
         hw = {**common, 'initial_position': start, **(hw_sim or {})}
+    servo = {**common, 'belief': [str(Path(f).resolve()) for f in belief]} if belief else common
     specs = [NodeSpec('hw_sim', 'machine_ctrl.ros.hw_sim_node', 'HwSimNode', hw),
-             NodeSpec('servo_coarse', 'machine_ctrl.ros.servo_node', 'ServoNode', {**common, 'axes': coarse})]
+             NodeSpec('servo_coarse', 'machine_ctrl.ros.servo_node', 'ServoNode', {**servo, 'axes': coarse})]
     if fine:
-        specs.append(NodeSpec('servo_fine', 'machine_ctrl.ros.servo_node', 'ServoNode', {**common, 'axes': fine}))
+        specs.append(NodeSpec('servo_fine', 'machine_ctrl.ros.servo_node', 'ServoNode', {**servo, 'axes': fine}))
         specs.append(NodeSpec('dual_stage', 'machine_ctrl.ros.dual_stage_node', 'DualStageNode',
                               {**common, 'dual_stage': dual_stage}))
     if contour_error:

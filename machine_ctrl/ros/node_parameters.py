@@ -191,13 +191,15 @@ def declare_parameters(node: Node, table, defaults: dict | None = None, names=No
     return state.values
 
 
-def machine_parameter(node: Node) -> MachineConfig:
-    """The `machine` parameter (name or YAML path), loaded; a bad config, or a control period
-    the graph's step clock cannot stamp (not a whole number of ns), ends the node with one
-    line on the log."""
-    name = declare_parameters(node, (parameters.MACHINE,)).machine
+def machine_parameter(node: Node, belief: bool = False) -> MachineConfig:
+    """The `machine` parameter (name or YAML path), loaded, with the files of the `belief`
+    parameter merged over it where the node has one (a node holding laws); a bad config or
+    belief file, or a control period the graph's step clock cannot stamp (not a whole number
+    of ns), ends the node with one line on the log."""
+    specs = (parameters.MACHINE, parameters.BELIEF) if belief else (parameters.MACHINE,)
+    values = declare_parameters(node, specs)
     try:
-        machine = load_machine(name)
+        machine = load_machine(values.machine, belief=[f for f in values.belief if f] if belief else ())
         contract.StepClock.of(machine)
         return machine
     except ConfigError as exc:

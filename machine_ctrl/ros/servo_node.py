@@ -17,7 +17,9 @@ A repeated state stamp (hw_sim re-sends while waiting) is answered with the comm
 computed, so no controller state is ever advanced twice.
 
 Parameters (machine_ctrl/parameters.py SERVO): `axes` must name controlled axes of the
-machine, each once. Live: `feedforward` (switched at the first step whose reference is at
+machine, each once; `belief`: files of the controllers' values (`machine-ctrl identify --out`)
+the laws take over the machine config's (hw_sim, without the parameter, keeps the config's
+plant: README "Truth and belief"). Live: `feedforward` (switched at the first step whose reference is at
 rest on every axis of the node), `gains.<axis>.<gain>`, one per live gain of each axis's
 law (control/law.py: a new parameter set, checked by the law, applied between two steps),
 and `contour_control`, the machine's cross-coupled contour control
@@ -47,7 +49,7 @@ from machine_ctrl.ros.step_node import StepNode
 class ServoNode(StepNode):
     def __init__(self, name: str = 'servo', **kwargs):
         super().__init__(name, parameters.SERVO, **kwargs)
-        self.machine = machine_parameter(self)
+        self.machine = machine_parameter(self, belief=True)
         controlled = [a.name for a in self.machine.axes if a.control is not None]
         table = parameters.NodeParameters(parameters.SERVO.executable, parameters.SERVO.parameters,
                                           parameters.SERVO.checks + (axes_check(self.machine, controlled),),

@@ -34,6 +34,9 @@ def register(subparsers) -> None:
                             'full); default: say so and keep the machine running')
     bring.add_argument('--no-dual-stage', action='store_true', help='start with the dual-stage coupling off')
     bring.add_argument('--compensation', metavar='MODEL', help='geometric error model: compensation on')
+    bring.add_argument('--identified', metavar='FILE', action='append', default=[],
+                       help="the servos take the controllers' values from FILE (machine-ctrl identify --out) over "
+                            "the machine's; hw_sim keeps the machine's plant (repeat for several axes)")
     bring.add_argument('--view', type=int, nargs='?', const=VIEW_PORT, metavar='PORT',
                        help=f'the Foxglove live view on ws://127.0.0.1:PORT (default {VIEW_PORT}; 0: any free port, '
                             'printed in the view\'s log)')
@@ -75,6 +78,7 @@ def register(subparsers) -> None:
 def cmd_bringup(args) -> int:
     from machine_ctrl.app import bringup
     machine = load_machine(args.machine)
+    load_machine(args.machine, belief=args.identified)      # a bad belief file: one line here, not a dead node
     try:
         if args.record is not None:
             fresh_directory(args.record)
