@@ -323,7 +323,7 @@ SERVO = NodeParameters('servo_node', (
                   'pid proportional, integral, derivative (the integrator holds K_i * integral: bumpless); h2 none (each weight '
                   'changes the whole design); position_command velocity_lead (a feed-forward term without state); lqg none '
                   '(each weight changes the whole design)',
-                  default_text="the machine config's (axes.<axis>.control.<law>)",
+                  default_text="the machine config's (axes.<axis>.control.<law>), the belief files' over it",
                   constraint="as in the machine config: > 0 or >= 0; the law's conditions", live=True, template=True),
     ParameterSpec('contour_control', BOOL, False, description="the machine's cross-coupled contour control "
                   '(machine config contour_control; README "Contour control"); live: on from the next step, the '

@@ -134,13 +134,37 @@ def test_a_belief_file_changes_the_controllers_values_and_not_the_plant(micromil
      r"axes\.x_c\.drive: force_constant: a belief file sets only the drive's mass and damping"),
     ('axes:\n  q:\n    drive: {mass: 1.0}\n', r'belief\.yaml: axes\.q: unknown axis'),
     ('control_period: 1.0e-3\naxes: {}\n', r'belief\.yaml: <top>: unknown key\(s\): control_period'),
-    ('axes:\n  x_c:\n    drive: {mass: -1.0}\n', r'axes\.x_c\.drive\.mass: must be > 0, got -1'),
+    ('axes:\n  x_c:\n    drive: {mass: -1.0}\n',
+     r'^\S*belief\.yaml \(over micromill_9axis\.yaml\): axes\.x_c\.drive\.mass: must be > 0, got -1'),
+    ('axes:\n  x_c:\n    control: {law: ppi}\n',
+     r"belief\.yaml: axes\.x_c\.control: law: a belief file sets only the numbers of the axis's lugre_feedforward "
+     r'and sliding_mode'),
+    ('axes:\n  x_c:\n    control:\n      ppi: {position_gain: 1.0}\n',
+     r"belief\.yaml: axes\.x_c\.control: ppi: a belief file sets only the numbers"),
+    ('axes:\n  x_f:\n    control:\n      lugre_feedforward: {coulomb: 1.0}\n',
+     r"belief\.yaml: axes\.x_f\.control: lugre_feedforward: a belief file sets only the numbers of the axis's lead_lag"),
+    ('axes:\n  x_c:\n    drive: null\n', r'belief\.yaml: axes\.x_c\.drive: must be a mapping'),
 ])
 def test_a_belief_file_beyond_the_controllers_values_is_refused(tmp_path, text, message):
     belief = tmp_path / 'belief.yaml'
     belief.write_text(text)
     with pytest.raises(ConfigError, match=message):
         load_machine('micromill_9axis', belief=[belief])
+
+
+def test_a_belief_file_changes_only_the_axis_it_names_where_the_yaml_shares_a_section(tmp_path):
+    """robot_piezo's joints share j1's control section (a YAML anchor); its piezo drives are
+    their own plant, so a belief does not set their mass."""
+    machine = load_machine('robot_piezo')
+    lead = machine.axis('j1').control.position_command.velocity_lead
+    belief = tmp_path / 'belief.yaml'
+    belief.write_text(f'axes:\n  j1:\n    control:\n      position_command: {{velocity_lead: {2 * lead}}}\n')
+    changed = load_machine('robot_piezo', belief=[belief])
+    assert changed.axis('j1').control.position_command.velocity_lead == 2 * lead
+    assert changed.axis('j2').control == machine.axis('j2').control
+    belief.write_text('axes:\n  px:\n    drive: {mass: 1.0}\n')
+    with pytest.raises(ConfigError, match=r"axes\.px\.drive: a piezo drive's mass and damping are its simulated plant"):
+        load_machine('robot_piezo', belief=[belief])
 
 
 @pytest.mark.parametrize('case', sorted(BAD_CONFIGS))

@@ -134,8 +134,7 @@ class FuzzClient(MachineClient):
         node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics, 1000)
         node.create_subscription(JointState, contract.TRUE_JOINT_STATES.name, self.on_truth, 10)
         self.progress = ProgressReporter(node, ros_io.StepClock.of(machine))
-        node.create_subscription(Vector3Stamped, contract.CONTOUR_TOOL_TIP.name, self.on_estimate,
-                                                  ros_io.STEP_QOS)
+        node.create_subscription(Vector3Stamped, contract.CONTOUR_TOOL_TIP.name, self.on_estimate, ros_io.STEP_QOS)
         super().__init__(node, machine)
         # reliable, transient local (matches every reader), deeper than a batch
         rogue = QoSProfile(depth=2 * BATCH, reliability=ReliabilityPolicy.RELIABLE,

@@ -467,7 +467,10 @@ def test_replay_into_a_fresh_recording_gives_the_same_analysis(live, live_analys
             ros_supervisor['recorder2'].signal_group(signal.SIGCONT)
         print(f'replay: the recorder stopped from state {stopped_at} to {len(heard)}')
         assert len(heard) < STEPS, 'the replay ended before the recorder went on: nothing was tested'
-        assert ros_supervisor.wait('replay', timeout=240) == 0, ros_supervisor['replay'].tail()
+        # this reader takes its messages until the replay ends: the replay waits for every
+        # subscriber's acknowledgement and exits 1 when one is missing
+        spin_until(lambda: not ros_supervisor['replay'].running(), 'the replay did not end', timeout=240)
+        assert ros_supervisor.wait('replay', timeout=10) == 0, ros_supervisor['replay'].tail()
     finally:
         executor.shutdown()
     times.append(time.monotonic())

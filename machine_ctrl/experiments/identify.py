@@ -157,7 +157,8 @@ def observers(machine: MachineConfig, axis: str, mass: float, viscous: float, st
 
 def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> dict:
     """The identification of `axis` (module docstring): {'status', 'reason', 'axis', 'rigid_body',
-    'steady', 'true', 'seed', 'speeds', 'forces'}."""
+    'steady', 'true', 'seed', 'speeds', 'forces', 'observer'} (the later ones where the
+    identification got that far)."""
     config = machine.axis(axis)
     friction = config.plant.friction if config.plant is not None else None
     if config.kind != 'linear' or config.drive.mass is None or config.control is None or config.stroke is None \
@@ -209,7 +210,7 @@ def true_values(machine: MachineConfig, axis: str) -> dict:
     """What hw_sim simulates for `axis`: the plant's (true) mass, damping and friction (N, m/s)."""
     config = machine.axis(axis)
     out = {'mass': config.plant.mass, 'viscous': config.plant.damping}
-    friction = config.plant.friction if config.plant is not None else None
+    friction = config.plant.friction
     if friction is not None:
         out.update(static=friction.static, coulomb=friction.coulomb, omega1=friction.omega1, omega2=friction.omega2,
                    variation=friction.variation, variation_wavelength=friction.variation_wavelength,

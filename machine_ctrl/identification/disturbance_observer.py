@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from machine_ctrl.model.flexure_model import held_input
+
 DISTURBANCE_WALK = 1e-6     # R_wd, V^2 per period: thesis Eq. (4.36), its tuning value
 
 
@@ -59,15 +61,11 @@ def disturbance_observer(mass: float, damping: float, force_gain: float, period:
         bad.append(f'damping {damping!r}')
     if bad:
         return ObserverDesign(ObserverStatus.REFUSED, f'must be finite and > 0 (damping >= 0): {", ".join(bad)}')
-    from scipy.linalg import expm, solve_discrete_are
+    from scipy.linalg import solve_discrete_are
     p_v, k_v = -damping / mass, force_gain / mass
-    continuous = np.zeros((4, 4))          # [[A_c, B_c], [0, 0]]: Eqs. (4.28), (4.29) in one exponential
-    continuous[:2, :2] = [[0.0, 1.0], [0.0, p_v]]
-    continuous[1, 2:] = [k_v, -k_v]
-    held = expm(continuous * period)
-    a_d, b_d = held[:2, :2], held[:2, 2:]
-    a = np.block([[a_d, -b_d[:, :1]], [np.zeros((1, 2)), np.ones((1, 1))]])       # Eq. (4.32): u - d
-    w = np.block([[b_d[:, :1], np.zeros((2, 1))], [np.zeros((1, 1)), np.ones((1, 1))]])
+    a_d, b_d = held_input(np.array([[0.0, 1.0], [0.0, p_v]]), np.array([[0.0], [k_v]]), period)  # Eqs. 4.28-4.29
+    a = np.block([[a_d, -b_d], [np.zeros((1, 2)), np.ones((1, 1))]])       # Eq. (4.32): u - d
+    w = np.block([[b_d, np.zeros((2, 1))], [np.zeros((1, 1)), np.ones((1, 1))]])
     c = np.hstack((np.eye(2), np.zeros((2, 1))))
     r_x = position_step ** 2 / 12.0
     noise = (r_x, r_x / period ** 2, command_step ** 2 / 12.0, disturbance_walk)

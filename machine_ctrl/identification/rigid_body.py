@@ -265,8 +265,9 @@ def lugre_curve(steady: SteadyFrictionFit, speeds) -> LuGreCurve:
     speeds = np.abs(np.asarray(speeds, float))
     mean = 0.5 * sum(stribeck(speeds, c.static, c.coulomb, c.omega1, c.omega2) for c in (positive, negative))
 
-    def cost(log_omega):
-        return float(np.sum((coulomb + (static - coulomb) * np.exp(-speeds / math.exp(log_omega)) - mean) ** 2))
+    def cost(log_omega):            # Eq. (4.59) is Eq. (4.41) with omega1 = omega2 = Omega_s
+        omega = math.exp(log_omega)
+        return float(np.sum((stribeck(speeds, static, coulomb, omega, omega) - mean) ** 2))
     low, high = math.log(speeds.min()) - 1.0, math.log(speeds.max()) + 1.0
     best = minimize_scalar(cost, bounds=(low, high), method='bounded', options={'xatol': 1e-6})
     return LuGreCurve(static, coulomb, math.exp(best.x))

@@ -10,12 +10,13 @@ recorded next to each value in ``config/machines/*.yaml`` / ``*.urdf``.
 """
 from __future__ import annotations
 
+import copy
 import math
 import re
 import sys
 import types
 import typing
-from dataclasses import MISSING, dataclass, field, fields, is_dataclass, replace
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -39,6 +40,8 @@ DRIVE_TYPES = {
 }
 # drive types whose plant is given by its own closed loop: no mass, no damping of their own
 CLOSED_LOOP_DRIVES = ('position_servo', 'piezo')
+# drives hw_sim simulates as a rigid body under a force: the plant's mass and damping are the truth
+RIGID_BODY_DRIVES = ('linear_motor', 'maglev', 'servo_voltage')
 
 
 def _positive(**kw):
@@ -138,8 +141,8 @@ class AccelerometerConfig:
 class PlantConfig:
     """What hw_sim simulates beyond the drive (gain, saturation, quantization). The drive's
     mass and damping are the controllers' belief (what their laws are designed from); the
-    plant's are the truth hw_sim simulates, required for RIGID_BODY_DRIVES (README "Truth and
-    belief")."""
+    plant's are the truth hw_sim simulates, required in a plant section of RIGID_BODY_DRIVES
+    (README "Truth and belief")."""
     mass: float | None = _positive(default=None)      # as DriveConfig.mass
     damping: float | None = _nonnegative(default=None)   # as DriveConfig.damping
     friction: FrictionConfig | None = None    # linear motors
@@ -563,50 +566,69 @@ def _read_yaml(path: Path):
         raise ConfigError(f'{path}: cannot read: {_one_line(exc)}') from None
 
 
-def _merge_belief(raw: dict, path: Path) -> None:
-    """Merge the belief file `path` (``machine-ctrl identify --out``'s fragment: axes.<axis>.
-    drive.mass/damping and axes.<axis>.control.*) into the machine's `raw` mapping; anything
-    else, the plant above all (the truth hw_sim simulates), is refused."""
+def _merge_belief(raw: dict, machine: MachineConfig, path: Path) -> None:
+    """Merge the belief file `path` (``machine-ctrl identify --out``'s fragment) into the
+    machine's `raw` mapping (of `machine`, already checked alone): per axis, a rigid-body
+    drive's mass and damping, and the numbers of the axis's own law's section and of its
+    lugre_feedforward. Anything else is refused: the plant above all (the truth hw_sim
+    simulates), another law, a control section the axis does not have."""
     belief = _read_yaml(path)
     top = _Section({} if belief is None else belief, path, '')
     axes = top.section('axes')
     top.finish()
-    known = raw.get('axes') if isinstance(raw, dict) and isinstance(raw.get('axes'), dict) else {}
-    for name, entry in axes.data.items():
-        if name not in known:
-            axes.fail(f'unknown axis (the machine has {", ".join(map(str, known))})', str(name))
-        section = axes.section(str(name))
-        target = known[name]
-        for key, value in section.data.items():
+    for name in map(str, axes.data):
+        if name not in machine.axis_names:
+            axes.fail(f'unknown axis (the machine has {", ".join(machine.axis_names)})', name)
+        section, axis = axes.section(name), machine.axis(name)
+        target = raw['axes'][name] = copy.deepcopy(raw['axes'][name])    # YAML anchors share mappings
+        for key in map(str, section.data):
             if key == 'drive':
                 drive = section.section('drive')
-                extra = sorted(set(drive.data) - {'mass', 'damping'})
+                extra = sorted(set(map(str, drive.data)) - {'mass', 'damping'})
                 if extra:
                     drive.fail(f'{", ".join(extra)}: a belief file sets only the drive\'s mass and damping')
-                target.setdefault('drive', {}).update(drive.data)
+                if axis.drive.type not in RIGID_BODY_DRIVES:
+                    drive.fail(f'a {axis.drive.type} drive\'s mass and damping are its simulated plant too; a '
+                               f'belief file sets them only for {", ".join(RIGID_BODY_DRIVES)} drives')
+                target['drive'].update(drive.data)
             elif key == 'control':
-                section.section('control')
-                _merge(target.setdefault('control', {}), value)
+                control = section.section('control')
+                if axis.control is None:
+                    control.fail('the axis has no control section to change')
+                allowed = {axis.control.law} | ({'lugre_feedforward'} if axis.control.lugre_feedforward else set())
+                extra = sorted(set(map(str, control.data)) - allowed)
+                if extra:
+                    control.fail(f'{", ".join(extra)}: a belief file sets only the numbers of the axis\'s '
+                                 f'{" and ".join(sorted(allowed))}')
+                for law in control.data:
+                    control.section(law)
+                    target['control'][law] = {**target['control'][law], **control.data[law]}
             else:
                 section.fail(f'a belief file sets only {", ".join(BELIEF_KEYS)} (the plant is the truth hw_sim '
-                             f'simulates)', str(key))
-
-
-def _merge(into: dict, update: dict) -> None:
-    for key, value in update.items():
-        if isinstance(value, dict) and isinstance(into.get(key), dict):
-            _merge(into[key], value)
-        else:
-            into[key] = value
+                             f'simulates)', key)
 
 
 def load_machine(name_or_path: str | Path = DEFAULT_MACHINE, belief: Sequence[str | Path] = ()) -> MachineConfig:
     """Load a machine by name (``config/machines/<name>.yaml``) or by YAML path; `belief`: files
-    of the controllers' values (:func:`_merge_belief`) merged over the machine's own, in order."""
+    of the controllers' values (:func:`_merge_belief`) merged over the machine's own, in order.
+    The machine is checked alone first; a value of a belief file that the merged config
+    refuses is reported with the belief files named."""
     path = resolve_machine(name_or_path)
     raw = _read_yaml(path)
+    if not belief:
+        return _build_machine(raw, path)
+    machine = _build_machine(copy.deepcopy(raw), path)
     for file in belief:
-        _merge_belief(raw, Path(file))
+        _merge_belief(raw, machine, Path(file))
+    try:
+        return _build_machine(raw, path)
+    except ConfigError as exc:
+        where = str(exc).removeprefix(f'{path}: ')
+        raise ConfigError(f'{", ".join(map(str, belief))} (over {path.name}): {where}') from None
+
+
+def _build_machine(raw, path: Path) -> MachineConfig:
+    """The machine of the YAML mapping `raw` read from `path`."""
     top = _Section(raw, path, '')
     name = top.string('name')
     description = top.string('description', '')
@@ -676,9 +698,6 @@ def _drive_problem(drive: DriveConfig) -> str:
     if not closed and (drive.mass is None or drive.damping is None):
         return f'a {drive.type} drive needs mass and damping'
     return ''
-
-
-RIGID_BODY_DRIVES = ('linear_motor', 'maglev', 'servo_voltage')    # hw_sim: mass, damping, force
 
 
 def _plant_problem(axis: AxisConfig, period: float) -> str:

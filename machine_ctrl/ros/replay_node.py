@@ -9,7 +9,9 @@ that falls behind (its process starved of CPU, or stopped) gets every message la
 a shorter queue dropped the oldest unacknowledged ones (a loaded CI run: a recorder fed at
 rate 2 lost 3 of 20001 states with depth 1000). The depth is a bound, not allocated up
 front, and the queue holds at most one pass, which this node holds in memory anyway. At the
-end it waits until every subscriber has acknowledged everything, prints the counts and exits.
+end it waits until every subscriber has acknowledged everything (at least ACK_WAIT s, or a
+pass's duration), prints the counts and exits; 1 when some subscriber did not (it may have
+lost messages).
 """
 from __future__ import annotations
 
@@ -28,6 +30,8 @@ from machine_ctrl.recording.recorder import namespace_of
 from machine_ctrl import parameters
 from machine_ctrl.ros.node_parameters import declare_parameters
 from machine_ctrl.ros.messages import message_class
+
+ACK_WAIT = 10.0     # s, assumed: at least this long for every subscriber to acknowledge the last messages
 
 
 def publisher_qos(offers: list[dict], pass_length: int) -> QoSProfile:
@@ -66,6 +70,7 @@ class ReplayNode(Node):
             self.get_logger().fatal(str(exc))
             raise SystemExit(2) from None
         self.clock = replay.ClockSource(self.messages, self.clock_topic)
+        self.pass_seconds = contract.ns_to_seconds(self.messages[-1].log_time - self.messages[0].log_time) / self.rate
         self.publishers_by_topic = {}
         for topic in sorted({m.topic for m in self.messages} | {self.clock_topic}):
             type_name = types.get(topic, contract.CLOCK.type)
@@ -115,11 +120,16 @@ class ReplayNode(Node):
         while self.play_pass() and self.loop:
             number += 1
             self.clock.new_pass(number)
-        for publisher in self.publishers_by_topic.values():
-            publisher.wait_for_all_acked(Duration(seconds=10))
+        wait = max(ACK_WAIT, self.pass_seconds)        # a subscriber's backlog may be a whole pass
+        unacknowledged = [topic for topic, publisher in self.publishers_by_topic.items()
+                          if not publisher.wait_for_all_acked(Duration(seconds=wait))]
         print(f'replayed {sum(self.counts.values())} messages', flush=True)
         for topic, count in sorted(self.counts.items()):
             print(f'  {topic}: {count}', flush=True)
+        if unacknowledged:
+            self.get_logger().error(f'not every subscriber acknowledged everything within {wait:g} s on '
+                                    f'{", ".join(unacknowledged)}: they may have lost messages')
+            return 1
         return 0
 
 

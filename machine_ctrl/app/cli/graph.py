@@ -78,7 +78,8 @@ def register(subparsers) -> None:
 def cmd_bringup(args) -> int:
     from machine_ctrl.app import bringup
     machine = load_machine(args.machine)
-    load_machine(args.machine, belief=args.identified)      # a bad belief file: one line here, not a dead node
+    if args.identified:                       # a bad belief file: one line here, not a dead node
+        load_machine(args.machine, belief=args.identified)
     try:
         if args.record is not None:
             fresh_directory(args.record)
