@@ -93,13 +93,13 @@ def model(params: dict, machine: MachineConfig, f: np.ndarray, axis: str = 'w') 
     return spec.drive.force_constant * h_i * g * h_s * hold
 
 
-def fit(measured: dict, machine: MachineConfig, start: dict) -> dict:
+def fit(measured: dict, machine: MachineConfig, start: dict, axis: str = 'w') -> dict:
     """Least squares on log(model / measured) from `start`; the fitted parameters and the residual."""
     names = list(TABLE_5_2)
     f, y = measured['frequency_hz'], measured['response']
 
     def residual(theta):
-        r = np.log(model(dict(zip(names, np.exp(theta))), machine, f) / y)
+        r = np.log(model(dict(zip(names, np.exp(theta))), machine, f, axis) / y)
         return np.concatenate([r.real, r.imag])
     solution = optimize.least_squares(residual, np.log([start[k] for k in names]), method='lm', xtol=1e-12)
     params = dict(zip(names, np.exp(solution.x)))

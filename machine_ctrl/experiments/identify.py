@@ -63,7 +63,9 @@ SPEED_ACCELERATION = 0.5    # m/s^2, assumed: the ramps to and from each speed
 SEED = {'x_c': {'mass': 21.19, 'static': (36.38, 29.03), 'coulomb': (39.74, 26.74),
                 'observer': ((0.2227, 2.8518e-6), (285.1827, 0.0061), (-73.5388, -0.0020))},
         'y_c': {'mass': 59.17, 'observer': ((0.1880, 1.9796e-6), (197.9680, 0.0034), (-76.1335, -0.0017))},
-        'z_c': {'mass': 17.61, 'observer': ((0.1993, 2.2430e-6), (224.3086, 0.0042), (-75.3177, -0.0018))}}
+        'z_c': {'mass': 17.61, 'observer': ((0.1993, 2.2430e-6), (224.3086, 0.0042), (-75.3177, -0.0018))},
+        # Sörnmo section 2.3, robot_piezo's px, py, pz (the seed's x, y, z)
+        'px': {'order': 4, 'vaf': 92.5}, 'py': {'order': 2, 'vaf': 99.5}, 'pz': {'order': 5, 'vaf': 97.1}}
 
 
 def multisine(machine: MachineConfig, axis: str) -> Reference:
@@ -202,6 +204,70 @@ def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> d
     return {**result, 'status': 'ok', 'reason': ''}
 
 
+def identify_axis(machine: MachineConfig, axis: str, workers: int | None = None) -> dict:
+    """The identification the axis's drive calls for, so one command serves every machine
+    (issue [8/8] part 3): a flexure stage (voice_coil) by its stepped-sine frequency response
+    and the grey-box fit of Ding section 5.5 (:mod:`fts_identify`), a piezo stage by a chirp
+    and N4SID (Sörnmo section 2.3, :mod:`piezo_milling`), any other drive as a feed drive
+    (:func:`identify`). The result's 'method' names which; the other two give 'rows' of
+    (parameter, seed, true, identified) and no belief file (their laws take no identified
+    values: the PID none, the LQG the plant's modes, README "Truth and belief")."""
+    method = method_of(machine, axis)
+    if method == 'frf_grey_box':
+        return _flexure_frf(machine, axis)
+    if method == 'subspace':
+        return _piezo_subspace(machine, axis)
+    return {**identify(machine, axis, workers), 'method': 'feed_drive'}
+
+
+def method_of(machine: MachineConfig, axis: str) -> str:
+    """'frf_grey_box' (a voice_coil flexure stage), 'subspace' (a piezo stage) or 'feed_drive'."""
+    return {'voice_coil': 'frf_grey_box', 'piezo': 'subspace'}.get(machine.axis(axis).drive.type, 'feed_drive')
+
+
+def _flexure_frf(machine: MachineConfig, axis: str) -> dict:
+    """Ding section 5.5 on the axis: the grey-box parameters beside the seed's and hw_sim's."""
+    from machine_ctrl.experiments import fts_identify as fts
+    config = machine.axis(axis)
+    flexure = config.plant.flexure
+    true = {'m12': config.drive.mass, 'c2': config.drive.damping, 'k2': flexure.stiffness,
+            'm4': flexure.secondary_mass, 'c4': flexure.secondary_damping, 'k4': flexure.secondary_stiffness}
+    start = {k: fts.TABLE_5_2[k] * fts.START[k] for k in fts.TABLE_5_2}
+    fitted = fts.fit(fts.stepped_sine(machine, axis=axis), machine, start, axis)
+    result = {'axis': axis, 'method': 'frf_grey_box',
+              'rows': [(f'{k} ({fts.UNITS[k]})', fts.TABLE_5_2[k], true[k], fitted['params'][k]) for k in fts.TABLE_5_2],
+              'notes': [f'stepped sine in the closed loop, {len(fts.FREQUENCIES)} lines {fts.FREQUENCIES[0]:g}-'
+                        f'{fts.FREQUENCIES[-1]:g} Hz; fit from {", ".join(f"{v:.3g}" for v in fts.START.values())} x '
+                        f'Table 5-2; RMS of log(model / measured) {fitted["rms_log_residual"]:.2e}']}
+    if not fitted['success']:
+        return {**result, 'status': 'refused', 'reason': f'the grey-box fit did not converge: {fitted["message"]}'}
+    return {**result, 'status': 'ok', 'reason': ''}
+
+
+def _piezo_subspace(machine: MachineConfig, axis: str) -> dict:
+    """Sörnmo section 2.3 on the axis: the N4SID model's order, VAF and first eigenfrequency,
+    the last beside hw_sim's lowest mode."""
+    from hw_sim.piezo_stage import PiezoAxisModel
+    from machine_ctrl.experiments import piezo_milling as pm
+    from machine_ctrl.identification.subspace import identify as n4sid
+    config = machine.axis(axis)
+    model = PiezoAxisModel.from_axis(config)
+    rng = np.random.default_rng([machine.simulation.seed, *axis.encode()])
+    found = n4sid(*pm.chirp_record(model, rng))
+    seed = SEED.get(axis, {})
+    result = {'axis': axis, 'method': 'subspace',
+              'notes': [f'chirp {pm.CHIRP_HZ[0]:g}-{pm.CHIRP_HZ[1]:g} Hz for {pm.CHIRP_TIME:g} s at 1 kHz, decimated '
+                        f'{pm.DECIMATION}x; N4SID, the order at the singular values\' gap']}
+    if not found.ok:
+        return {**result, 'status': 'refused', 'reason': f'N4SID: {found.reason}'}
+    result['rows'] = [('model order', seed.get('order'), None, found.model.order),
+                      ('VAF (%)', seed.get('vaf'), None, found.vaf),
+                      ('first eigenfrequency (Hz)', None, min(f for f, _ in model.modes),
+                       pm.first_eigenfrequency(found.model))]
+    return {**result, 'status': 'ok', 'reason': ''}
+
+
+
 def _call(function, job):
     return function(*job)
 
@@ -266,6 +332,8 @@ def table(result: dict) -> str:
     """seed | true (hw_sim) | identified | error, per parameter."""
     if result['status'] != 'ok':
         return f'{result["axis"]}: refused: {result["reason"]}'
+    if result.get('method', 'feed_drive') != 'feed_drive':
+        return _rows_table(result)
     body, steady, true, seed = result['rigid_body'], result['steady'], result['true'], result['seed']
     lines = [f'{result["axis"]}: identified offline on hw_sim (the simulator\'s true values beside)',
              f'  {"parameter":26s} {"seed":>9s} {"true":>9s} {"identified":>11s} {"95 %":>8s} {"error":>8s}']
@@ -306,3 +374,14 @@ def table(result: dict) -> str:
                  'relative residual: ' + ', '.join(f'{d} {100 * c.worst_relative_residual:.2f} %'
                                                    for d, c in zip(('positive', 'negative'), steady.curves)))
     return '\n'.join(lines)
+
+
+def _rows_table(result: dict) -> str:
+    """The table of a method that gives (parameter, seed, true, identified) rows."""
+    lines = [f'{result["axis"]}: identified offline on hw_sim ({result["method"]}; the simulator\'s true values beside)',
+             f'  {"parameter":28s} {"seed":>9s} {"true":>9s} {"identified":>11s} {"error":>8s}']
+    for name, seed, true, value in result['rows']:
+        error = '' if true is None else f'{100 * (value / true - 1):7.2f}%'
+        lines.append(f'  {name:28s} {"-" if seed is None else f"{seed:.4g}":>9s} {"-" if true is None else f"{true:.4g}":>9s} '
+                     f'{value:11.4g} {error:>8s}')
+    return '\n'.join(lines + [f'  {note}' for note in result.get('notes', ())])

@@ -1,7 +1,8 @@
-"""``machine-ctrl identify AXIS [--machine M] [--out FILE] [--json] [--jobs N]``: identify a
-feed drive's rigid body, friction curve and friction along the stroke, and design its
-disturbance observer, offline on hw_sim
-(machine_ctrl.experiments.identify). The table prints seed | true | identified | error; the
+"""``machine-ctrl identify AXIS [--machine M] [--out FILE] [--json] [--jobs N]``: identify an
+axis offline on hw_sim by the method its drive calls for (machine_ctrl.experiments.identify.
+identify_axis): a feed drive's rigid body, friction curve, friction along the stroke and
+disturbance observer; a flexure stage's grey-box model from its frequency response; a piezo
+stage's N4SID model. The table prints seed | true | identified | error; the
 identified values as a machine-YAML fragment go to FILE with ``--out``; ``--json`` prints
 {"status", "reason", "axis", "rigid_body": {...}, "steady": {...}, "true": {...},
 "seed": {...}, "speeds": [...], "forces": [[...], [...]], "observer": {"identified": {...},
@@ -21,7 +22,8 @@ from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
 def register(subparsers) -> None:
     parser = subparsers.add_parser('identify', help="identify an axis's rigid body and friction (offline, on hw_sim)",
                                    description=__doc__.split('\n\n')[0].replace('``', ''))
-    parser.add_argument('axis', help='a controlled linear axis with a force drive, e.g. x_c')
+    parser.add_argument('axis', help='a feed drive with guideway friction (x_c), a flexure stage (fts_lathe w) or a '
+                                     'piezo stage (robot_piezo px)')
     parser.add_argument('--machine', default=DEFAULT_MACHINE, help=f'machine name or YAML (default {DEFAULT_MACHINE})')
     parser.add_argument('--out', metavar='FILE', help='write the identified values as a machine-YAML fragment')
     parser.add_argument('--json', action='store_true', help='one JSON object on stdout')
@@ -42,8 +44,12 @@ def cmd_identify(args) -> int:
         return error('identify', f'{machine.name} has no axis {args.axis!r} (axes: {", ".join(machine.axis_names)})')
     if args.jobs is not None and args.jobs < 1:
         return error('identify', f'--jobs must be a whole number > 0, got {args.jobs}')
-    print(f'identifying {args.axis} of {machine.name} offline on hw_sim ...', file=sys.stderr, flush=True)
-    result = identify.identify(machine, args.axis, workers=args.jobs)
+    method = identify.method_of(machine, args.axis)
+    if args.out and method != 'feed_drive':
+        return error('identify', f'--out: {args.axis} ({method}): its law takes no identified values, so there is '
+                                 'no belief file to write (README "Identification")')
+    print(f'identifying {args.axis} of {machine.name} offline on hw_sim ({method}) ...', file=sys.stderr, flush=True)
+    result = identify.identify_axis(machine, args.axis, workers=args.jobs)
     if args.json:
         def plain(value):
             if dataclasses.is_dataclass(value):
