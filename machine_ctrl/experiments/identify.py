@@ -18,6 +18,11 @@ the encoder positions) with the drive's data-sheet force constant K = K_a K_t.
   rigid-body fit averaged over each run's positions, and a bristle term: the LuGre bristles
   sliding over that variation add a force in proportion to v, which left out would be taken
   for b (fit_steady_friction).
+* **LuGre bristles** sigma0, sigma1: open-loop force steps below breakaway, the presliding
+  response fitted with the thesis's model and the values identified before (:func:`presliding`,
+  machine_ctrl.identification.bristles).
+* **Disturbance observer** (Eqs. 4.30-4.37) from the identified m, b and the run's
+  resolutions (:func:`observers`).
 
 The result holds the identified values beside the simulator's true ones (hw_sim knows them:
 the machine config's plant section) and the seed's (thesis Tables 4.1/4.2), and a YAML
@@ -28,11 +33,14 @@ fragment of the controllers' belief in the machine-config format (:func:`yaml_fr
 from __future__ import annotations
 
 import math
+import random
 
 import numpy as np
 
 from hw_sim.offline import run
 from machine_ctrl.experiments import parallel
+from machine_ctrl.control.lugre import StribeckCurve
+from machine_ctrl.identification.bristles import BristleFit, BristleStatus, PreslidingStep, fit_bristles
 from machine_ctrl.identification.disturbance_observer import (ObserverStatus, disturbance_observer,
                                                               quantization_step, thesis_units)
 from machine_ctrl.identification.rigid_body import FitStatus, fit_rigid_body, fit_steady_friction, lugre_curve
@@ -58,12 +66,16 @@ WAVELENGTHS = tuple(float(w) for w in np.geomspace(5e-3, 0.1, 61))
 HOLD = 0.25
 HOLD_TRAVEL = 50e-6         # m
 SPEED_ACCELERATION = 0.5    # m/s^2, assumed: the ramps to and from each speed
-# Yuen thesis Table 4.1 (m^, b^), Table 4.2 (friction, +/- directions) and the observer gains
+PRESLIDING_STEPS = 1        # assumed: open-loop force steps each way (presliding); one each way pins both
+PRESLIDING_HOLD = 0.03      # s, assumed: each step held (and released) 30 ms, > 10 of the bristles' time
+                            # constants 1/sqrt(sigma0/m) (1.5 ms for 4 um of presliding on 21 kg)
+# Yuen thesis Table 4.1 (m^, b^), Table 4.2 (friction, +/- directions), Table 4.3 (sigma0,
+# sigma1 of the feed-forward, tuned: N/mm and N s/mm converted) and the observer gains
 # K_obs of Eqs. (4.38)-(4.40) (mm and V; designed from Table 4.1's m^ and b^)
-SEED = {'x_c': {'mass': 21.19, 'static': (36.38, 29.03), 'coulomb': (39.74, 26.74),
+SEED = {'x_c': {'mass': 21.19, 'static': (36.38, 29.03), 'coulomb': (39.74, 26.74), 'sigma0': 9.0e5, 'sigma1': 1500.0,
                 'observer': ((0.2227, 2.8518e-6), (285.1827, 0.0061), (-73.5388, -0.0020))},
-        'y_c': {'mass': 59.17, 'observer': ((0.1880, 1.9796e-6), (197.9680, 0.0034), (-76.1335, -0.0017))},
-        'z_c': {'mass': 17.61, 'observer': ((0.1993, 2.2430e-6), (224.3086, 0.0042), (-75.3177, -0.0018))},
+        'y_c': {'mass': 59.17, 'sigma0': 9.0e5, 'sigma1': 2500.0, 'observer': ((0.1880, 1.9796e-6), (197.9680, 0.0034), (-76.1335, -0.0017))},
+        'z_c': {'mass': 17.61, 'sigma0': 1.5e6, 'sigma1': 7500.0, 'observer': ((0.1993, 2.2430e-6), (224.3086, 0.0042), (-75.3177, -0.0018))},
         # Sörnmo section 2.3, robot_piezo's px, py, pz (the seed's x, y, z)
         'px': {'order': 4, 'vaf': 92.5}, 'py': {'order': 2, 'vaf': 99.5}, 'pz': {'order': 5, 'vaf': 97.1}}
 
@@ -145,6 +157,41 @@ def _speed_run(machine: MachineConfig, axis: str, speed: float) -> tuple[float, 
     return float(force[middle].mean()), position[middle]
 
 
+def presliding(machine: MachineConfig, axis: str, mass: float, steady, variation) -> BristleFit:
+    """LuGre's sigma0, sigma1 (machine_ctrl.identification.bristles) from PRESLIDING_STEPS open-loop
+    force steps (the servo off, the amplifier driven directly, as on the machine) of half the
+    identified static level where the carriage stands, each way, from rest at the middle of
+    the stroke; the model's m, b and friction curve are the identified ones, the start is the
+    data's: sigma0 = F / x_ss, sigma1 critical (Eq. 4.65)."""
+    from hw_sim.plant import Sensor
+    from hw_sim.simulator import make_plant
+    config, period = machine.axis(axis), machine.control_period
+    seed, middle = machine.simulation.seed, 0.5 * sum(config.stroke)
+    plant = make_plant(config, period, machine.simulation.substeps, random.Random(f'{seed}:{axis}:presliding'), middle)
+    sensor = Sensor(config.sensor_resolution, config.plant.sensor_noise, period, random.Random(f'{seed}:{axis}:encoder'))
+    curves = steady.curves
+    shape = StribeckCurve(*(tuple(getattr(c, name) for c in curves) for name in ('static', 'coulomb', 'omega1', 'omega2')))
+    steps = []
+    for _ in range(PRESLIDING_STEPS):
+        for d, sign in enumerate((1.0, -1.0)):
+            rest = sensor.measure(plant.sensed)[0]
+            level = 1.0 if variation is None else 1.0 + variation.amplitude[d] * math.sin(
+                2 * math.pi * rest / variation.wavelength + variation.phase[d])
+            command = sign * 0.5 * level * curves[d].static / config.drive.gain
+            positions = []
+            for _ in range(int(round(PRESLIDING_HOLD / period))):
+                positions.append(sensor.measure(plant.sensed)[0] - rest)
+                applied = plant.step(command)
+            steps.append(PreslidingStep(applied * config.drive.gain, np.array(positions),
+                                        lambda v, level=level: level * shape(v)))
+            for _ in range(int(round(PRESLIDING_HOLD / period))):
+                plant.step(0.0)
+    compliance = np.mean([s.position[-len(s.position) // 4:].mean() / s.force for s in steps])   # m/N
+    sigma0 = 1.0 / compliance
+    sigma1 = max(2.0 * math.sqrt(mass * sigma0) - steady.viscous, 1.0)
+    return fit_bristles(steps, period, mass, steady.viscous, (sigma0, sigma1))
+
+
 def observers(machine: MachineConfig, axis: str, mass: float, viscous: float, steps: tuple[float, float]) -> dict:
     """The disturbance observer (thesis Eqs. 4.30-4.37) designed as the thesis did, from the
     identified `mass` and `viscous` term and the resolutions `steps` (encoder m, command V) read
@@ -196,6 +243,9 @@ def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> d
     result['steady'] = steady
     if steady.status is not FitStatus.OK:
         return {**result, 'status': 'refused', 'reason': f'steady friction: {steady.reason}'}
+    result['bristles'] = presliding(machine, axis, body.mass.value, steady, body.variation)
+    if result['bristles'].status is not BristleStatus.OK:
+        return {**result, 'status': 'refused', 'reason': f'presliding: {result["bristles"].reason}'}
     result['observer'] = observers(machine, axis, body.mass.value, steady.viscous, steps)
     problems = [f'{which}: {design.reason}' for which, design in result['observer'].items()
                 if design.status is not ObserverStatus.OK]
@@ -288,7 +338,8 @@ def yaml_fragment(machine: MachineConfig, result: dict) -> str:
     """The identified values as a fragment of the machine YAML (to merge by hand, or to give to
     the tools that take one), each with its 95 % interval or fit residual in a comment. They are
     the controllers' belief: the drive's mass and damping, and the LuGre feed-forward's curve
-    (Eqs. 4.59-4.61, :func:`lugre_curve`) where the axis's law has one; hw_sim's truth (the plant
+    (Eqs. 4.59-4.61, :func:`lugre_curve`) and bristles (:func:`presliding`) where the axis's
+    law has one; hw_sim's truth (the plant
     section) is not touched. The two directions' Stribeck curves and the friction's variation
     along the stroke, for which the laws have no place, are comments."""
     body, steady, axis = result['rigid_body'], result['steady'], result['axis']
@@ -314,11 +365,14 @@ def yaml_fragment(machine: MachineConfig, result: dict) -> str:
     control = machine.axis(axis).control
     if control is not None and control.lugre_feedforward is not None:
         curve = lugre_curve(steady, result['speeds'])
+        bristles = result['bristles']
         lines += ['    control:',
-                  '      lugre_feedforward:       # sigma0, sigma1 as they were: no presliding run identifies them',
+                  '      lugre_feedforward:',
                   f'        static: {curve.static:.5g}          # F_s, N, Eq. (4.60)',
                   f'        coulomb: {curve.coulomb:.5g}         # F_c, N, Eq. (4.61)',
-                  f'        stribeck_velocity: {curve.stribeck_velocity:.4g}   # Omega_s, m/s, Eq. (4.59) fitted (Eq. 4.45)']
+                  f'        stribeck_velocity: {curve.stribeck_velocity:.4g}   # Omega_s, m/s, Eq. (4.59) fitted (Eq. 4.45)',
+                  f'        sigma0: {bristles.sigma0:.5g}       # N/m, presliding steps (Eq. 4.58)',
+                  f'        sigma1: {bristles.sigma1:.5g}         # N*s/m, presliding steps (Eq. 4.62)']
     return '\n'.join(lines) + '\n'
 
 
@@ -356,8 +410,13 @@ def table(result: dict) -> str:
         row('bristle term tau (s)', None, true['sigma1'] / true['sigma0'], steady.bristle_time)
     if not math.isnan(steady.bristle_time):
         lines.append('  tau: the steady fit\'s bristle term (fit_steady_friction), beside the true sigma1/sigma0: it '
-                     'also takes up the bristles\' lag behind the varying friction (g g\'/sigma0), so it is what keeps '
-                     'b right, not an identification of sigma1/sigma0')
+                     'also takes up the bristles\' lag behind the varying friction, so it keeps b right but is not '
+                     'sigma1/sigma0 (those: the presliding steps)')
+    bristles = result['bristles']
+    row('sigma0 (N/m)', seed.get('sigma0'), true['sigma0'], bristles.sigma0)
+    row('sigma1 (N s/m)', seed.get('sigma1'), true['sigma1'], bristles.sigma1)
+    lines.append(f'  sigma0, sigma1 from {bristles.steps} open-loop presliding steps (half the static level), residual '
+                 f'{bristles.residual_rms * 1e9:.3g} nm rms; the seed\'s are Table 4.3\'s tuned feed-forward values')
     observer = result['observer']
     identified, true_gain = thesis_units(observer['identified'].gain), thesis_units(observer['true'].gain)
     seed_gain = seed.get('observer')
