@@ -1,12 +1,15 @@
 """The [2/7] acceptance criteria on the simulated machine (full-length runs, ~1 min)."""
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from machine_ctrl.experiments import tracking as experiments
+from machine_ctrl.model.config import load_machine
 from machine_ctrl.experiments.tracking import STAT_KEYS, THESIS
 
 
@@ -36,6 +39,11 @@ def test_circle_every_result_within_factor_3_of_table_6_1(circle):
 
 
 def test_frf_bandwidths(micromill):
+    """The closed-loop -3 dB points, and like for like with the thesis's numbers (its Fig.
+    4.10 text: ~30 Hz, lambda; 250 Hz, the table's designed open-loop crossover omega_m):
+    the lead-lag axes' measured open-loop crossover below their design by the workpiece the
+    plant carries and the design does not (2.55 kg against 2.3: between sqrt and linear in
+    the mass ratio, 0.90-0.95; measured 0.92)."""
     result = experiments.frf(micromill)
     bw = result['bandwidth_hz']
     for axis in ('x_c', 'y_c', 'z_c'):
@@ -43,6 +51,28 @@ def test_frf_bandwidths(micromill):
     for axis in ('x_f', 'y_f', 'z_f'):
         assert 180 <= bw[axis] <= 400, (axis, bw[axis])
     assert abs(bw['x_dual'] / bw['x_f'] - 1) <= 0.2
+    assert set(result['crossover_hz']) == {'x_f', 'y_f', 'z_f'}           # the lead-lag axes: error feedback
+    assert result['design_hz']['x_c'] == pytest.approx(200.0 / (2 * math.pi))
+    for axis in ('x_f', 'y_f'):
+        ratio = result['crossover_hz'][axis] / result['design_hz'][axis]
+        assert 2.3 / 2.55 - 0.01 <= ratio <= math.sqrt(2.3 / 2.55), (axis, ratio)
+
+
+def test_the_open_loop_crossover_of_a_table_as_designed_is_omega_m(micromill, tmp_path):
+    """L = T/(1 - T) from the measured closed loop: with the plant's table at the 2.3 kg its
+    lead-lag was designed for, x_f and y_f cross over within 3 % of omega_m = 1/(T sqrt(alpha))
+    (Eq. 4.74; measured +1.6 %)."""
+    import shutil
+    text = micromill.yaml_path.read_text()
+    truth = '      mass: 2.55               # kg, the truth'
+    assert text.count(truth) == 3
+    (tmp_path / 'm.yaml').write_text(text.replace(truth, '      mass: 2.3 # ').replace(
+        'error_map: ../error_maps/', f'error_map: {micromill.yaml_path.parent.parent}/error_maps/'))
+    shutil.copy(micromill.urdf_path, tmp_path)
+    as_designed = load_machine(tmp_path / 'm.yaml')
+    result = experiments.frf(as_designed, np.geomspace(150.0, 350.0, 9), workers=1)
+    for axis in ('x_f', 'y_f'):
+        assert result['crossover_hz'][axis] == pytest.approx(result['design_hz'][axis], rel=0.03), axis
 
 
 def test_runs_in_other_processes_give_the_same_numbers(micromill):

@@ -10,7 +10,12 @@ with the reference (position, velocity, acceleration) and the measurement (posit
 velocity, and the accelerometer's reading acc where the axis has one, else 0.0) of its axis
 as plain floats, in SI units, and gets the command in the drive's command unit. A law that
 uses acc says so with ``uses_acceleration = True`` (an attribute; absent means False), and
-refuses to be built for an axis without an accelerometer. Plain floats on purpose: the step runs at 10 kHz for every axis in Python, and
+refuses to be built for an axis without an accelerometer. A law whose command depends on
+the position error x_r - x alone (a unity-feedback loop, e.g. the lead-lag) says so with
+``error_feedback = True`` (absent: False): its open-loop gain then follows from the closed
+loop's, L = T / (1 - T) (machine_ctrl/experiments/tracking.frf). ``design_bandwidth``, where a
+law has one, is the bandwidth its gains were designed for, rad/s (what a seed reports as the
+loop's bandwidth). Plain floats on purpose: the step runs at 10 kHz for every axis in Python, and
 packing reference and measurement into objects per call would cost more than most laws.
 
 ``reset()`` returns the law's state to where it was built (it keeps the gains in use; a

@@ -33,9 +33,16 @@ class LeadLagController:
         Parameter('notches', 'rad/s, 1, 1', 'notches N(s): omega, zeta_num, zeta_den each, Eq. (4.76)'),
     )
 
+    error_feedback = True               # C(s) acts on x_r - x alone (module docstring)
+
     @classmethod
     def from_axis(cls, gains: LeadLagGains, axis: AxisConfig, period: float) -> LeadLagController:
         return cls(gains, period)
+
+    @property
+    def design_bandwidth(self) -> float:
+        """omega_m = 1/(T sqrt(alpha)), the designed open-loop crossover, rad/s (Eq. 4.74)."""
+        return 1.0 / (self.gains.time_constant * math.sqrt(self.gains.alpha))
 
     def __init__(self, gains: LeadLagGains, period: float):
         self.gains = gains

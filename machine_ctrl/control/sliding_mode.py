@@ -77,6 +77,12 @@ class SlidingModeController:
     def reset(self) -> None:
         self.d_hat = 0.0
 
+    @property
+    def design_bandwidth(self) -> float:
+        """lambda, rad/s: "analogous to the bandwidth of the sliding mode controller" (thesis
+        text at Eq. 4.47)."""
+        return self.lam
+
     def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float:
         velocity_error = v_r - v
         sigma = velocity_error + self.lam * (x_r - x)

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from machine_ctrl.control.registry import make_law
 from machine_ctrl.experiments import parallel
 from machine_ctrl.model.config import MachineConfig
 from hw_sim.offline import run
@@ -199,8 +200,8 @@ def _lock_in(signal: np.ndarray, phase: np.ndarray) -> complex:
 def frequency_response(machine: MachineConfig, groups: list[tuple[list[FrfChannel], bool]], frequencies,
                        settle_cycles=4, measure_cycles=6, progress=None, workers: int | None = None
                        ) -> dict[str, np.ndarray]:
-    """|output/reference| per channel at each frequency, for each group of (channels, with
-    the dual-stage coupling on?) — a group's channels excited at once; the runs in up to
+    """output/reference (complex) per channel at each frequency, for each group of (channels,
+    with the dual-stage coupling on?) — a group's channels excited at once; the runs in up to
     `workers` processes (default: the available CPUs; the same numbers,
     experiments/parallel.py), `progress('frf', done, runs)` as they come in."""
     jobs = [(machine, channels, f, dual_stage, settle_cycles, measure_cycles)
@@ -216,7 +217,7 @@ def frequency_response(machine: MachineConfig, groups: list[tuple[list[FrfChanne
 
 def _frf_point(machine: MachineConfig, channels: list[FrfChannel], f: float, dual_stage: bool,
                settle_cycles: int, measure_cycles: int) -> list[float]:
-    """One run of :func:`frequency_response`: each channel's gain at `f` Hz."""
+    """One run of :func:`frequency_response`: each channel's response (complex) at `f` Hz."""
     fs = 1.0 / machine.control_period
     index = {n: i for i, n in enumerate(machine.axis_names)}
     period_steps = fs / f
@@ -235,7 +236,7 @@ def _frf_point(machine: MachineConfig, channels: list[FrfChannel], f: float, dua
     for c in channels:
         output = sum(record.measured[start:, index[a]] for a in c.outputs)
         output = output - sum(machine.home[index[a]] for a in c.outputs)
-        gains.append(abs(_lock_in(output, phase)) / c.amplitude)
+        gains.append(_lock_in(output, phase) / (-1j * c.amplitude))    # the reference's phasor: -j A
     return gains
 
 
@@ -251,11 +252,33 @@ def bandwidth(frequencies, gains) -> float | None:
     return float(math.exp(math.log(f0) + w * (math.log(f1) - math.log(f0))))
 
 
+def crossover(frequencies, open_loop) -> float | None:
+    """First frequency where |open_loop| falls through 1 (log-interpolated), or None."""
+    gains = np.abs(np.asarray(open_loop))
+    below = np.nonzero(gains < 1.0)[0]
+    if len(below) == 0 or below[0] == 0:
+        return None
+    i = below[0]
+    w = math.log(gains[i - 1]) / (math.log(gains[i - 1]) - math.log(gains[i]))
+    return float(math.exp(math.log(frequencies[i - 1]) + w * (math.log(frequencies[i]) - math.log(frequencies[i - 1]))))
+
+
 def frf(machine: MachineConfig, frequencies=None, progress=None, workers: int | None = None) -> dict:
+    """The closed-loop responses of frf_channels (thesis Fig. 4.10): 'gain' and the -3 dB
+    'bandwidth_hz' per channel; for a single axis whose law acts on the error alone
+    (error_feedback, control/law.py) the open-loop crossover 'crossover_hz' from L = T/(1 - T);
+    and 'design_hz', each single axis's design bandwidth (its law's design_bandwidth / 2 pi),
+    the number the thesis gives for it (the table's 250 Hz is its open-loop crossover omega_m,
+    Eq. 4.74; the micromill's ~30 Hz its lambda)."""
     frequencies = np.geomspace(5.0, 1500.0, 30) if frequencies is None else np.asarray(frequencies, float)
     alone, coupled = frf_channels(machine)
     groups = [(alone, False)] + ([(coupled, True)] if coupled else [])
     responses = frequency_response(machine, groups, frequencies, progress=progress, workers=workers)
+    laws = {c.name: make_law(machine.axis(c.axis), machine.control_period) for c in alone}
     return {'frequencies_hz': frequencies.tolist(),
-            'gain': {name: g.tolist() for name, g in responses.items()},
-            'bandwidth_hz': {name: bandwidth(frequencies, g) for name, g in responses.items()}}
+            'gain': {name: np.abs(t).tolist() for name, t in responses.items()},
+            'bandwidth_hz': {name: bandwidth(frequencies, np.abs(t)) for name, t in responses.items()},
+            'crossover_hz': {name: crossover(frequencies, responses[name] / (1.0 - responses[name]))
+                             for name, law in laws.items() if getattr(law, 'error_feedback', False)},
+            'design_hz': {name: law.design_bandwidth / (2 * math.pi) for name, law in laws.items()
+                          if hasattr(law, 'design_bandwidth')}}

@@ -240,6 +240,11 @@ def _print_frf(machine: str, result: dict) -> None:
         print(f'{f:7.1f} ' + ' '.join(f'{20 * math.log10(max(result["gain"][n][i], 1e-12)):8.2f}' for n in names))
     print('-3 dB bandwidth/Hz ' + ' '.join(
         f'{n}={"n/a" if b is None else f"{b:.1f}"}' for n, b in result['bandwidth_hz'].items()))
+    if result['crossover_hz']:
+        print('open-loop crossover/Hz (L = T/(1 - T), laws on the error alone) ' + ' '.join(
+            f'{n}={"n/a" if c is None else f"{c:.1f}"}' for n, c in result['crossover_hz'].items()))
+    print('design bandwidth/Hz (the laws\' own: the thesis\'s numbers) ' + ' '.join(
+        f'{n}={d:.1f}' for n, d in result['design_hz'].items()))
 
 
 def contouring(machine, kind: str, progress=None, steps: int | None = None, record_dir=None,
@@ -275,8 +280,8 @@ def cmd_experiment(args) -> int:
         from machine_ctrl.experiments import tracking
         result = tracking.frf(machine, progress=progress, workers=args.jobs)
         if args.json:
-            print(json.dumps({'bandwidth_hz': result['bandwidth_hz'],
-                              'frequencies_hz': result['frequencies_hz'], 'gain': result['gain']}))
+            print(json.dumps({key: result[key] for key in ('bandwidth_hz', 'crossover_hz', 'design_hz',
+                                                            'frequencies_hz', 'gain')}))
         else:
             _print_frf(machine.name, result)
         return 0
