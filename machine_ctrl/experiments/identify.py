@@ -416,7 +416,7 @@ def table(result: dict) -> str:
     row('sigma0 (N/m)', seed.get('sigma0'), true['sigma0'], bristles.sigma0)
     row('sigma1 (N s/m)', seed.get('sigma1'), true['sigma1'], bristles.sigma1)
     lines.append(f'  sigma0, sigma1 from {bristles.steps} open-loop presliding steps (half the static level), residual '
-                 f'{bristles.residual_rms * 1e9:.3g} nm rms; the seed\'s are Table 4.3\'s tuned feed-forward values')
+                 f'{bristles.residual_rms * 1e6:.2g} um rms; the seed\'s are Table 4.3\'s tuned feed-forward values')
     observer = result['observer']
     identified, true_gain = thesis_units(observer['identified'].gain), thesis_units(observer['true'].gain)
     seed_gain = seed.get('observer')

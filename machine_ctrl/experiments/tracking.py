@@ -18,8 +18,8 @@
   stage stuck within one 40 nm count of its reference (its encoder reads zero error, so the
   coupling sends no offset) and its error is the table's noise excursion, which does not
   depend on the coarse motion: the at-rest run's table trajectory is bit-identical. Its
-  peak, 0.508 um true at step 34319 (x_f), reads 25 probe counts of 20 nm = 0.500 um, at
-  the same steps (34317-34324 and 72034-72035 for x, 16741 for y) in SMC, DSFD and at rest.
+  peak reads 25 probe counts of 20 nm = 0.500 um, at the same steps in SMC, DSFD and at
+  rest (test/test_square_artefact.py).
 * frf (thesis Fig. 4.10): closed-loop frequency responses by stepped sine, servo loop
   alone (feed-forward off: the reference carries position only), lock-in (single-bin DFT)
   over whole cycles after settling; the -3 dB bandwidth is the first crossing of -3 dB,

@@ -109,6 +109,10 @@ def register(subparsers) -> None:
         parser.add_argument('--record', metavar='DIR',
                             help=('also write each run as a bag, DIR/smc and DIR/dsfd' if name != 'frf'
                                   else argparse.SUPPRESS))     # frf: refused with one line, as before
+        parser.add_argument('--sensitivity', action='store_true',
+                            help=('also run the machine with its bristle stiffness and its table force noise halved '
+                                  'and doubled, and print each statistic\'s ratio to the configured run'
+                                  if name != 'frf' else argparse.SUPPRESS))
         parser.add_argument('--identified', metavar='FILE', action='append', default=[],
                             help="the controllers' values from FILE (machine-ctrl identify --out) over the "
                                  "machine's own; hw_sim's plant stays the truth (repeat for several axes)")
@@ -265,6 +269,8 @@ def cmd_experiment(args) -> int:
         print(f"the controllers' values from {', '.join(args.identified)}", file=sys.stderr)
     progress = None if args.quiet else _progress
     coupled = machine.contour_control is not None      # circle/square: also the dual stage with it
+    if args.sensitivity and args.record is not None:
+        return error('experiment', '--record is for one run, not with --sensitivity')
     if args.record is not None:
         try:
             if args.name == 'frf':
@@ -274,8 +280,14 @@ def cmd_experiment(args) -> int:
                 fresh_directory(os.path.join(args.record, label))
         except ValueError as exc:
             return error('experiment', exc)
-    if args.name == 'frf' and args.steps is not None:
-        return error('experiment', '--steps is for circle and square')
+    if args.name == 'frf' and (args.steps is not None or args.sensitivity):
+        return error('experiment', f'{"--steps" if args.steps is not None else "--sensitivity"} is for circle and square')
+    if args.sensitivity:
+        from machine_ctrl.experiments import sensitivity
+        result = sensitivity.sensitivity(machine, args.name, steps=args.steps, workers=args.jobs, progress=progress)
+        print(json.dumps({'configured': {m: result['configured'][m] for m in ('smc', 'dsfd')},
+                          'variants': result['variants']}) if args.json else sensitivity.table(args.name, result))
+        return 0
     if args.name == 'frf':
         from machine_ctrl.experiments import tracking
         result = tracking.frf(machine, progress=progress, workers=args.jobs)
