@@ -8,8 +8,8 @@ from decimal import Decimal
 import numpy as np
 import pytest
 
-from machine_ctrl.identification.disturbance_observer import (ObserverStatus, disturbance_observer, quantization_step,
-                                                              thesis_units)
+from machine_ctrl.identification.disturbance_observer import disturbance_observer, quantization_step, thesis_units
+from machine_ctrl.identification.rigid_body import FitStatus
 
 # as printed, rows x, v, d; columns x_m, v_m (mm and V)
 PRINTED = {
@@ -29,7 +29,7 @@ def test_the_thesis_gains_come_back_from_its_own_model(axis):
     """Each gain within 0.1 % or, for those printed to two figures, one unit of the last digit."""
     (mass, viscous, gain), printed = PRINTED[axis]
     design = disturbance_observer(mass, viscous, gain, 1e-4, 40e-9, 0.025)
-    assert design.status is ObserverStatus.OK, design.reason
+    assert design.status is FitStatus.OK, design.reason
     ours = thesis_units(design.gain)
     for i, row in enumerate(printed):
         for j, text in enumerate(row):
@@ -53,7 +53,7 @@ def test_a_model_without_meaning_is_refused_with_the_value_named(kwargs, named):
     values = {'mass': 21.19, 'damping': 25.05, 'force_gain': 45.4, 'period': 1e-4, 'position_step': 40e-9,
               'command_step': 0.025, **kwargs}
     design = disturbance_observer(**values)
-    assert design.status is ObserverStatus.REFUSED and named in design.reason and design.gain is None
+    assert design.status is FitStatus.REFUSED and named in design.reason and design.gain is None
 
 
 def test_the_quantization_step_of_recorded_values():

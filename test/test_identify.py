@@ -159,10 +159,9 @@ def test_the_observer_from_the_identified_model_is_within_10_percent_of_the_true
     """Every gain of K_obs (Eqs. 4.30-4.37) designed from the identified m, b and the run's
     resolutions within 10 % of the one from hw_sim's true m, b and resolutions (measured
     within 1.9 %); the resolutions read from the run are the config's."""
-    from machine_ctrl.identification.disturbance_observer import ObserverStatus
     result = {'x_c': x_c, 'y_c': y_c}[axis]
     designs = result['observer']
-    assert designs['identified'].status is designs['true'].status is ObserverStatus.OK
+    assert designs['identified'].status is designs['true'].status is FitStatus.OK
     np.testing.assert_allclose(designs['identified'].gain, designs['true'].gain, rtol=0.10)
     np.testing.assert_allclose(designs['identified'].noise, designs['true'].noise, rtol=1e-6)
 

@@ -40,9 +40,8 @@ import numpy as np
 from hw_sim.offline import run
 from machine_ctrl.experiments import parallel
 from machine_ctrl.control.lugre import StribeckCurve
-from machine_ctrl.identification.bristles import BristleFit, BristleStatus, PreslidingStep, fit_bristles
-from machine_ctrl.identification.disturbance_observer import (ObserverStatus, disturbance_observer,
-                                                              quantization_step, thesis_units)
+from machine_ctrl.identification.bristles import BristleFit, PreslidingStep, fit_bristles
+from machine_ctrl.identification.disturbance_observer import disturbance_observer, quantization_step, thesis_units
 from machine_ctrl.identification.rigid_body import FitStatus, fit_rigid_body, fit_steady_friction, lugre_curve
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.reference import Reference
@@ -244,11 +243,11 @@ def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> d
     if steady.status is not FitStatus.OK:
         return {**result, 'status': 'refused', 'reason': f'steady friction: {steady.reason}'}
     result['bristles'] = presliding(machine, axis, body.mass.value, steady, body.variation)
-    if result['bristles'].status is not BristleStatus.OK:
+    if result['bristles'].status is not FitStatus.OK:
         return {**result, 'status': 'refused', 'reason': f'presliding: {result["bristles"].reason}'}
     result['observer'] = observers(machine, axis, body.mass.value, steady.viscous, steps)
     problems = [f'{which}: {design.reason}' for which, design in result['observer'].items()
-                if design.status is not ObserverStatus.OK]
+                if design.status is not FitStatus.OK]
     if problems:
         return {**result, 'status': 'refused', 'reason': f'disturbance observer: {"; ".join(problems)}'}
     return {**result, 'status': 'ok', 'reason': ''}

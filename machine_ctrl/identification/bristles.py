@@ -23,22 +23,18 @@ thesis's critical damping (Eq. 4.65) the step settles in a few ms without oversh
 """
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-
-class BristleStatus(enum.Enum):
-    OK = 'ok'
-    REFUSED = 'refused'
+from machine_ctrl.identification.rigid_body import FitStatus
 
 
 @dataclass(frozen=True)
 class BristleFit:
-    status: BristleStatus
+    status: FitStatus
     reason: str = ''
     sigma0: float = math.nan          # N/m
     sigma1: float = math.nan          # N s/m
@@ -75,13 +71,13 @@ def fit_bristles(steps: list[PreslidingStep], period: float, mass: float, viscou
     """sigma0 and sigma1 from `steps` (each from rest; module docstring), `mass` (kg) and
     `viscous` (N s/m) known, from `start` (sigma0, sigma1)."""
     if not steps:
-        return BristleFit(BristleStatus.REFUSED, 'no presliding step')
+        return BristleFit(FitStatus.REFUSED, 'no presliding step')
     moved = [s for s in steps if np.ptp(s.position) > 0.0]
     if len(moved) < len(steps):
-        return BristleFit(BristleStatus.REFUSED, f'{len(steps) - len(moved)} of {len(steps)} steps moved no encoder '
+        return BristleFit(FitStatus.REFUSED, f'{len(steps) - len(moved)} of {len(steps)} steps moved no encoder '
                                                  'count: a larger force is needed')
     if not (mass > 0 and viscous >= 0 and all(v > 0 for v in start)):
-        return BristleFit(BristleStatus.REFUSED, f'mass {mass!r}, viscous {viscous!r}, start {start!r}: need m > 0, '
+        return BristleFit(FitStatus.REFUSED, f'mass {mass!r}, viscous {viscous!r}, start {start!r}: need m > 0, '
                                                  'b >= 0, a positive start')
     from scipy.optimize import least_squares
     measured = np.concatenate([s.position for s in steps])
@@ -92,7 +88,7 @@ def fit_bristles(steps: list[PreslidingStep], period: float, mass: float, viscou
         return (np.concatenate([simulate(s, period, mass, viscous, sigma0, sigma1) for s in steps]) - measured) / scale
     solution = least_squares(residual, np.log(start), method='trf', diff_step=1e-4)
     if not solution.success:
-        return BristleFit(BristleStatus.REFUSED, f'the fit did not converge: {solution.message}')
+        return BristleFit(FitStatus.REFUSED, f'the fit did not converge: {solution.message}')
     sigma0, sigma1 = (float(v) for v in np.exp(solution.x))
-    return BristleFit(BristleStatus.OK, '', sigma0, sigma1, scale * float(np.sqrt(np.mean(solution.fun ** 2))),
+    return BristleFit(FitStatus.OK, '', sigma0, sigma1, scale * float(np.sqrt(np.mean(solution.fun ** 2))),
                       len(steps))

@@ -25,25 +25,20 @@ machine gave, not copied from its data sheet.
 """
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from machine_ctrl.identification.rigid_body import FitStatus
 from machine_ctrl.model.flexure_model import held_input
 
 DISTURBANCE_WALK = 1e-6     # R_wd, V^2 per period: thesis Eq. (4.36), its tuning value
 
 
-class ObserverStatus(enum.Enum):
-    OK = 'ok'
-    REFUSED = 'refused'
-
-
 @dataclass(frozen=True)
 class ObserverDesign:
-    status: ObserverStatus
+    status: FitStatus
     reason: str = ''
     gain: np.ndarray | None = None      # K_obs, 3 x 2: rows x, v, d; columns x_m (m), v_m (m/s); SI
     noise: tuple[float, float, float, float] = (math.nan,) * 4    # R_x, R_v, R_u, R_wd
@@ -60,7 +55,7 @@ def disturbance_observer(mass: float, damping: float, force_gain: float, period:
     if not (math.isfinite(damping) and damping >= 0):
         bad.append(f'damping {damping!r}')
     if bad:
-        return ObserverDesign(ObserverStatus.REFUSED, f'must be finite and > 0 (damping >= 0): {", ".join(bad)}')
+        return ObserverDesign(FitStatus.REFUSED, f'must be finite and > 0 (damping >= 0): {", ".join(bad)}')
     from scipy.linalg import solve_discrete_are
     p_v, k_v = -damping / mass, force_gain / mass
     a_d, b_d = held_input(np.array([[0.0, 1.0], [0.0, p_v]]), np.array([[0.0], [k_v]]), period)  # Eqs. 4.28-4.29
@@ -73,9 +68,9 @@ def disturbance_observer(mass: float, damping: float, force_gain: float, period:
     try:
         p = solve_discrete_are(a.T, c.T, w @ q @ w.T, r)
     except (np.linalg.LinAlgError, ValueError) as exc:
-        return ObserverDesign(ObserverStatus.REFUSED, f'no steady-state Kalman gain: {exc}')
+        return ObserverDesign(FitStatus.REFUSED, f'no steady-state Kalman gain: {exc}')
     gain = p @ c.T @ np.linalg.inv(c @ p @ c.T + r)
-    return ObserverDesign(ObserverStatus.OK, '', gain, noise)
+    return ObserverDesign(FitStatus.OK, '', gain, noise)
 
 
 def thesis_units(gain: np.ndarray) -> np.ndarray:
