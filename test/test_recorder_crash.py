@@ -197,7 +197,10 @@ def run_held_graph(supervisor, micromill, window: int, target: int, at=None):
     rclpy.init()
     nodes, executor = [], None
     try:
-        nodes = create_nodes(default_graph(micromill, hw_sim={'recorder_window': window}))
+        # hw_sim holds step 0 until the recorder's /joint_states reader has matched (with the
+        # two servos and dual_stage: 4), so its progress comes before the target step: on a
+        # loaded run hw_sim once reached it before the recorder had been discovered
+        nodes = create_nodes(default_graph(micromill, hw_sim={'recorder_window': window, 'min_subscribers': 4}))
         executor = DefaultExecutor()
         for node in nodes:
             executor.add_node(node)
