@@ -9,7 +9,7 @@ import pytest
 
 from machine_ctrl.control.lugre import StribeckCurve
 from machine_ctrl.identification.bristles import PreslidingStep, fit_bristles, simulate
-from machine_ctrl.identification.rigid_body import FitStatus
+from machine_ctrl.identification.status import FitStatus
 
 PERIOD, MASS, VISCOUS = 1e-4, 20.0, 25.0
 CURVE = StribeckCurve((36.0, 29.0), (40.0, 27.0), (1.3e-3, 3.4e-4), (1.8e-3, 4.5e-4))

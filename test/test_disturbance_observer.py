@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from machine_ctrl.identification.disturbance_observer import disturbance_observer, quantization_step, thesis_units
-from machine_ctrl.identification.rigid_body import FitStatus
+from machine_ctrl.identification.status import FitStatus
 
 # as printed, rows x, v, d; columns x_m, v_m (mm and V)
 PRINTED = {

@@ -197,10 +197,14 @@ def run_held_graph(supervisor, micromill, window: int, target: int, at=None):
     rclpy.init()
     nodes, executor = [], None
     try:
-        # hw_sim holds step 0 until the recorder's /joint_states reader has matched (with the
-        # two servos and dual_stage: 4), so its progress comes before the target step: on a
-        # loaded run hw_sim once reached it before the recorder had been discovered
-        nodes = create_nodes(default_graph(micromill, hw_sim={'recorder_window': window, 'min_subscribers': 4}))
+        # hw_sim holds step 0 until the recorder's /joint_states reader has matched (bringup's
+        # rule: every node that reads the states, and the recorder), so its progress comes
+        # before the target step: on a loaded run hw_sim once got there before the recorder
+        # had been discovered
+        from machine_ctrl.app.bringup import JOINT_STATE_READERS
+        specs = default_graph(micromill)
+        readers = sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1
+        nodes = create_nodes(default_graph(micromill, hw_sim={'recorder_window': window, 'min_subscribers': readers}))
         executor = DefaultExecutor()
         for node in nodes:
             executor.add_node(node)

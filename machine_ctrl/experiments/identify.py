@@ -42,7 +42,8 @@ from machine_ctrl.experiments import parallel
 from machine_ctrl.control.lugre import StribeckCurve
 from machine_ctrl.identification.bristles import BristleFit, PreslidingStep, fit_bristles
 from machine_ctrl.identification.disturbance_observer import disturbance_observer, quantization_step, thesis_units
-from machine_ctrl.identification.rigid_body import FitStatus, fit_rigid_body, fit_steady_friction, lugre_curve
+from machine_ctrl.identification.rigid_body import fit_rigid_body, fit_steady_friction, lugre_curve
+from machine_ctrl.identification.status import FitStatus
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.reference import Reference
 
@@ -161,13 +162,14 @@ def presliding(machine: MachineConfig, axis: str, mass: float, steady, variation
     force steps (the servo off, the amplifier driven directly, as on the machine) of half the
     identified static level where the carriage stands, each way, from rest at the middle of
     the stroke; the model's m, b and friction curve are the identified ones, the start is the
-    data's: sigma0 = F / x_ss, sigma1 critical (Eq. 4.65)."""
+    data's (:func:`_stiffness_from_rest`, sigma1 critical by Eq. 4.65)."""
     from hw_sim.plant import Sensor
     from hw_sim.simulator import make_plant
     config, period = machine.axis(axis), machine.control_period
     seed, middle = machine.simulation.seed, 0.5 * sum(config.stroke)
     plant = make_plant(config, period, machine.simulation.substeps, random.Random(f'{seed}:{axis}:presliding'), middle)
-    sensor = Sensor(config.sensor_resolution, config.plant.sensor_noise, period, random.Random(f'{seed}:{axis}:encoder'))
+    sensor = Sensor(config.sensor_resolution, config.plant.sensor_noise, period, random.Random(f'{seed}:{axis}:encoder'),
+                    middle)
     curves = steady.curves
     shape = StribeckCurve(*(tuple(getattr(c, name) for c in curves) for name in ('static', 'coulomb', 'omega1', 'omega2')))
     steps = []
@@ -185,10 +187,17 @@ def presliding(machine: MachineConfig, axis: str, mass: float, steady, variation
                                         lambda v, level=level: level * shape(v)))
             for _ in range(int(round(PRESLIDING_HOLD / period))):
                 plant.step(0.0)
-    compliance = np.mean([s.position[-len(s.position) // 4:].mean() / s.force for s in steps])   # m/N
-    sigma0 = 1.0 / compliance
-    sigma1 = max(2.0 * math.sqrt(mass * sigma0) - steady.viscous, 1.0)
+    sigma0 = float(np.mean([_stiffness_from_rest(s) for s in steps]))
+    sigma1 = max(2.0 * math.sqrt(mass * sigma0) - steady.viscous, 1.0)      # critical, Eq. (4.65)
     return fit_bristles(steps, period, mass, steady.viscous, (sigma0, sigma1))
+
+
+def _stiffness_from_rest(step: PreslidingStep) -> float:
+    """sigma0 from where a step comes to rest, x_ss = -(g/sigma0) ln(1 - F/g) (bristles.py),
+    g the curve at rest in the step's direction: the fit's start."""
+    g = step.curve(math.copysign(1e-12, step.force))
+    settled = abs(float(step.position[-len(step.position) // 4:].mean()))
+    return -(g / settled) * math.log1p(-abs(step.force) / g)
 
 
 def observers(machine: MachineConfig, axis: str, mass: float, viscous: float, steps: tuple[float, float]) -> dict:
@@ -205,8 +214,8 @@ def observers(machine: MachineConfig, axis: str, mass: float, viscous: float, st
 
 def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> dict:
     """The identification of `axis` (module docstring): {'status', 'reason', 'axis', 'rigid_body',
-    'steady', 'true', 'seed', 'speeds', 'forces', 'observer'} (the later ones where the
-    identification got that far)."""
+    'steady', 'true', 'seed', 'speeds', 'forces', 'bristles', 'observer'} (the later ones where
+    the identification got that far)."""
     config = machine.axis(axis)
     friction = config.plant.friction if config.plant is not None else None
     if config.kind != 'linear' or config.drive.mass is None or config.control is None or config.stroke is None \

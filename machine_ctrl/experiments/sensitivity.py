@@ -8,8 +8,9 @@ alone, everything else as configured; sigma1 follows sigma0 by the rule the conf
 
     machine-ctrl experiment circle|square --sensitivity [--steps N] [--jobs N]
 
-The result: per variant the SMC and DSFD statistics (tracking.contouring) and each one's
-ratio to the configured run's.
+The result: per variant the SMC and DSFD statistics (tracking.contouring; the contour
+control's runs are left out) and each one's ratio to the configured run's (None where the
+configured statistic is 0, as on a run too short to move).
 """
 from __future__ import annotations
 
@@ -51,8 +52,8 @@ def sensitivity(machine: MachineConfig, kind: str, steps: int | None = None, wor
     for label, stiffness, noise in VARIANTS:
         run = contouring(varied(machine, stiffness, noise), kind, progress=progress, steps=steps, workers=workers)
         variants[label] = {'smc': run['smc'], 'dsfd': run['dsfd'],
-                           'ratio': {mode: {key: run[mode][key] / configured[mode][key] for key in run[mode]}
-                                     for mode in ('smc', 'dsfd')}}
+                           'ratio': {mode: {key: run[mode][key] / configured[mode][key] if configured[mode][key] else None
+                                            for key in run[mode]} for mode in ('smc', 'dsfd')}}
     return {'configured': configured, 'variants': variants}
 
 
@@ -64,6 +65,7 @@ def table(kind: str, result: dict) -> str:
              f'  {"statistic":24s} {"configured um":>14s} ' + ' '.join(f'{label:>17s}' for label in labels)]
     for mode in ('smc', 'dsfd'):
         for key in STAT_KEYS:
-            ratios = ' '.join(f'{result["variants"][label]["ratio"][mode][key]:17.2f}' for label in labels)
+            ratios = ' '.join('n/a'.rjust(17) if (r := result['variants'][label]['ratio'][mode][key]) is None
+                              else f'{r:17.2f}' for label in labels)
             lines.append(f'  {mode + " " + key:24s} {result["configured"][mode][key]:14.3f} {ratios}')
     return '\n'.join(lines)

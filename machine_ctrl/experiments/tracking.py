@@ -216,7 +216,7 @@ def frequency_response(machine: MachineConfig, groups: list[tuple[list[FrfChanne
 
 
 def _frf_point(machine: MachineConfig, channels: list[FrfChannel], f: float, dual_stage: bool,
-               settle_cycles: int, measure_cycles: int) -> list[float]:
+               settle_cycles: int, measure_cycles: int) -> list[complex]:
     """One run of :func:`frequency_response`: each channel's response (complex) at `f` Hz."""
     fs = 1.0 / machine.control_period
     index = {n: i for i, n in enumerate(machine.axis_names)}

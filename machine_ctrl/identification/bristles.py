@@ -13,7 +13,11 @@ rigid-body and steady fits, g from the Stribeck fit and the variation along the 
 this is a grey-box fit of the thesis's own model: the response to each step is simulated
 (scipy.integrate.solve_ivp, the force held over each period) and sigma0, sigma1 are the
 least-squares fit of the simulated to the measured positions (scipy.optimize.least_squares,
-in log-parameters: both positive).
+in log-parameters: both positive), with an offset per step: the rest position each step is
+measured from is one encoder reading, up to half a count off the carriage's.
+
+From rest with no force applied the bristles hold no deflection (sigma0 z balances the
+applied force, zero), so each step starts at z = 0 whatever the carriage did before.
 
 Why steps of about half the breakaway force: the deflection is then tens of encoder counts
 (x_ss = -(g/sigma0) ln(1 - F/g): 2.8 um for F = g/2 on the micromill's x_c), and the term
@@ -29,7 +33,7 @@ from typing import Callable
 
 import numpy as np
 
-from machine_ctrl.identification.rigid_body import FitStatus
+from machine_ctrl.identification.status import FitStatus
 
 
 @dataclass(frozen=True)
@@ -82,13 +86,17 @@ def fit_bristles(steps: list[PreslidingStep], period: float, mass: float, viscou
     from scipy.optimize import least_squares
     measured = np.concatenate([s.position for s in steps])
     scale = float(np.abs(measured).max())           # residuals relative to the largest deflection
+    lengths = [len(s.position) for s in steps]
 
-    def residual(log_sigma):
-        sigma0, sigma1 = np.exp(log_sigma)
-        return (np.concatenate([simulate(s, period, mass, viscous, sigma0, sigma1) for s in steps]) - measured) / scale
-    solution = least_squares(residual, np.log(start), method='trf', diff_step=1e-4)
+    def residual(theta):                            # log sigma0, log sigma1, each step's rest offset / scale
+        sigma0, sigma1 = np.exp(theta[:2])
+        offsets = np.repeat(theta[2:], lengths)
+        simulated = np.concatenate([simulate(s, period, mass, viscous, sigma0, sigma1) for s in steps])
+        return (simulated - measured) / scale + offsets
+    solution = least_squares(residual, np.concatenate((np.log(start), np.zeros(len(steps)))), method='trf',
+                             diff_step=1e-4)
     if not solution.success:
         return BristleFit(FitStatus.REFUSED, f'the fit did not converge: {solution.message}')
-    sigma0, sigma1 = (float(v) for v in np.exp(solution.x))
+    sigma0, sigma1 = (float(v) for v in np.exp(solution.x[:2]))
     return BristleFit(FitStatus.OK, '', sigma0, sigma1, scale * float(np.sqrt(np.mean(solution.fun ** 2))),
                       len(steps))

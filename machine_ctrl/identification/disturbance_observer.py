@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from machine_ctrl.identification.rigid_body import FitStatus
+from machine_ctrl.identification.status import FitStatus
 from machine_ctrl.model.flexure_model import held_input
 
 DISTURBANCE_WALK = 1e-6     # R_wd, V^2 per period: thesis Eq. (4.36), its tuning value

@@ -44,11 +44,12 @@ never patched.
 """
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from machine_ctrl.identification.status import FitStatus
 
 # assumed: 50 Hz. The filter passes the rigid-body band of the excitation (machine_ctrl/
 # experiments/identify.py: up to 8 Hz) untouched and takes out the encoder's count noise
@@ -58,11 +59,6 @@ MIN_SAMPLES = 1000
 # assumed: a variation along the stroke is taken into the model when it removes a third of the
 # residual's energy (the position terms always remove some: four more columns)
 VARIATION_GAIN = 2.0 / 3.0
-
-
-class FitStatus(enum.Enum):
-    OK = 'ok'
-    REFUSED = 'refused'          # the data cannot give the parameters: the reason says why
 
 
 @dataclass(frozen=True)
@@ -76,7 +72,9 @@ class Estimate:
 
 @dataclass(frozen=True)
 class FrictionVariation:
-    """F_c (1 + A sin(2 pi x / wavelength + phase)) per direction (positive, negative)."""
+    """The friction's level along the stroke, 1 + A sin(2 pi x / wavelength + phase) per
+    direction (positive, negative): the rigid-body fit sees it on F_c, and it scales the
+    whole curve g(v) (the plant's variation, and the steady and presliding fits' use of it)."""
     wavelength: float                         # m
     amplitude: tuple[float, float]            # A, relative to the direction's Coulomb level
     phase: tuple[float, float]                # rad, at x = 0

@@ -247,8 +247,9 @@ def _print_frf(machine: str, result: dict) -> None:
     if result['crossover_hz']:
         print('open-loop crossover/Hz (L = T/(1 - T), laws on the error alone) ' + ' '.join(
             f'{n}={"n/a" if c is None else f"{c:.1f}"}' for n, c in result['crossover_hz'].items()))
-    print('design bandwidth/Hz (the laws\' own: the thesis\'s numbers) ' + ' '.join(
-        f'{n}={d:.1f}' for n, d in result['design_hz'].items()))
+    if result['design_hz']:
+        print('design bandwidth/Hz (the laws\' own: the thesis\'s numbers) ' + ' '.join(
+            f'{n}={d:.1f}' for n, d in result['design_hz'].items()))
 
 
 def contouring(machine, kind: str, progress=None, steps: int | None = None, record_dir=None,

@@ -4,10 +4,10 @@ identify_axis): a feed drive's rigid body, friction curve, friction along the st
 disturbance observer; a flexure stage's grey-box model from its frequency response; a piezo
 stage's N4SID model. The table prints seed | true | identified | error; the
 identified values as a machine-YAML fragment go to FILE with ``--out``; ``--json`` prints
-{"status", "reason", "axis", "rigid_body": {...}, "steady": {...}, "true": {...},
-"seed": {...}, "speeds": [...], "forces": [[...], [...]], "observer": {"identified": {...},
-"true": {...}}} (SI: m/s, N, the observer gains per m and m/s; the fits' dataclasses as
-mappings). Progress on stderr; exit 1 when the identification is refused
+the result as one object, {"status", "reason", "axis", "method", ...}: for a feed drive
+"rigid_body", "steady", "bristles", "observer" ({"identified", "true"}), "true", "seed",
+"speeds", "forces"; for the other methods "rows" ([parameter, seed, true, identified]) and
+"notes" (SI: m/s, N, the observer gains per m and m/s; the fits' dataclasses as mappings). Progress on stderr; exit 1 when the identification is refused
 (the reason on stderr).
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser('identify', help="identify an axis's rigid body and friction (offline, on hw_sim)",
+    parser = subparsers.add_parser('identify', help="identify an axis by its drive's method (offline, on hw_sim)",
                                    description=__doc__.split('\n\n')[0].replace('``', ''))
     parser.add_argument('axis', help='a feed drive with guideway friction (x_c), a flexure stage (fts_lathe w) or a '
                                      'piezo stage (robot_piezo px)')
