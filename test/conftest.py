@@ -70,8 +70,8 @@ def _starts_ros(path: Path) -> bool:
 # Graph modules whose checks are results of lock-step runs (bit identity, recorded bags,
 # refusals and read-backs), none of a wall-clock watchdog, a stall or a killed process.
 # They make a second graph scope, run beside the first; the ROS-free modules fill in after
-# either (run22 of stop 34, one busy core: the one graph scope took 960 s, on the critical
-# path, while the ROS-free modules took 369 s; split, about 640 s and 320 + 369 s).
+# either (one busy core: the one graph scope took 960 s, on the critical path, while the
+# ROS-free modules took 369 s; split, 702 s and 423 + 415 s: pytest 971 s -> 786 s).
 _LOCKSTEP_GRAPHS = frozenset({
     'test_ros_parameters', 'test_freeform_graph', 'test_determinism', 'test_gcode_graph', 'test_graph',
     'test_view', 'test_robot_piezo_graph', 'test_contour_node', 'test_compensation_graph', 'test_parameters'})
