@@ -198,13 +198,10 @@ def run_held_graph(supervisor, micromill, window: int, target: int, at=None):
     nodes, executor = [], None
     try:
         # hw_sim holds step 0 until the recorder's /joint_states reader has matched (bringup's
-        # rule: every node that reads the states, and the recorder), so its progress comes
-        # before the target step: on a loaded run hw_sim once got there before the recorder
-        # had been discovered
-        from machine_ctrl.app.bringup import JOINT_STATE_READERS
-        specs = default_graph(micromill)
-        readers = sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1
-        nodes = create_nodes(default_graph(micromill, hw_sim={'recorder_window': window, 'min_subscribers': readers}))
+        # rule), so its progress comes before the target step: on a loaded run hw_sim once got
+        # there before the recorder had been discovered
+        from machine_ctrl.app.bringup import held_for_recorder
+        nodes = create_nodes(held_for_recorder(default_graph(micromill), window))
         executor = DefaultExecutor()
         for node in nodes:
             executor.add_node(node)

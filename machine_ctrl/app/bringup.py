@@ -60,10 +60,13 @@ def graph_specs(machine: MachineConfig, dual_stage: bool = True, compensation: s
     recording, hw_sim waits at step 0 for every joint-state reader and the recorder."""
     specs = default_graph(machine, contour=None, dual_stage=dual_stage, compensation_model=compensation,
                           contour_error=True, namespace=namespace, belief=belief)
-    if not record:
-        return specs
-    hw = {'min_subscribers': sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1,
-          'recorder_window': RECORDER_WINDOW}
+    return held_for_recorder(specs, RECORDER_WINDOW) if record else specs
+
+
+def held_for_recorder(specs: list[NodeSpec], window: int) -> list[NodeSpec]:
+    """`specs` with hw_sim waiting at step 0 for every joint-state reader and a recorder, and
+    then running at most `window` steps ahead of the recorder's progress."""
+    hw = {'min_subscribers': sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1, 'recorder_window': window}
     return [NodeSpec(s.name, s.module, s.cls, {**s.parameters, **hw}, s.namespace) if s.name == 'hw_sim' else s
             for s in specs]
 
