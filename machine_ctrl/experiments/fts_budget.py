@@ -44,6 +44,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from machine_ctrl.experiments.seed_rows import seed_row
+from machine_ctrl.identification import frequency_response
 
 SEED = '003_edeaa855566124b7'
 TWO_PI = 2.0 * math.pi
@@ -233,15 +234,9 @@ def responses(plant: FtsPlant, pid: Pid, f: np.ndarray) -> dict:
 
 
 def bandwidth(f: np.ndarray, t: np.ndarray) -> float:
-    """-3 dB bandwidth of y/r: first fall of |T| below 1/sqrt(2), interpolated in log f (nan if none)."""
-    mag = np.abs(t)
-    below = np.nonzero(mag < 1 / math.sqrt(2))[0]
-    if below.size == 0 or below[0] == 0:
-        return float('nan')
-    i = below[0]
-    y0, y1 = 20 * np.log10(mag[i - 1]), 20 * np.log10(mag[i])
-    x0, x1 = math.log(f[i - 1]), math.log(f[i])
-    return float(math.exp(x0 + (-3.0103 - y0) * (x1 - x0) / (y1 - y0)))
+    """-3 dB bandwidth of y/r (machine_ctrl.identification.frequency_response.bandwidth), nan if none."""
+    found = frequency_response.bandwidth(f, t)
+    return float('nan') if found is None else found
 
 
 def _series(a, b):

@@ -23,6 +23,11 @@ the encoder positions) with the drive's data-sheet force constant K = K_a K_t.
   machine_ctrl.identification.bristles).
 * **Disturbance observer** (Eqs. 4.30-4.37) from the identified m, b and the run's
   resolutions (:func:`observers`).
+* **Frequency response with coherence** (:func:`closed_loop_frf`): the closed loop from the
+  position reference to the encoder, at rest in the middle of the stroke, excited by
+  band-limited noise (FRF_BAND, FRF_RMS, FRF_DURATION), the H1 estimate and its coherence
+  (machine_ctrl.identification.frequency_response), the -3 dB bandwidth with the coherence
+  there, and for a law acting on the error alone the open loop's crossover (L = T/(1 - T)).
 
 The result holds the identified values beside the simulator's true ones (hw_sim knows them:
 the machine config's plant section) and the seed's (thesis Tables 4.1/4.2), and a YAML
@@ -40,7 +45,9 @@ import numpy as np
 from hw_sim.offline import run
 from machine_ctrl.experiments import parallel
 from machine_ctrl.control.lugre import StribeckCurve
+from machine_ctrl.control.registry import make_law
 from machine_ctrl.identification.bristles import BristleFit, PreslidingStep, fit_bristles
+from machine_ctrl.identification import frequency_response as fr
 from machine_ctrl.identification.disturbance_observer import disturbance_observer, quantization_step, thesis_units
 from machine_ctrl.identification.rigid_body import fit_rigid_body, fit_steady_friction, lugre_curve
 from machine_ctrl.identification.status import FitStatus
@@ -69,6 +76,16 @@ SPEED_ACCELERATION = 0.5    # m/s^2, assumed: the ramps to and from each speed
 PRESLIDING_STEPS = 1        # assumed: open-loop force steps each way (presliding); one each way pins both
 PRESLIDING_HOLD = 0.03      # s, assumed: each step held (and released) 30 ms, > 10 of the bristles' time
                             # constants 1/sqrt(sigma0/m) (1.5 ms for 4 um of presliding on 21 kg)
+# assumed: the frequency response's excitation, pink noise (power falling as 1/f) on the position reference from
+# 1 Hz to 1 kHz (the span of the stepped sine of Fig. 4.10, `experiment frf`, 5-1500 Hz, widened below so the
+# low-frequency gain of 1 is seen), 35 um rms (the stepped sine's 50 um amplitude as an rms: large against the
+# ~4 um of presliding), for 10 s; Welch lines 1.25 Hz apart or closer (at 10 kHz: 8192-sample segments, 23 averages)
+FRF_BAND = (1.0, 1000.0)    # Hz
+FRF_RMS = 35e-6             # m
+FRF_DURATION = 10.0         # s
+FRF_RESOLUTION = 1.25       # Hz
+MIN_COHERENCE = 0.9         # assumed: a -3 dB point is reported where the coherence is at least 0.9 (90 % of the
+                            # output's power there linear in the excitation)
 # Yuen thesis Table 4.1 (m^, b^), Table 4.2 (friction, +/- directions), Table 4.3 (sigma0,
 # sigma1 of the feed-forward, tuned: N/mm and N s/mm converted) and the observer gains
 # K_obs of Eqs. (4.38)-(4.40) (mm and V; designed from Table 4.1's m^ and b^)
@@ -157,6 +174,40 @@ def _speed_run(machine: MachineConfig, axis: str, speed: float) -> tuple[float, 
     return float(force[middle].mean()), position[middle]
 
 
+def closed_loop_frf(machine: MachineConfig, axis: str) -> dict:
+    """The closed loop of `axis` from its position reference to its encoder (module docstring),
+    the servo's feedback alone (the feed-forward off, the fine stages uncoupled: as the stepped
+    sine of `experiment frf`): 'frequencies_hz', 'gain', 'phase_deg', 'coherence' per Welch line,
+    'bandwidth_hz' (the -3 dB point, None where the coherence there is below MIN_COHERENCE),
+    'coherence_at_bandwidth', 'coherent_band_hz' (the longest run of lines at MIN_COHERENCE or
+    more), 'crossover_hz' (a law acting on the error alone: L = T/(1 - T); else None), and
+    'excitation' (what was applied)."""
+    period = machine.control_period
+    rate = 1.0 / period
+    samples = int(round(FRF_DURATION * rate))
+    segment = 2 ** math.ceil(math.log2(rate / FRF_RESOLUTION))
+    rng = np.random.default_rng([machine.simulation.seed, *axis.encode(), *b'frf'])
+    excitation = fr.band_limited_noise(samples, rate, FRF_BAND, FRF_RMS, rng)
+    zero = np.zeros(samples)
+    record = run(machine, _single_axis(machine, axis, excitation, zero, zero), dual_stage=False, feedforward=False)
+    if record.fault:
+        raise RuntimeError(f'{axis}: the simulated machine faulted: {record.fault}')
+    i = machine.axis_names.index(axis)
+    response = fr.estimate(excitation, record.measured[:, i] - 0.5 * sum(machine.axis(axis).stroke), rate, segment)
+    if response.status is not FitStatus.OK:
+        raise RuntimeError(f'{axis}: frequency response: {response.reason}')
+    found, coherence = fr.coherent_bandwidth(response, MIN_COHERENCE)
+    law = make_law(machine.axis(axis), period)
+    t = response.response
+    return {'frequencies_hz': response.frequencies, 'gain': np.abs(t), 'phase_deg': np.degrees(np.angle(t)),
+            'coherence': response.coherence, 'bandwidth_hz': found, 'coherence_at_bandwidth': coherence,
+            'coherent_band_hz': fr.coherent_band(response, MIN_COHERENCE),
+            'crossover_hz': fr.crossover(response.frequencies, t / (1.0 - t)) if getattr(law, 'error_feedback', False)
+            else None,
+            'excitation': {'band_hz': FRF_BAND, 'rms_m': FRF_RMS, 'duration_s': FRF_DURATION, 'segment': segment,
+                           'averages': response.segments}}
+
+
 def presliding(machine: MachineConfig, axis: str, mass: float, steady, variation) -> BristleFit:
     """LuGre's sigma0, sigma1 (machine_ctrl.identification.bristles) from PRESLIDING_STEPS open-loop
     force steps (the servo off, the amplifier driven directly, as on the machine) of half the
@@ -227,22 +278,22 @@ def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> d
         return {'status': 'refused', 'axis': axis,
                 'reason': f'{axis}: identify takes a controlled linear axis with a stroke, a force drive and guideway '
                           f'friction; {axis} lacks {", ".join(missing)}'}
-    jobs = [(machine, axis)] + [(machine, axis, sign * v) for sign in (1.0, -1.0) for v in SPEEDS]
-    functions = [_rigid_body_run] + [_speed_run] * (len(jobs) - 1)
+    jobs = [(machine, axis), (machine, axis)] + [(machine, axis, sign * v) for sign in (1.0, -1.0) for v in SPEEDS]
+    functions = [_rigid_body_run, closed_loop_frf] + [_speed_run] * (len(jobs) - 2)
     try:
         outcomes = parallel.run_all(_call, list(zip(functions, jobs)), workers)
     except RuntimeError as exc:             # the simulated machine faulted (stroke, limits)
         return {'status': 'refused', 'reason': str(exc), 'axis': axis}
-    body, steps = outcomes[0]
-    forces = np.abs(np.array([force for force, _ in outcomes[1:]])).reshape(2, len(SPEEDS))
-    result = {'axis': axis, 'rigid_body': body, 'speeds': list(SPEEDS), 'forces': forces.tolist(),
+    (body, steps), frf, speed_runs = outcomes[0], outcomes[1], outcomes[2:]
+    forces = np.abs(np.array([force for force, _ in speed_runs])).reshape(2, len(SPEEDS))
+    result = {'axis': axis, 'rigid_body': body, 'frf': frf, 'speeds': list(SPEEDS), 'forces': forces.tolist(),
               'true': true_values(machine, axis), 'seed': SEED.get(axis, {})}
     if body.status is not FitStatus.OK:
         return {**result, 'status': 'refused', 'reason': f'rigid body: {body.reason}'}
     scales, slopes = np.ones_like(forces), None
     if body.variation is not None:      # s(x) = 1 + A sin(k x + phase) and ds/dx, averaged over each run
         k, slopes = 2 * math.pi / body.variation.wavelength, np.zeros_like(forces)
-        for i, (_, positions) in enumerate(outcomes[1:]):
+        for i, (_, positions) in enumerate(speed_runs):
             d, j = i // len(SPEEDS), i % len(SPEEDS)
             angle = k * positions + body.variation.phase[d]
             scales[d, j] = float(np.mean(1.0 + body.variation.amplitude[d] * np.sin(angle)))
@@ -435,12 +486,32 @@ def table(result: dict) -> str:
     lines.append(f'  K_obs in the thesis\'s mm and V (Eqs. 4.38-4.40); the seed\'s from Table 4.1 m^, b^ '
                  f'(b^ before its correction, Eq. 4.43); identified from the fitted m, b and the run\'s resolutions '
                  f'({observer_steps(observer)})')
+    lines += frf_lines(result['frf'])
     lines.append(f'  rigid body from {body.samples} samples faster than {MIN_SPEED * 1e3:g} mm/s, residual '
                  f'{body.residual_rms:.3g} N rms (its own b: {body.viscous.value:.4g} N s/m, Coulomb '
                  f'{body.coulomb[0].value:.4g} / {body.coulomb[1].value:.4g} N); the steady-friction fit\'s worst '
                  'relative residual: ' + ', '.join(f'{d} {100 * c.worst_relative_residual:.2f} %'
                                                    for d, c in zip(('positive', 'negative'), steady.curves)))
     return '\n'.join(lines)
+
+
+def frf_lines(frf: dict) -> list[str]:
+    """The closed loop's frequency response (:func:`closed_loop_frf`) as text: the bandwidths,
+    the coherent band, and gain / coherence at a few frequencies."""
+    f, gain, coherence, x = frf['frequencies_hz'], frf['gain'], frf['coherence'], frf['excitation']
+
+    def hz(value):
+        return '-' if value is None else f'{value:.1f} Hz'
+    band = frf['coherent_band_hz']
+    lines = [f'  closed loop, reference -> encoder at rest (feedback alone; pink noise {x["band_hz"][0]:g}-'
+             f'{x["band_hz"][1]:g} Hz, {x["rms_m"] * 1e6:g} um rms, {x["duration_s"]:g} s, {x["averages"]} Welch '
+             f'averages): -3 dB at {hz(frf["bandwidth_hz"])} (coherence {frf["coherence_at_bandwidth"]:.3f}), '
+             f'open-loop crossover {hz(frf["crossover_hz"])}; coherence >= {MIN_COHERENCE:g} from '
+             + ('-' if band is None else f'{band[0]:.1f} to {band[1]:.1f} Hz')]
+    points = [k for k in (int(np.argmin(np.abs(f - target))) for target in (2, 5, 10, 20, 50, 100, 200, 500))]
+    lines.append('    ' + ', '.join(f'{f[k]:.0f} Hz {20 * math.log10(gain[k]):+.1f} dB (coh. {coherence[k]:.2f})'
+                                      for k in points))
+    return lines
 
 
 def _rows_table(result: dict) -> str:

@@ -35,6 +35,7 @@ import numpy as np
 
 from machine_ctrl.control.registry import make_law
 from machine_ctrl.experiments import parallel
+from machine_ctrl.identification.frequency_response import bandwidth, crossover
 from machine_ctrl.model.config import MachineConfig
 from hw_sim.offline import run
 from machine_ctrl.model.reference import Reference
@@ -238,29 +239,6 @@ def _frf_point(machine: MachineConfig, channels: list[FrfChannel], f: float, dua
         output = output - sum(machine.home[index[a]] for a in c.outputs)
         gains.append(_lock_in(output, phase) / (-1j * c.amplitude))    # the reference's phasor: -j A
     return gains
-
-
-def bandwidth(frequencies, gains) -> float | None:
-    """First -3 dB crossing (log-interpolated), or None if the response never drops."""
-    level = 10 ** (-3 / 20)
-    below = np.nonzero(np.asarray(gains) < level)[0]
-    if len(below) == 0 or below[0] == 0:
-        return None
-    i = below[0]
-    f0, f1, g0, g1 = frequencies[i - 1], frequencies[i], gains[i - 1], gains[i]
-    w = (math.log(g0) - math.log(level)) / (math.log(g0) - math.log(g1))
-    return float(math.exp(math.log(f0) + w * (math.log(f1) - math.log(f0))))
-
-
-def crossover(frequencies, open_loop) -> float | None:
-    """First frequency where |open_loop| falls through 1 (log-interpolated), or None."""
-    gains = np.abs(np.asarray(open_loop))
-    below = np.nonzero(gains < 1.0)[0]
-    if len(below) == 0 or below[0] == 0:
-        return None
-    i = below[0]
-    w = math.log(gains[i - 1]) / (math.log(gains[i - 1]) - math.log(gains[i]))
-    return float(math.exp(math.log(frequencies[i - 1]) + w * (math.log(frequencies[i]) - math.log(frequencies[i - 1]))))
 
 
 def frf(machine: MachineConfig, frequencies=None, progress=None, workers: int | None = None) -> dict:

@@ -5,8 +5,8 @@ disturbance observer; a flexure stage's grey-box model from its frequency respon
 stage's N4SID model. The table prints seed | true | identified | error; the
 identified values as a machine-YAML fragment go to FILE with ``--out``; ``--json`` prints
 the result as one object, {"status", "reason", "axis", "method", ...}: for a feed drive
-"rigid_body", "steady", "bristles", "observer" ({"identified", "true"}), "true", "seed",
-"speeds", "forces"; for the other methods "rows" ([parameter, seed, true, identified]) and
+"rigid_body", "steady", "bristles", "observer" ({"identified", "true"}), "frf" (the closed
+loop's frequency response with coherence), "true", "seed", "speeds", "forces"; for the other methods "rows" ([parameter, seed, true, identified]) and
 "notes" (SI: m/s, N, the observer gains per m and m/s; the fits' dataclasses as mappings). Progress on stderr; exit 1 when the identification is refused
 (the reason on stderr).
 """
