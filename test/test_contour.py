@@ -202,11 +202,43 @@ def test_done_when_targets_on_the_trt_eq35_run(trt_eq35_run):
     assert max(summary['orientation_max_deviation_urad']['eq28'].values()) <= 6.0
 
 
+def test_under_the_seeds_magnitude_metric_basic_and_shifted_tie_and_the_compensated_frame_is_best(trt_eq35_run):
+    """[8/8] part 4: the seed compares amplitudes, |eps_est| - |eps_true|. There, at the peaks,
+    the basic frame over-estimates and the shifted frame under-estimates by the same second-order
+    term (kappa e_t^2 / 2: 0.045 um for e_t ~ 52 um on a 30 mm radius), so neither is worse
+    (measured 0.0442 / 0.0436 um), and the compensated frame is far better (measured < 0.0001
+    um). In the vector metric the basic frame is worst by its direction error (~ |eps| kappa
+    e_t: measured 0.686 against 0.046 um), the ranking the README explains."""
+    summary, series = trt_eq35_run
+    result, tip = series['result'], summary['trt_5axis']['tool_tip']
+    true = np.linalg.norm(result['true_tip'], axis=1)
+    peaks = result['basic_valid'] & result['shifted_valid'] & (true >= 0.5 * true.max())
+    over = {m: np.linalg.norm(result[m], axis=1)[peaks] - true[peaks] for m in ('basic', 'shifted')}
+    assert np.median(over['basic']) > 0.0 > np.median(over['shifted'])
+    basic, shifted, compensated = (tip[m]['magnitude_peak_max_deviation_um'] for m in ESTIMATORS)
+    assert basic == pytest.approx(shifted, rel=0.10)
+    assert compensated < 0.1 * min(basic, shifted)
+    assert tip['basic']['peak_max_deviation_um'] > 5.0 * tip['shifted']['peak_max_deviation_um']
+
+
+def test_eq34_as_printed_is_off_where_the_tilt_makes_g_unlike_the_identity(trt_eq35_run):
+    """[8/8] part 4: over the steps where the rotary reference moves, Eq. (34) as printed (Eq. 32
+    takes J_O^T J_O = diag(1, cos^2 a) for I) deviates from the truth by more than the seed's
+    6 urad on c on many steps (measured 24 %, 98.7 urad at most, where a = 25.8 deg); with G =
+    J_O^T J_O, and Eq. (28) through J_O^+, never."""
+    summary = trt_eq35_run[0]['trt_5axis']
+    deviation, share = summary['orientation_max_deviation_urad'], summary['orientation_over_seed_bound_percent']
+    assert deviation['eq34']['c'] > 6.0 and share['eq34']['c'] > 5.0
+    for form in ('eq28', 'eq34_exact'):
+        assert max(deviation[form].values()) <= 6.0 and max(share[form].values()) == 0.0
+
+
 def test_the_trt_eq35_statistics_leave_out_only_the_steps_marked_invalid_and_say_so(trt_eq35_run):
     """[6/8]: the experiment's statistics are over each estimator's valid steps; the invalid
-    ones (the path's start and its final stop, where the estimators break down by ~12 um)
-    are counted by reason, the largest deviation among them is reported, and every valid
-    step lies within its own bound. Recomputed here from the per-step series."""
+    ones (none on this run since a tool past the path's end is estimated by the end point,
+    [8/8] part 4; before, 17 at the start and the final stop, ~12 um off) would be counted by
+    reason with the largest deviation among them, and every valid step lies within its own
+    bound. Recomputed here from the per-step series."""
     summary, series = trt_eq35_run
     result, tip = series['result'], summary['trt_5axis']['tool_tip']
     true = result['true_tip']
@@ -214,12 +246,13 @@ def test_the_trt_eq35_statistics_leave_out_only_the_steps_marked_invalid_and_say
         deviation = np.linalg.norm(result[method] - true, axis=1)
         valid, stats = result[f'{method}_valid'], tip[method]
         assert stats['valid_steps'] + stats['invalid_steps'] == len(deviation) == summary['trt_5axis']['steps']
-        assert stats['invalid_steps'] == int((~valid).sum()) > 0
+        assert stats['invalid_steps'] == int((~valid).sum())
         assert set(stats['invalid_by_reason']) <= {'start', 'end'}, stats['invalid_by_reason']
         assert stats['max_deviation_um'] == pytest.approx(deviation[valid].max() * 1e6, rel=1e-12)
         assert stats['mean_deviation_um'] == pytest.approx(deviation[valid].mean() * 1e6, rel=1e-12)
-        assert stats['max_deviation_invalid_um'] == pytest.approx(deviation[~valid].max() * 1e6, rel=1e-12)
-        assert stats['max_deviation_invalid_um'] > 10.0       # the final stop: hidden from the table, said
+        hidden = stats['max_deviation_invalid_um']
+        assert hidden is None if valid.all() else hidden == pytest.approx(deviation[~valid].max() * 1e6, rel=1e-12)
+        assert deviation.max() * 1e6 < 1.0                   # the final stop's 12 um are gone
         assert stats['valid_over_bound'] == 0 and np.all(deviation[valid] <= result[f'{method}_bound'][valid])
     orientation = np.linalg.norm(result['orientation'] - result['true_orientation'], axis=1)
     valid = result['orientation_valid']
@@ -238,3 +271,36 @@ def test_the_cross_coupled_contour_control_halves_the_trt_eq35_contour_error_wit
     assert tip['coupled']['max'] < tip['uncoupled']['max'] and axis['coupled']['mean'] < axis['uncoupled']['mean']
     assert coupled['command_use']['coupled'] < 1.0, coupled['command_use']
     assert sum(coupled['invalid_steps'].values()) < 100, coupled['invalid_steps']
+
+
+def test_the_trt_contour_errors_follow_the_assumed_rotary_friction_and_hardly_the_linear(trt, capsys):
+    """[8/8] part 4: every friction level of trt_5axis is assumed (Sencer gives none). Halved or
+    doubled alone: the true contour errors follow the rotary (a, c) level in proportion (measured
+    max 0.50x / 1.98x: the error peaks at the a reversals are that friction against a's soft
+    loop), while the linear (x, y, z) level moves them by under 1 % (their loops are ~1000x
+    stiffer per volt); the compensated estimate's mean deviation stays within the 0.05 um target
+    in every variant. Friction varied by sensitivity.friction_levels: levels and sigma0 alike,
+    sigma1 critical again. Run as a user does: `machine-ctrl experiment contour --sensitivity --json`."""
+    import json
+
+    from machine_ctrl.app.cli import build_parser
+    from machine_ctrl.experiments.sensitivity import friction_levels
+    doubled = friction_levels(trt, 2.0, 'linear')
+    for before, after in zip(trt.axes, doubled.axes):
+        f, g = before.plant.friction, after.plant.friction
+        if before.kind == 'linear':
+            assert g.coulomb == tuple(2 * c for c in f.coulomb) and g.static == tuple(2 * c for c in f.static)
+            assert g.coulomb[0] / g.sigma0 == pytest.approx(f.coulomb[0] / f.sigma0)
+            assert g.sigma1 == pytest.approx(2 * math.sqrt(after.plant.mass * g.sigma0) - after.plant.damping)
+        else:
+            assert g == f
+    args = build_parser().parse_args(['experiment', 'contour', '--sensitivity', '--jobs', '1', '--json', '--quiet'])
+    assert args.run(args) == 0
+    variants = json.loads(capsys.readouterr().out)['variants']
+    for factor in (0.5, 2.0):
+        ratio = variants[f'rotary friction x {factor:g}']['ratio']
+        assert ratio['tip_max_um'] == pytest.approx(factor, rel=0.15)
+        assert ratio['tip_mean_um'] == pytest.approx(factor, rel=0.15)
+        linear = variants[f'linear friction x {factor:g}']['ratio']
+        assert all(abs(linear[k] - 1.0) < 0.01 for k in ('tip_mean_um', 'tip_max_um', 'orientation_mean_urad'))
+    assert all(v['compensated_mean_deviation_um'] <= 0.05 for v in variants.values())

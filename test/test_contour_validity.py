@@ -237,13 +237,20 @@ def test_trt_eq35_run(trt, trt_kin):
     tip_tolerance, axis_tolerance = machine_tolerances(trt)
     motion = np.flatnonzero(np.linalg.norm(trajectory.rows[1], axis=1) > 0)
     joins = [motion[0], motion[-1]]                     # the start and the final stop
+    end = trajectory.rows[0, motion[-1] + 1]            # the final rest point, and the direction arriving there
+    arriving = trajectory.rows[1, motion[-1]] / np.linalg.norm(trajectory.rows[1, motion[-1]])
+    beyond = motion[(p[motion] - end) @ arriving > 0.0]     # moving steps with the tool past the path's end
+    assert len(beyond) >= 10
     for method in ESTIMATORS:
         vector, bound, valid = estimates(trajectory, p, method, tip_tolerance)
         deviation = assert_within_bound_or_invalid(vector, bound, valid, truth)
         invalid = np.flatnonzero(~valid)
         assert len(invalid) <= 20 and near(invalid, joins, 20, 20).all(), invalid
-        assert deviation[invalid].max() > 10e-6          # the 12 um of the final stop
         assert deviation[valid].max() < 1e-6
+        # past the end the estimate is the distance to the end point (validity.beyond_end): the truth
+        # there, where every frame's line was 12 um off before
+        assert valid[beyond].all() and deviation[beyond].max() < 1e-9
+        np.testing.assert_allclose(vector[beyond], end - p[beyond], rtol=0, atol=1e-15)
     estimator = OrientationEstimator(axis_tolerance)
     out = [estimator.update(trajectory, k, ok) for k, ok in enumerate(o.tolist())]
     assert_within_bound_or_invalid(np.array([e.vector for e in out]), np.array([e.check.bound for e in out]),
@@ -305,3 +312,38 @@ def test_tolerances_of_the_machines(micromill, trt):
     assert (tip.absolute, axis.absolute) == (10e-9, 0.3e-6)
     assert machine_tolerances(trt)[0].absolute == pytest.approx(1.45e-6)
     assert Tolerance()(1e-9) == BOUND_ABS and Tolerance()(1e-3) == 0.25e-3
+
+
+@pytest.mark.parametrize('method', ESTIMATORS)
+def test_a_tool_past_the_paths_end_is_estimated_by_the_end_point_where_it_is_certainly_the_closest(method):
+    """[8/8] part 4 (validity.beyond_end): a quarter arc of 0.5 mm radius ending at rest along
+    +y, the tool 4 ms ahead of the reference and further along +y, so in the last steps of
+    motion it is past the end. 10 um further and 1 um off the path, the end point is certainly
+    the closest point: those steps are valid and their estimate is the truth (within 1 nm; no
+    frame's line can give it). 0.2 um further and 10 um inside the arc, the arc turns towards
+    the tool within the window by more than the rule allows (n sin Theta > s cos Theta: 10 um x
+    ~0.06 rad against 0.2 um): the end point is not certainly the closest (on a circle it still
+    is; the rule is a sufficient one), and those steps stay marked invalid ('end'). Every valid
+    step is within its bound of the closest-point truth."""
+    segments = [rest([0.0, -0.0005, 0.0], 0.05), arc([0.0, 0.0, 0.0], 0.0005, -np.pi / 2, np.pi / 2, 0.8),
+                rest([0.0005, 0.0, 0.0], 0.2)]
+    n = int(round(sum(s[1] for s in segments) / PERIOD))
+    t = np.arange(n) * PERIOD
+    p, v, a = evaluate(segments, t)
+    trajectory = ToolTrajectory(PERIOD)
+    trajectory.add(0, p, v, a, np.tile([0.0, 0.0, 1.0], (n, 1)), np.zeros((n, 3)))
+    leading = evaluate(segments, t + 0.004)[0]
+    moving = np.flatnonzero(np.linalg.norm(v, axis=1) > 0)
+    end = p[-1]
+    for offset, expect_valid in (([0.0, 10e-6, 1e-6], True), ([-10e-6, 0.2e-6, 0.0], False)):
+        actual = leading + offset
+        beyond = moving[actual[moving, 1] > end[1]]           # past the end: its direction there is +y
+        assert len(beyond) >= 3
+        truth = true_tool_tip_errors(trajectory, actual)
+        vector, bound, valid, reason = estimates(trajectory, actual, method, Tolerance(), reasons=True)
+        deviation = assert_within_bound_or_invalid(vector, bound, valid, truth)
+        if expect_valid:
+            assert valid[beyond].all() and deviation[beyond].max() < 1e-9
+            np.testing.assert_allclose(vector[beyond], end - actual[beyond], rtol=0, atol=1e-15)
+        else:
+            assert not valid[beyond].any() and (reason[beyond] == 'end').all(), reason[beyond]

@@ -45,7 +45,10 @@ is P''s direction if the reference is accelerating, else the last direction of t
 (the estimator remembers it) or, before the first motion, the first one ahead, and t_d = 0;
 an orientation at rest
 (W = 0) -> the same rule with the tool axis's direction of motion. At a path's ends the
-true error is the distance to the end segment (:class:`RestDirection`).
+true error is the distance to the end segment (:class:`RestDirection`); a moving tool tip
+already past the end (behind the start) gets the distance to the end point where that is
+certainly the closest point (validity.beyond_end; on trt_5axis's final stop a line was
+12.35 um off there).
 
 Validity (:mod:`machine_ctrl.contour.validity`, README "Contour error", "Validity"): every
 estimate carries a Check, a bound on |estimate - true contour error| from the path's geometry
@@ -53,8 +56,9 @@ around it, and valid = the bound within the tolerance. The estimates themselves 
 formulas above, unchanged; where their assumptions fail — a smooth path with the closest
 point near the frame point: not at a join, a corner, a reversal, across the last rows of a
 stop (where Eq. 21's t_d = e_t/|V| runs to its clamp and the frame lands on another segment:
-the 483 um of the micromill's approach -> helix join), not beyond a path end — the bound
-says so and the step is invalid. The node publishes invalid steps as NaN.
+the 483 um of the micromill's approach -> helix join), not beyond a path end where the end
+point is not certainly closest — the bound says so and the step is invalid. The node
+publishes invalid steps as NaN.
 """
 from __future__ import annotations
 
@@ -64,7 +68,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from machine_ctrl.contour.validity import (SPEED_TOL, Check, PathGeometry, PathMemory, Tolerance, angle,
-                                           dot, line_check, nearer_row_angle, rest_check)
+                                           beyond_end, dot, line_check, nearer_row_angle, rest_check)
 from machine_ctrl.model.kinematics import Kinematics, orientation_basis
 
 ESTIMATORS = ('basic', 'shifted', 'compensated')
@@ -284,7 +288,8 @@ class RestDirection:
 @dataclass(frozen=True)
 class TipEstimate:
     vector: list[float]     # contour error eps (m, workpiece frame), from P towards the path
-    frenet: list[float]     # [e_t, e_n, e_b] in the frame used (Eq. 19; Eq. 26 for compensated)
+    frenet: list[float]     # [e_t, e_n, e_b] in the frame used (Eq. 19; Eq. 26 for compensated); for a tool
+                            # past the path's end, the frame's, though `vector` is then the end point's
     delay: float            # t_d (s), Eq. (21); 0 for basic and at rest
     check: Check            # |vector - true eps| <= check.bound; valid or not (module validity)
 
@@ -323,8 +328,9 @@ class ToolTipEstimator:
         turn_k = 0.0 if geometry.moving[i] else angle(frame[0], geometry.last[i].tolist())   # T from A at a stop
         if self.method == 'basic':
             vector = normal_part(frame, e_frenet)                           # Eq. (20)
-            return TipEstimate(vector, e_frenet, 0.0, line_check(
-                self.memory, self.tolerance, trajectory, step, vector, e, e_frenet[0], s_k, s_k, turn_k, p))
+            return self._past_an_end(TipEstimate(vector, e_frenet, 0.0, line_check(
+                self.memory, self.tolerance, trajectory, step, vector, e, e_frenet[0], s_k, s_k, turn_k, p)),
+                trajectory, step, p, e)
         speed = math.sqrt(dot(v_ref, v_ref))
         delay = e_frenet[0] / speed if speed > SPEED_TOL else 0.0           # Eq. (21)
         delay = min(max(delay, -MAX_SHIFT), MAX_SHIFT)
@@ -345,8 +351,18 @@ class ToolTipEstimator:
         else:
             residual, s_c = e_shifted[0], s_k
         vector = normal_part(shifted, e_shifted)
-        return TipEstimate(vector, e_shifted, delay, line_check(
-            self.memory, self.tolerance, trajectory, step, vector, e, residual, s_c, s_t, turn_t, p))
+        return self._past_an_end(TipEstimate(vector, e_shifted, delay, line_check(
+            self.memory, self.tolerance, trajectory, step, vector, e, residual, s_c, s_t, turn_t, p)), trajectory, step,
+            p, e)
+
+    def _past_an_end(self, estimate: TipEstimate, trajectory: ToolTrajectory, step: int, p, e) -> TipEstimate:
+        """A tool beyond the path's end (behind its start), which no frame's line gives: the
+        distance to that end point instead, where it is certainly the closest point
+        (validity.beyond_end); else the estimate as it was, marked invalid."""
+        if estimate.check.reason not in ('end', 'start'):
+            return estimate
+        found = beyond_end(self.memory, self.tolerance, trajectory, step, p, e, estimate.check.reason)
+        return estimate if found is None else TipEstimate(found[0], estimate.frenet, estimate.delay, found[1])
 
 
 def orientation_contour_error(o_ref, w_ref, o) -> list[float] | None:

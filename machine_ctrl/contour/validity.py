@@ -47,9 +47,11 @@ whose pitch is under twice the error, a motion resumed after a longer rest) is o
 local estimator, and outside this bound.
 
 **Ends and corners.** A P beyond the end of the path (behind its start) has the end point as
-its closest point, which no tangent line gives: the plain bound ('end', 'start'), except for
-the rest rule's own "all of e counts" there, exact up to how far the Hermite path's last
-interval reaches past the rest point (:func:`excursion`). The rest rule at a corner
+its closest point, which no tangent line gives: a line's estimate gets the plain bound ('end',
+'start'). The tool-tip estimators then use the end point itself where it is certainly the
+closest (:func:`beyond_end`, moving steps; the orientation estimate keeps the plain bound), and
+the rest rule its own "all of e counts" (at rest), both exact up to how far the Hermite path's
+last interval reaches past the rest point (:func:`excursion`). The rest rule at a corner
 (:func:`corner_check`): the path leaving the rest point Q along T_out, turning by at most
 Theta_out, gets no closer to P than |Q - P| while T_out . (P - Q) <= -Theta_out |Q - P|; then
 the estimate is bounded on the arriving side alone, so a tool settling behind the corner keeps
@@ -399,6 +401,56 @@ def _beyond_ends(memory: PathMemory, trajectory, step: int, start, end, point, u
             if dot(geometry.last[start + int(moving.argmax())], [q[i] - point[i] for i in range(3)]) > 0.0:
                 return 'start'
     return ''
+
+
+def beyond_end(memory: PathMemory, tolerance: Tolerance, trajectory, step: int, point, e, which: str):
+    """The estimate for a moving step whose point P is beyond the path's end (which == 'end':
+    the reference comes to rest within the horizon) or behind its start ('start'), as
+    :func:`line_check` found it, and its bound: (est = Q - P, Check), Q the end (start) point,
+    or None when Q is not certainly the closest point.
+
+    Q is the closest point of the path within the window when P lies beyond it along the
+    path's direction T there, s = T . (P - Q) > 0 (T . (Q - P) > 0 behind the start), and the
+    turning Theta over the window holds |s| cos Theta >= n sin Theta, n the part of P - Q normal
+    to T: a path point x at arc u from Q has |P - x|^2 - |P - Q|^2 >= u^2 cos^2 Theta +
+    2 u (|s| cos Theta - n sin Theta) > 0, so within 2 |P - Q| / cos Theta of arc (the window,
+    2.5 x) none is closer. Exact up to how far the Hermite path's last (first) interval reaches
+    past Q (:func:`excursion`). An end is a rest lasting past the horizon; a motion resumed later
+    (a dwell longer than HORIZON) is not seen, as for the rest rule (module docstring: outside
+    this bound), so that the node, which holds the rows to the horizon, computes what the
+    offline run computes."""
+    g, h, first = trajectory.geometry[memory.kind], trajectory.horizon, trajectory.first
+    position = 0 if memory.kind == 0 else 3
+    if which == 'end':
+        q_row = min(step + h - first, len(g.s) - 1)
+        if g.moving[q_row]:
+            return None
+        direction, sign = g.last[q_row].tolist(), 1.0
+    else:
+        q_row = max(step - h - first, 0)
+        moving = g.moving[q_row:min(step + h, trajectory.end - 1) - first + 1]
+        if g.moving[q_row] or not moving.any():
+            return None
+        leaving = q_row + int(moving.argmax())
+        direction, sign = g.last[leaving].tolist(), -1.0
+    q = trajectory.rows[position, q_row]
+    est = [q[i] - point[i] for i in range(3)]
+    magnitude = norm(est)
+    plain, tol = magnitude + norm(e), tolerance(magnitude)
+    reach, s_q = 2.5 * (magnitude + tol) / COS_MAX_TURN, float(g.s[q_row])
+    window = memory.window(trajectory, step, *((s_q - reach, s_q) if which == 'end' else (s_q, s_q + reach)))
+    if window is None or (window[2] if which == 'end' else window[1]) is None or not window[0] <= MAX_TURN:
+        return None
+    along = -sign * dot(direction, est)                   # |s| when P is beyond Q
+    normal = math.sqrt(max(magnitude * magnitude - along * along, 0.0))
+    if not (along > 0.0 and along * math.cos(window[0]) >= normal * math.sin(window[0])):
+        return None
+    past = _excursion_in(memory, trajectory, q_row) if which == 'end' else excursion(trajectory, memory.kind,
+                                                                                       leaving, q_row)
+    if past is None:
+        return None
+    bound = min(past, plain) + BOUND_FLOOR
+    return est, Check(bound, bound <= tol, '' if bound <= tol else 'bound')
 
 
 def rest_check(memory: PathMemory, tolerance: Tolerance, trajectory, step: int, est, e, direction,

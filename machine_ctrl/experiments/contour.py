@@ -5,20 +5,26 @@ trt_5axis on the offline runner, and the same estimators on the micromill helix.
 
 Per estimator: the deviation |eps_est - eps_true| (vector difference, um) on average and
 at its maximum, over the run's valid steps (rests included) and at the peaks (valid steps
-where the true contour error is >= half its maximum). Steps the estimator itself marks
+where the true contour error is >= half its maximum); beside it the seed's metric, the
+difference of the magnitudes |eps_est| - |eps_true| (Sencer section 4 compares amplitudes:
+the shifted frame "does not evaluate the amplitude (|eps|) accurately"), which does not see
+an estimate's error in direction. Steps the estimator itself marks
 invalid (its bound on |eps_est - eps_true| above the tolerance: machine_ctrl.contour.validity,
 README "Contour error" -> "Validity"; the node publishes them as NaN) are excluded from
 these statistics, and said so: 'invalid_steps' (by reason), 'max_deviation_invalid_um' (the
 largest deviation among them, what the exclusion hides) and 'valid_over_bound' (valid steps
 whose deviation exceeds their own bound: 0 if the bound holds). Likewise the orientation
 estimate (Eq. 28): its invalid steps are counted and excluded; Eq. (34) has no validity of
-its own and is compared over every step. Orientation in drive coordinates of the rotary
+its own and no rest rule in the seed (it divides by the rotary velocity), so it is compared
+over the steps where the rotary reference moves; the share of those steps where a form
+deviates by more than the seed's 6 urad (Sencer Fig. 10) is reported. Orientation in drive coordinates of the rotary
 axes (Sencer Fig. 10): true J_O^+ eps (Eq. 36 with the pseudo-inverse) vs Eq. (28) through
 J_O^+ (what contour_error_node publishes, in the workpiece frame), vs Eq. (34) as printed
 and vs its exact form (G = J_O^T J_O, :func:`machine_ctrl.contour.estimation.rotary_contour_error`). Inputs are the encoder readings, as the node sees them.
 
-``python -m machine_ctrl.experiments.contour [--json] [--plots DIR] [--quiet]``
-(also ``machine-ctrl experiment contour``).
+``python -m machine_ctrl.experiments.contour [--json] [--plots DIR] [--quiet] [--no-helix]
+[--sensitivity [--jobs N]]`` (also ``machine-ctrl experiment contour``); ``--sensitivity``: the
+trt run with its assumed friction halved and doubled (:func:`friction_sensitivity`).
 """
 from __future__ import annotations
 
@@ -32,12 +38,14 @@ from machine_ctrl.model.config import load_machine
 from machine_ctrl.contour.estimation import (ESTIMATORS, OrientationEstimator, ToolTipEstimator, ToolTrajectory,
                                   drive_coordinates, rotary_contour_error, rotary_contour_error_eq34)
 from machine_ctrl.contour.truth import true_orientation_errors, true_tool_tip_errors
+from machine_ctrl.contour.validity import SPEED_TOL
 from machine_ctrl.model.kinematics import Kinematics
 from hw_sim.offline import run
 from machine_ctrl.experiments.tracking import command_use
 from trajectory.sencer_path import sencer_reference
 
 UM = 1e6
+SEED_ORIENTATION_URAD = 6.0     # Sencer section 4, Figs. 10(c)-(d): Eq. (34)'s deviation "less than 6 urad"
 
 
 def estimate_run(kinematics: Kinematics, trajectory: ToolTrajectory, measured) -> dict:
@@ -92,9 +100,13 @@ def tip_statistics(result: dict) -> dict:
         valid = result[f'{method}_valid']
         checks = validity_statistics(deviation, valid, result[f'{method}_bound'], result[f'{method}_reason'], UM)
         used, at_peaks = deviation[valid], deviation[valid & peaks]
+        amplitude = np.abs(np.linalg.norm(result[method], axis=1) - magnitude)     # the seed's metric
         stats[method] = {'mean_deviation_um': used.mean() * UM, 'max_deviation_um': used.max() * UM,
                          'peak_max_deviation_um': at_peaks.max() * UM,
                          'peak_max_deviation_percent': 100 * at_peaks.max() / magnitude.max(),
+                         'magnitude_mean_deviation_um': amplitude[valid].mean() * UM,
+                         'magnitude_max_deviation_um': amplitude[valid].max() * UM,
+                         'magnitude_peak_max_deviation_um': amplitude[valid & peaks].max() * UM,
                          'valid_steps': int(valid.sum()), 'invalid_steps': checks['invalid_steps'],
                          'invalid_by_reason': checks['invalid_by_reason'],
                          'max_deviation_invalid_um': checks['max_deviation_invalid'],
@@ -130,14 +142,20 @@ def experiment(progress=lambda text: None, helix: bool = True) -> tuple[dict, di
     result = estimate_run(kinematics, trajectory, record.measured)
     drives = rotary_drive_errors(machine, reference, record, result)
     names = [a.name for a in machine.axes if a.kind == 'rotary']
-    valid = result['orientation_valid']          # Eq. (28)'s own validity; Eq. (34) has none: every step
-    used = {'eq28': valid, 'eq34': np.ones_like(valid), 'eq34_exact': np.ones_like(valid)}
+    valid = result['orientation_valid']          # Eq. (28)'s own validity
+    rotary = [i for i, a in enumerate(machine.axes) if a.kind == 'rotary']
+    velocity = reference.velocity[:len(record.measured)][:, rotary]
+    moving = np.linalg.norm(velocity, axis=1) > SPEED_TOL        # Eq. (34) has no rest rule: where the axes move
+    used = {'eq28': valid, 'eq34': moving, 'eq34_exact': moving}
+    off = {form: np.abs(drives[form][used[form]] - drives['true'][used[form]]) for form in used}
     deviation = np.linalg.norm(result['orientation'] - result['true_orientation'], axis=1)
     summary = {'trt_5axis': {'steps': len(reference), 'fault': record.fault, 'tool_tip': tip_statistics(result),
                              'orientation_max_deviation_urad': {
-                                 form: {n: float(np.abs(drives[form][used[form], i] - drives['true'][used[form], i]).max()
-                                                 * UM) for i, n in enumerate(names)}
-                                 for form in ('eq28', 'eq34', 'eq34_exact')},
+                                 form: {n: float(off[form][:, i].max() * UM) for i, n in enumerate(names)}
+                                 for form in used},
+                             'orientation_over_seed_bound_percent': {
+                                 form: {n: float(100 * np.mean(off[form][:, i] * UM > SEED_ORIENTATION_URAD))
+                                        for i, n in enumerate(names)} for form in used},
                              'orientation_true_max_urad': {n: float(np.abs(drives['true'][:, i]).max() * UM)
                                                            for i, n in enumerate(names)},
                              'orientation_validity': validity_statistics(
@@ -168,6 +186,54 @@ def coupled_comparison(machine, kinematics: Kinematics, reference, trajectory: T
     return {'fault': coupled.fault, 'tool_tip_um': mean_max(tip), 'orientation_urad': mean_max(axis),
             'command_use': {'uncoupled': command_use(machine, record), 'coupled': command_use(machine, coupled)},
             'invalid_steps': coupled.contour_invalid}
+
+
+# (label, kind of axis, factor on its friction levels): the trt's friction is assumed on every axis
+FRICTION_VARIANTS = (('rotary friction x 0.5', 'rotary', 0.5), ('rotary friction x 2', 'rotary', 2.0),
+                     ('linear friction x 0.5', 'linear', 0.5), ('linear friction x 2', 'linear', 2.0))
+
+
+def friction_sensitivity(workers: int | None = None) -> dict:
+    """How the Eq. (35) run's figures rest on the assumed friction of trt_5axis (Sencer gives no
+    value): the rotary (a, c) and the linear (x, y, z) levels each halved and doubled alone
+    (sensitivity.friction_levels). Per variant the true contour errors (tool tip um, orientation
+    urad: mean, max) and the compensated estimate's mean and peak deviation (um), and each one's
+    ratio to the configured run."""
+    from machine_ctrl.experiments import parallel
+    jobs = [(None, 1.0)] + [(kind, factor) for _, kind, factor in FRICTION_VARIANTS]
+    configured, *varied = parallel.run_all(_friction_run, jobs, workers)
+    return {'configured': configured,
+            'variants': {label: {**run, 'ratio': {k: run[k] / configured[k] if configured[k] else None for k in run}}
+                         for (label, _, _), run in zip(FRICTION_VARIANTS, varied)}}
+
+
+def _friction_run(kind: str | None, factor: float) -> dict:
+    from machine_ctrl.experiments.sensitivity import friction_levels
+    machine = load_machine('trt_5axis')
+    if kind is not None:
+        machine = friction_levels(machine, factor, kind)
+    kinematics = Kinematics.from_config(machine)
+    reference = sencer_reference(machine)
+    record = run(machine, reference)
+    if record.fault:
+        raise RuntimeError(f'trt_5axis, {kind} friction x {factor:g}: the simulated machine faulted: {record.fault}')
+    result = estimate_run(kinematics, ToolTrajectory.from_reference(kinematics, reference), record.measured)
+    tip, axis = tip_statistics(result), np.linalg.norm(result['true_orientation'], axis=1) * UM
+    return {'tip_mean_um': tip['true']['mean_um'], 'tip_max_um': tip['true']['max_um'],
+            'orientation_mean_urad': float(axis.mean()), 'orientation_max_urad': float(axis.max()),
+            'compensated_mean_deviation_um': tip['compensated']['mean_deviation_um'],
+            'compensated_peak_deviation_um': tip['compensated']['peak_max_deviation_um']}
+
+
+def friction_table(result: dict) -> str:
+    labels = [label for label, _, _ in FRICTION_VARIANTS]
+    lines = ['trt_5axis Eq. (35): sensitivity to the assumed friction (ratio to the configured run)',
+             f'  {"figure":32s} {"configured":>11s} ' + ' '.join(f'{label:>22s}' for label in labels)]
+    for key, value in result['configured'].items():
+        ratios = [result['variants'][label]['ratio'][key] for label in labels]
+        lines.append(f'  {key:32s} {value:11.4f} ' + ' '.join('n/a'.rjust(22) if r is None else f'{r:22.3f}'
+                                                          for r in ratios))
+    return '\n'.join(lines)
 
 
 def helix_run(progress) -> dict:
@@ -247,14 +313,15 @@ def table(summary: dict) -> str:
         lines.append(f'{run_name} ({data["steps"]} steps): true contour error mean {tip["true"]["mean_um"]:.3f} um, '
                      f'max {tip["true"]["max_um"]:.3f} um; deviations over each estimator\'s valid steps')
         lines.append(f'  {"estimator":<12} {"mean dev um":>12} {"max dev um":>11} {"peak dev um":>12} {"peak dev %":>11}'
-                     f' {"invalid":>8} {"max dev there um":>17} {"over bound":>10}')
+                     f' {"invalid":>8} {"max dev there um":>17} {"over bound":>10} {"||est|-|true|| mean/max/peak um":>32}')
         for method in ESTIMATORS:
             s = tip[method]
             hidden = s['max_deviation_invalid_um']
             lines.append(f'  {method:<12} {s["mean_deviation_um"]:12.4f} {s["max_deviation_um"]:11.3f} '
                          f'{s["peak_max_deviation_um"]:12.4f} {s["peak_max_deviation_percent"]:11.4f} '
                          f'{s["invalid_steps"]:8d} {"-" if hidden is None else f"{hidden:.3f}":>17} '
-                         f'{s["valid_over_bound"]:10d}')
+                         f'{s["valid_over_bound"]:10d} {s["magnitude_mean_deviation_um"]:10.4f} / '
+                         f'{s["magnitude_max_deviation_um"]:.4f} / {s["magnitude_peak_max_deviation_um"]:.4f}')
             if s['invalid_steps']:
                 lines.append(f'  {"":<12} invalid by reason: {json.dumps(s["invalid_by_reason"])}')
         orientation = data['orientation_max_deviation_urad']
@@ -265,7 +332,12 @@ def table(summary: dict) -> str:
                      f'({checks["invalid_steps"]} invalid {json.dumps(checks["invalid_by_reason"])}, max deviation '
                      f'there {"-" if hidden is None else f"{hidden:.3f}"} urad, '
                      f'{checks["valid_over_bound"]} valid over bound)')
-        lines.append('  invalid: steps the estimator marks invalid (bound above tolerance; NaN on the node), '
+        if 'orientation_over_seed_bound_percent' in data:
+            lines.append(f'  orientation: Eq. (34) over the steps where the rotary reference moves; share of them '
+                         f'deviating more than the seed\'s {SEED_ORIENTATION_URAD:g} urad (%): '
+                         f'{json.dumps(data["orientation_over_seed_bound_percent"])}')
+        lines.append('  ||est|-|true||: the seed\'s metric, the difference of the magnitudes (blind to direction); '
+                     'invalid: steps the estimator marks invalid (bound above tolerance; NaN on the node), '
                      'excluded from the statistics; "max dev there": the largest deviation among them; '
                      '"over bound": valid steps deviating more than their own bound')
         if 'contour_control' in data:
@@ -294,14 +366,36 @@ def _jsonable(value):
     return float(value) if isinstance(value, (np.floating, float)) else value
 
 
+def _whole_number(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'a whole number > 0, got {text}')
+    return value
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog='machine-ctrl experiment contour', description=__doc__.split('\n')[0])
     parser.add_argument('--json', action='store_true', help='print one JSON object')
     parser.add_argument('--plots', metavar='DIR', help='write fig9_tool_tip.png and fig10_orientation.png')
     parser.add_argument('--quiet', action='store_true', help='no progress on stderr')
     parser.add_argument('--no-helix', action='store_true', help='skip the micromill helix run')
-    args = parser.parse_args(argv)
+    parser.add_argument('--sensitivity', action='store_true',
+                        help="only the trt run's sensitivity to its assumed friction (rotary, linear; halved, doubled)")
+    parser.add_argument('--jobs', type=_whole_number, metavar='N', help='--sensitivity: runs in up to N processes')
+    return command(parser.parse_args(argv))
+
+
+def command(args) -> int:
+    """The command on parsed arguments (main's; also `machine-ctrl experiment contour`)."""
     progress = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    if args.sensitivity and args.plots:
+        print('machine-ctrl experiment contour: --plots is for the figures\' run, not with --sensitivity', file=sys.stderr)
+        return 2
+    if args.sensitivity:
+        progress(f'trt_5axis: Eq. (35) runs, friction as configured and {len(FRICTION_VARIANTS)} variants')
+        result = friction_sensitivity(args.jobs)
+        print(json.dumps(_jsonable(result)) if args.json else friction_table(result))
+        return 0
     summary, series = experiment(progress, helix=not args.no_helix)
     if args.plots:
         for path in plots(series, args.plots):

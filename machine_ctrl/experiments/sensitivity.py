@@ -8,6 +8,9 @@ alone, everything else as configured; sigma1 follows sigma0 by the rule the conf
 
     machine-ctrl experiment circle|square --sensitivity [--steps N] [--jobs N]
 
+:func:`friction_levels` varies the friction of one kind of axis for `experiment contour
+--sensitivity` (Sencer's trt_5axis, whose friction levels are all assumed).
+
 The result: per variant the SMC and DSFD statistics (tracking.contouring; the contour
 control's runs are left out) and each one's ratio to the configured run's (None where the
 configured statistic is 0, as on a run too short to move).
@@ -39,6 +42,24 @@ def varied(machine: MachineConfig, sigma0: float = 1.0, force_noise: float = 1.0
             friction = replace(friction, sigma0=stiffness,
                                sigma1=max(2.0 * math.sqrt(plant.mass * stiffness) - plant.damping, 0.0))
         axes.append(replace(axis, plant=replace(plant, friction=friction, force_noise=plant.force_noise * force_noise)))
+    return replace(machine, axes=tuple(axes))
+
+
+def friction_levels(machine: MachineConfig, factor: float, kind: str) -> MachineConfig:
+    """`machine` with the friction of its `kind` ('linear' or 'rotary') axes times `factor`:
+    the static and Coulomb levels and sigma0 alike (the presliding distance level/sigma0 kept),
+    sigma1 critical again (Eq. 4.65); the controllers' values as they were."""
+    axes = []
+    for axis in machine.axes:
+        friction = None if axis.plant is None else axis.plant.friction
+        if friction is None or axis.kind != kind:
+            axes.append(axis)
+            continue
+        stiffness = friction.sigma0 * factor
+        friction = replace(friction, static=tuple(f * factor for f in friction.static),
+                           coulomb=tuple(f * factor for f in friction.coulomb), sigma0=stiffness,
+                           sigma1=max(2.0 * math.sqrt(axis.plant.mass * stiffness) - axis.plant.damping, 0.0))
+        axes.append(replace(axis, plant=replace(axis.plant, friction=friction)))
     return replace(machine, axes=tuple(axes))
 
 

@@ -21,7 +21,7 @@ runner, machine_ctrl.experiments and compensation/), one subcommand each; progre
   On a machine with a ``contour_control`` section circle/square also run the dual stage with
   the cross-coupled contour control ("ccc", and its at-rest twin) and print thesis | DSFD |
   CCC.
-* ``contour [--json] [--plots DIR] [--quiet] [--no-helix]``: Sencer Figs. 9-10
+* ``contour [--json] [--plots DIR] [--quiet] [--no-helix] [--sensitivity [--jobs N]]``: Sencer Figs. 9-10
   (machine_ctrl.experiments.contour), and the Eq. (35) run uncoupled vs with the
   cross-coupled contour control.
 * ``geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis Tables 6.3/6.4, registered
@@ -130,6 +130,9 @@ def register(subparsers) -> None:
     contour.add_argument('--plots', metavar='DIR', help='write fig9_tool_tip.png and fig10_orientation.png')
     contour.add_argument('--quiet', action='store_true', help='no progress on stderr')
     contour.add_argument('--no-helix', action='store_true', help='skip the micromill helix run')
+    contour.add_argument('--sensitivity', action='store_true',
+                         help="only the trt run's sensitivity to its assumed friction (rotary, linear; halved, doubled)")
+    contour.add_argument('--jobs', type=_whole_number, metavar='N', help='--sensitivity: runs in up to N processes')
     contour.set_defaults(run=cmd_contour, usage_parser=contour)
     for name, module, entry, help_text, plots in SEED_TABLES:
         parser = names.add_parser(name, help=help_text)
@@ -309,13 +312,7 @@ def cmd_experiment(args) -> int:
 
 def cmd_contour(args) -> int:
     from machine_ctrl.experiments import contour
-    progress = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
-    summary, series = contour.experiment(progress, helix=not args.no_helix)
-    if args.plots:
-        for path in contour.plots(series, args.plots):
-            progress(f'wrote {path}')
-    print(json.dumps(contour._jsonable(summary)) if args.json else contour.table(summary))
-    return 0
+    return contour.command(args)
 
 
 def _scalars(value):
