@@ -6,7 +6,9 @@
 3. Table 6.3: each micromill axis alone over its measured range in 1 mm steps, the machine
    at rest (tracking error ~0, as for the thesis's laser readings): tool-tip displacement
    errors P_a,true(q) - P_i(q) without, and P_a,true(q*) - P_i(q) with compensation (q* from
-   the fitted model).
+   the fitted model). And the same through the servo ([8/8] part 4; the thesis read its laser
+   under closed-loop control): :func:`servo_single_axis` steps the axis in the offline runner
+   with every sensor and noise, and the laser reads the true tool tip at rest after each step.
 4. Table 6.4: the spiral (thesis Fig. 6.1) run in the offline runner without compensation,
    compensated with the fitted model, and compensated with the true map. Tool-tip error at
    every ground-truth sample (every 10 steps, like hw_sim's /hw_sim/ground_truth/tool_pose):
@@ -25,7 +27,7 @@ import numpy as np
 from compensation.compensate import Compensator
 from compensation.error_map import ErrorMap
 from compensation.error_model import ErrorKinematics
-from compensation.measurement import STEP
+from compensation.measurement import NOISE_DISPLACEMENT, STEP
 from machine_ctrl import parameters
 from machine_ctrl.model.config import MachineConfig
 from hw_sim.offline import RunRecord, run
@@ -42,6 +44,12 @@ THESIS_6_3 = {
 # Thesis Table 6.4 (um): |dP_x|, |dP_y|, |dP_z| (mean unc., mean comp., max unc., max comp.)
 THESIS_6_4 = {'x': (0.97, 0.19, 6.5, 3.7), 'y': (0.79, 0.31, 6.5, 7.1), 'z': (5.2, 3.8, 65.4, 81.8)}
 GROUND_TRUTH_DECIMATION = parameters.HW_SIM.spec('ground_truth_decimation').default   # hw_sim's default
+# Table 6.3 through the servo. assumed (the seed states no timing): each 1 mm step a time-optimal
+# jerk-limited move (moves.move_to, as a jog), then the axis held for 0.1 s to settle (~19 time
+# constants of the coarse loops' ~30 Hz) and 0.05 s in which the laser averages the true tool tip
+# (the interferometer's reading, with its noise NOISE_DISPLACEMENT, one reading per position)
+STEP_SETTLE = 0.1           # s
+STEP_READ = 0.05            # s
 UM = 1e6
 
 
@@ -75,6 +83,71 @@ def single_axis(machine: MachineConfig, truth: ErrorKinematics, compensator: Com
                               truth.positions(comp.position) - ideal,
                               (comp.position - q)[:, compensator.fine_index]))
     return out
+
+
+def stepped_reference(machine: MachineConfig, axis: str, positions) -> tuple[Reference, list[slice]]:
+    """`axis` at each of `positions` in turn (the others at home): held STEP_SETTLE + STEP_READ
+    at each, moved between them by moves.move_to; and the steps of each reading (the last
+    STEP_READ of each hold)."""
+    from trajectory import moves
+    index, period = machine.axis_names.index(axis), machine.control_period
+    hold, read = int(round((STEP_SETTLE + STEP_READ) / period)), int(round(STEP_READ / period))
+    parts, reads, length = [], [], 0
+    for k, x in enumerate(positions):
+        q = np.asarray(machine.home, float)
+        q[index] = x
+        if k:
+            parts.append(moves.move_to(machine, q, moves.AxisState.at_rest(parts[-1].position[-1])))
+            length += len(parts[-1]) - 1
+        zeros = np.zeros((hold + 1, len(q)))
+        parts.append(Reference(machine.axis_names, period, np.tile(q, (hold + 1, 1)), zeros, zeros))
+        length += hold + (0 if k else 1)
+        reads.append(slice(length - read, length))
+    return moves.concatenate(parts), reads
+
+
+def servo_single_axis(machine: MachineConfig, true_map: ErrorMap, model: ErrorMap, stride: int = 1,
+                      workers: int | None = None) -> tuple[list[SingleAxis], list[SingleAxis]]:
+    """Table 6.3 through the servo: each mapped axis stepped over its range (every `stride`-th
+    1 mm position) in the offline runner, without and with compensation by `model` (the
+    command from Compensator.compensate), the laser reading the true tool tip (the true map at
+    the true joints, every GROUND_TRUTH_DECIMATION-th step of the reading averaged) plus its
+    noise; error = reading - the ideal tool tip of the position asked for. (readings with the
+    laser's noise, the same without it); the runs in up to `workers` processes
+    (experiments/parallel.py)."""
+    from machine_ctrl.experiments import parallel
+    jobs = [(machine, true_map, model if compensated else None, axis, stride)
+            for axis in true_map.axes for compensated in (False, True)]
+    readings = parallel.run_all(_servo_readings, jobs, workers)
+    noisy, exact = [], []
+    for k, axis in enumerate(true_map.axes):
+        (positions, ideal, plain, plain_noise, _), (_, _, compensated, noise, fine) = readings[2 * k:2 * k + 2]
+        exact.append(SingleAxis(axis, positions, plain - ideal, compensated - ideal, fine))
+        noisy.append(SingleAxis(axis, positions, plain + plain_noise - ideal, compensated + noise - ideal, fine))
+    return noisy, exact
+
+
+def _servo_readings(machine: MachineConfig, true_map: ErrorMap, model: ErrorMap | None, axis: str, stride: int):
+    """One axis, one run: (positions, ideal tips, true tips read, the laser's noise on them,
+    fine-axis corrections at the readings), m."""
+    from compensation.compensate import Compensator
+    truth = ErrorKinematics.from_config(machine, true_map)
+    lo, hi = true_map.axes[axis].range
+    positions = (lo + STEP * np.arange(int(round((hi - lo) / STEP)) + 1))[::stride]
+    reference, reads = stepped_reference(machine, axis, positions)
+    command = reference
+    if model is not None:
+        command = Compensator.from_map(machine, model).compensate(reference)[0]
+    record = run(machine, command)
+    if record.fault:
+        raise RuntimeError(f'Table 6.3 through the servo, {axis}: the simulated machine faulted: {record.fault}')
+    rng = np.random.default_rng([machine.simulation.seed, machine.axis_names.index(axis), 63, model is not None])
+    tips = np.array([truth.positions(record.true[r][::GROUND_TRUTH_DECIMATION]).mean(axis=0) for r in reads])
+    at = [r.stop - 1 for r in reads]
+    ideal = ErrorKinematics.from_config(machine, None).positions(reference.position[at])
+    fine = [machine.axis_names.index(a) for a in machine.fine_axes]
+    return (positions, ideal, tips, NOISE_DISPLACEMENT * rng.standard_normal(tips.shape),
+            (command.position[at] - reference.position[at])[:, fine])
 
 
 def table_6_3(results: list[SingleAxis]) -> dict:

@@ -5,8 +5,9 @@
   5.9-5.13) to a measurement CSV (compensation/measurement.py), print the residuals, write
   the model (compensation/error_map.py format) to MODEL.
 * ``experiment geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis Tables 6.3 and
-  6.4 on the simulated machine (machine_ctrl/experiments/compensation.py); DIR receives the
-  measurement CSV, the fitted model and the PNG plots.
+  6.4 on the simulated machine (machine_ctrl/experiments/compensation.py; Table 6.3 both at
+  the commanded joints and through the servo); DIR receives the measurement CSV, the fitted
+  model and the PNG plots.
 
 Bad input (CSV, config, model) prints one line ``machine-ctrl: <file>: ...`` and exits 2.
 """
@@ -96,8 +97,9 @@ def cmd_experiment_geometric(args) -> int:
     return 0
 
 
-def run_experiment(machine, true_map, out: Path, progress, reference=None) -> dict:
-    """Measure, fit, Table 6.3, Table 6.4 (the planned spiral unless `reference` is given)."""
+def run_experiment(machine, true_map, out: Path, progress, reference=None, servo_stride: int = 1) -> dict:
+    """Measure, fit, Table 6.3 (at rest, kinematically, and through the servo at every
+    `servo_stride`-th position), Table 6.4 (the planned spiral unless `reference` is given)."""
     from machine_ctrl.experiments import compensation as exp
     from compensation.compensate import Compensator
     from compensation.error_model import ErrorKinematics
@@ -107,6 +109,8 @@ def run_experiment(machine, true_map, out: Path, progress, reference=None) -> di
         truth, true_map, machine.simulation.seed, out, f'{machine.name}, machine-ctrl experiment geometric')
     fitted = Compensator.from_map(machine, model)
     singles = exp.single_axis(machine, truth, fitted, true_map)
+    progress('Table 6.3 through the servo: each axis stepped, without and with compensation ...')
+    servo, servo_exact = exp.servo_single_axis(machine, true_map, model, servo_stride)
     if reference is None:
         from trajectory.planner import plan
         progress('planning the spiral ...')
@@ -119,19 +123,24 @@ def run_experiment(machine, true_map, out: Path, progress, reference=None) -> di
     plots = exp.write_plots(out, singles, runs, fitted.fine_axes)
     return {'measurement': str(csv_path), 'model': str(model_path),
             'fit_residuals': [r.as_dict() for r in residuals],
-            'table_6_3': exp.table_6_3(singles), 'table_6_4': exp.table_6_4(runs),
+            'table_6_3': exp.table_6_3(singles), 'table_6_3_servo': exp.table_6_3(servo),
+            'table_6_3_servo_without_laser_noise': exp.table_6_3(servo_exact),
+            'table_6_4': exp.table_6_4(runs),
             'thesis_6_4': exp.THESIS_6_4, 'fine_stroke': exp.fine_stroke_use(machine, runs),
             'plots': [str(p) for p in plots]}
 
 
 def _print(result: dict) -> None:
-    print('Table 6.3: tool-tip errors moving one axis at rest, um (sim | thesis)')
-    print(f'{"error":9} {"mean unc.":>18} {"mean comp.":>18} {"max unc.":>18} {"max comp.":>18}')
-    for name, row in result['table_6_3'].items():
-        thesis = row['thesis'] or (float('nan'),) * 4
-        cells = [f'{row[k]:8.3f} | {t:7.3f}' for k, t in zip(
-            ('mean_uncompensated', 'mean_compensated', 'max_uncompensated', 'max_compensated'), thesis)]
-        print(f'{name:9} ' + ' '.join(f'{c:>18}' for c in cells))
+    for key, title in (('table_6_3', 'kinematically, the commanded joints'),
+                       ('table_6_3_servo', 'through the servo, the laser reading the true tool tip at rest'),
+                       ('table_6_3_servo_without_laser_noise', 'through the servo, the laser without its noise')):
+        print(f'Table 6.3: tool-tip errors moving one axis, {title}, um (sim | thesis)')
+        print(f'{"error":9} {"mean unc.":>18} {"mean comp.":>18} {"max unc.":>18} {"max comp.":>18}')
+        for name, row in result[key].items():
+            thesis = row['thesis'] or (float('nan'),) * 4
+            cells = [f'{row[k]:8.3f} | {t:7.3f}' for k, t in zip(
+                ('mean_uncompensated', 'mean_compensated', 'max_uncompensated', 'max_compensated'), thesis)]
+            print(f'{name:9} ' + ' '.join(f'{c:>18}' for c in cells))
     print('\nTable 6.4: spiral tool-tip errors |dP|, um: total = tracking + geometric parts')
     for label, row in result['table_6_4'].items():
         for d in 'xyz':
