@@ -27,15 +27,25 @@ def test_circle_dual_stage_beats_sliding_mode_as_in_the_thesis(circle):
     assert smc['max_y_tracking'] / dsfd['max_y_tracking'] >= 3.0    # thesis 1.72 -> 0.377 um
 
 
-def test_circle_every_result_within_factor_3_of_table_6_1(circle):
-    """Cells at the noise floor (no larger than with the machine at rest: the simulated
-    table's assumed force noise, tracking.noise_floor) are not results: not compared."""
+def test_circle_every_result_within_what_its_calibrated_value_spans_of_table_6_1(circle):
+    """Each compared cell within the factor by which it moves when the one plant value set for
+    it is halved or doubled ([8/8] part 4, README "Sensitivity", test_sensitivity.py): the
+    maxima rest on the bristles' sigma0, set against these very maxima (halved / doubled: 0.67-
+    0.78 / 1.21-1.37), so within 1.5x; the means on the table's force noise, set against CIRP's
+    ~200 nm, which they follow in proportion (halved / doubled: 0.51-0.52 / 1.98-2.04), so
+    within 2.1x. A closer match would say nothing: those values were chosen to come near.
+    (Before: within 3x.) Measured ratios: SMC 0.57-1.07 (means), 0.92-1.07 (maxima); DSFD means
+    0.485 / 1.97 / 0.80 (x, y, contour), x and y near opposite edges: the thesis's DSFD x and y
+    means differ by 4x (0.198 / 0.049 um), ours are alike (one assumed noise on both tables'
+    axes), so no single noise level meets both (README "Sensitivity"). Cells at the noise
+    floor (no larger than with the machine at rest: tracking.noise_floor) are not results."""
     for mode in ('smc', 'dsfd'):
         for key, thesis in zip(STAT_KEYS, THESIS['circle'][mode]):
             if key in circle['noise_floor'][mode]:
                 continue
+            factor = 1.5 if key.startswith('max_') else 2.1
             ratio = circle[mode][key] / thesis
-            assert 1 / 3 <= ratio <= 3, f'{mode} {key}: {circle[mode][key]:.3f} um vs thesis {thesis} um'
+            assert 1 / factor <= ratio <= factor, f'{mode} {key}: {circle[mode][key]:.3f} um vs thesis {thesis} um'
 
 
 def test_frf_bandwidths(micromill):
