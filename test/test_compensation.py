@@ -150,3 +150,22 @@ def test_table_6_3_through_the_servo_with_the_true_map_leaves_only_the_servos_re
         assert np.abs(r.compensated).max() < min(0.3e-6, 0.1 * np.abs(kinematic).max()), r.axis
         laser = r_noisy.uncompensated - r.uncompensated
         assert 0 < np.abs(laser).max() < 5 * 50e-9
+
+
+def test_the_stepped_reference_reads_each_position_at_rest_after_its_settling(micromill, true_map):
+    """Table 6.3 through the servo: every read window of stepped_reference holds the axis at its
+    position at rest (the others at home), after STEP_SETTLE at rest, and the positions are the
+    campaign's 1 mm grid (every 20th here)."""
+    from machine_ctrl.experiments.compensation import STEP_SETTLE, measured_positions, stepped_reference
+    positions = measured_positions(true_map, 'y_c')[::20]
+    lo, hi = true_map.axes['y_c'].range
+    np.testing.assert_allclose(positions, lo + 0.020 * np.arange(len(positions)), rtol=0, atol=1e-15)
+    assert positions[-1] <= hi + 1e-12
+    reference, reads = stepped_reference(micromill, 'y_c', positions)
+    index, settle = micromill.axis_names.index('y_c'), int(round(STEP_SETTLE / micromill.control_period))
+    assert len(reads) == len(positions)
+    for x, r in zip(positions, reads):
+        q = np.asarray(micromill.home, float)
+        q[index] = x
+        rest = slice(r.start - settle, r.stop)
+        assert (reference.position[rest] == q).all() and not reference.velocity[rest].any()

@@ -27,23 +27,30 @@ def test_circle_dual_stage_beats_sliding_mode_as_in_the_thesis(circle):
     assert smc['max_y_tracking'] / dsfd['max_y_tracking'] >= 3.0    # thesis 1.72 -> 0.377 um
 
 
+# How far each compared Table 6.1 cell moves when the one plant value chosen for it is halved or
+# doubled (README "Sensitivity", the circle's rows): SMC maxima 0.67 / 1.37 (sigma0), SMC means
+# 0.63 / 1.81 (mostly the force noise), DSFD means 0.51 / 2.00 (the force noise in proportion).
+SPAN = {('smc', 'max'): 1.5, ('smc', 'mean'): 1.85, ('dsfd', 'mean'): 2.0}
+# The one cell outside its span: the thesis's DSFD x and y means differ by 4x (0.198 / 0.049 um),
+# ours are alike (one assumed noise on both of the table's translations): x needs 2.06x our noise
+BEYOND_SPAN = {('dsfd', 'mean_x_tracking'): 2.1}
+
+
 def test_circle_every_result_within_what_its_calibrated_value_spans_of_table_6_1(circle):
     """Each compared cell within the factor by which it moves when the one plant value set for
-    it is halved or doubled ([8/8] part 4, README "Sensitivity", test_sensitivity.py): the
-    maxima rest on the bristles' sigma0, set against these very maxima (halved / doubled: 0.67-
-    0.78 / 1.21-1.37), so within 1.5x; the means on the table's force noise, set against CIRP's
-    ~200 nm, which they follow in proportion (halved / doubled: 0.51-0.52 / 1.98-2.04), so
-    within 2.1x. A closer match would say nothing: those values were chosen to come near.
-    (Before: within 3x.) Measured ratios: SMC 0.57-1.07 (means), 0.92-1.07 (maxima); DSFD means
-    0.485 / 1.97 / 0.80 (x, y, contour), x and y near opposite edges: the thesis's DSFD x and y
-    means differ by 4x (0.198 / 0.049 um), ours are alike (one assumed noise on both tables'
-    axes), so no single noise level meets both (README "Sensitivity"). Cells at the noise
-    floor (no larger than with the machine at rest: tracking.noise_floor) are not results."""
+    it is halved or doubled (SPAN, [8/8] part 4): the maxima rest on the bristles' sigma0, set
+    against these very maxima; the means on the table's force noise, set against CIRP's
+    ~200 nm. A closer match would say nothing: those values were chosen to come near. (Before:
+    within 3x for every cell.) The DSFD x mean is outside its span (BEYOND_SPAN: 1/0.485 =
+    2.06x), which no noise level within 2x meets together with the y mean (1.97x); it is held
+    at 2.1x and said. Measured ratios: SMC 0.57-1.07 (means), 0.92-1.07 (maxima); DSFD means
+    0.485 / 1.97 / 0.80. Cells at the noise floor (no larger than with the machine at rest:
+    tracking.noise_floor) are not results: not compared."""
     for mode in ('smc', 'dsfd'):
         for key, thesis in zip(STAT_KEYS, THESIS['circle'][mode]):
             if key in circle['noise_floor'][mode]:
                 continue
-            factor = 1.5 if key.startswith('max_') else 2.1
+            factor = BEYOND_SPAN.get((mode, key), SPAN[(mode, key.split('_')[0])])
             ratio = circle[mode][key] / thesis
             assert 1 / factor <= ratio <= factor, f'{mode} {key}: {circle[mode][key]:.3f} um vs thesis {thesis} um'
 

@@ -47,7 +47,8 @@ GROUND_TRUTH_DECIMATION = parameters.HW_SIM.spec('ground_truth_decimation').defa
 # Table 6.3 through the servo. assumed (the seed states no timing): each 1 mm step a time-optimal
 # jerk-limited move (moves.move_to, as a jog), then the axis held for 0.1 s to settle (~19 time
 # constants of the coarse loops' ~30 Hz) and 0.05 s in which the laser averages the true tool tip
-# (the interferometer's reading, with its noise NOISE_DISPLACEMENT, one reading per position)
+# (sampled every GROUND_TRUTH_DECIMATION-th step, as hw_sim's ground-truth topic; the interferometer's
+# reading, with its noise NOISE_DISPLACEMENT, one reading per position)
 STEP_SETTLE = 0.1           # s
 STEP_READ = 0.05            # s
 UM = 1e6
@@ -68,13 +69,18 @@ class SingleAxis:
     fine_commands: np.ndarray       # (N, 6) q*_f - q_f
 
 
+def measured_positions(error_map: ErrorMap, axis: str) -> np.ndarray:
+    """The 1 mm positions over `axis`'s measured range (the campaign's, thesis section 5.3)."""
+    lo, hi = error_map.axes[axis].range
+    return lo + STEP * np.arange(int(round((hi - lo) / STEP)) + 1)
+
+
 def single_axis(machine: MachineConfig, truth: ErrorKinematics, compensator: Compensator,
                 error_map: ErrorMap) -> list[SingleAxis]:
     """Table 6.3 / Figs. 6.15-6.18: each mapped axis alone, at rest, at 1 mm steps."""
     out = []
-    for axis, errors in error_map.axes.items():
-        lo, hi = errors.range
-        positions = lo + STEP * np.arange(int(round((hi - lo) / STEP)) + 1)
+    for axis in error_map.axes:
+        positions = measured_positions(error_map, axis)
         q = np.tile(np.asarray(machine.home, float), (len(positions), 1))
         q[:, machine.axis_names.index(axis)] = positions
         ideal = compensator.ideal.positions(q)
@@ -130,10 +136,8 @@ def servo_single_axis(machine: MachineConfig, true_map: ErrorMap, model: ErrorMa
 def _servo_readings(machine: MachineConfig, true_map: ErrorMap, model: ErrorMap | None, axis: str, stride: int):
     """One axis, one run: (positions, ideal tips, true tips read, the laser's noise on them,
     fine-axis corrections at the readings), m."""
-    from compensation.compensate import Compensator
     truth = ErrorKinematics.from_config(machine, true_map)
-    lo, hi = true_map.axes[axis].range
-    positions = (lo + STEP * np.arange(int(round((hi - lo) / STEP)) + 1))[::stride]
+    positions = measured_positions(true_map, axis)[::stride]
     reference, reads = stepped_reference(machine, axis, positions)
     command = reference
     if model is not None:

@@ -4,7 +4,7 @@
 * ``fit-errors CSV [--machine M] [--out MODEL] [--json]``: fit quintics (thesis Eqs.
   5.9-5.13) to a measurement CSV (compensation/measurement.py), print the residuals, write
   the model (compensation/error_map.py format) to MODEL.
-* ``experiment geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis Tables 6.3 and
+* ``experiment geometric [MACHINE] [--out DIR] [--json] [--quiet] [--servo-stride K]``: thesis Tables 6.3 and
   6.4 on the simulated machine (machine_ctrl/experiments/compensation.py; Table 6.3 both at
   the commanded joints and through the servo); DIR receives the measurement CSV, the fitted
   model and the PNG plots.
@@ -41,7 +41,20 @@ def register_experiment(experiments) -> None:
                            help='measurement CSV, fitted model and plots (default: a temp dir)')
     geometric.add_argument('--json', action='store_true', help='one JSON object on stdout')
     geometric.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    geometric.add_argument('--servo-stride', type=_stride, default=1, metavar='K',
+                           help='Table 6.3 through the servo at every K-th 1 mm position (default 1: all; a quick look)')
     geometric.set_defaults(run=cmd_experiment_geometric, usage_parser=geometric)
+
+
+def _stride(text: str) -> int:
+    import argparse
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be a whole number > 0, got {text!r}')
+    return value
 
 
 def _fail(message: str) -> int:
@@ -87,7 +100,7 @@ def cmd_experiment_geometric(args) -> int:
         true_map = load_error_map(path, machine.axis_names)
         out = Path(args.out or tempfile.mkdtemp(prefix='geometric_'))
         out.mkdir(parents=True, exist_ok=True)
-        result = run_experiment(machine, true_map, out, progress)
+        result = run_experiment(machine, true_map, out, progress, servo_stride=args.servo_stride)
     except (ConfigError, MeasurementError) as exc:
         return _fail(str(exc))
     if args.json:
