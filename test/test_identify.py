@@ -3,6 +3,7 @@ rigid_body.py, machine_ctrl/experiments/identify.py, `machine-ctrl identify`): t
 synthetic data of known parameters, the whole identification of the micromill's x_c on hw_sim
 against the simulator's true values (fixed seed), the YAML fragment loading as a machine
 config, and the refusals."""
+import json
 import math
 
 import numpy as np
@@ -208,9 +209,11 @@ def test_the_circle_with_identified_values_against_the_nominal(micromill, x_c, y
         assert ours['smc'][key] <= 1.10 * value, ('smc', key)
     for key in ('max_x_tracking', 'max_y_tracking', 'max_contour'):
         assert ours['smc'][key] < 0.5 * nominal['smc'][key], key
-    assert cli.main(['experiment', 'circle', '--steps', '200', '--jobs', '1', '--identified', str(files[0]),
+    assert cli.main(['experiment', 'circle', '--steps', '200', '--jobs', '1', '--json', '--identified', str(files[0]),
                      '--identified', str(files[1])]) == 0
-    assert f"the controllers' values from {files[0]}, {files[1]}" in capsys.readouterr().err
+    out = capsys.readouterr()
+    assert f"the controllers' values from {files[0]}, {files[1]}" in out.err
+    assert json.loads(out.out)["identified"] == [str(f) for f in files]     # said in the result too (absolute)
 
 
 def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe, robot_piezo, capsys, tmp_path):

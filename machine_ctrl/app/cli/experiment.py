@@ -177,7 +177,7 @@ def contouring_json(result: dict) -> dict:
     contour control, where the machine has one) hold the results, null where the cell is the
     noise floor; 'measured' every encoder figure; 'true', 'at_rest', 'noise_floor',
     'command_use' (largest |command| / command_limit of any axis), 'encoder_count_um',
-    'steps', 'notes'."""
+    'steps', 'notes' (and, from cmd_experiment, 'identified': the belief files used, absolute)."""
     modes = tuple(result['noise_floor'])
     out = {mode: {k: (None if k in result['noise_floor'][mode] else v) for k, v in result[mode].items()}
            for mode in modes}
@@ -286,25 +286,27 @@ def cmd_experiment(args) -> int:
             return error('experiment', exc)
     if args.name == 'frf' and (args.steps is not None or args.sensitivity):
         return error('experiment', f'{"--steps" if args.steps is not None else "--sensitivity"} is for circle and square')
+    belief = {'identified': [os.path.abspath(f) for f in args.identified]}     # what the controllers believed
     if args.sensitivity:
         from machine_ctrl.experiments import sensitivity
         result = sensitivity.sensitivity(machine, args.name, steps=args.steps, workers=args.jobs, progress=progress)
         print(json.dumps({'configured': {m: result['configured'][m] for m in ('smc', 'dsfd')},
-                          'variants': result['variants']}) if args.json else sensitivity.table(args.name, result))
+                          'variants': result['variants'], **belief}) if args.json
+              else sensitivity.table(args.name, result))
         return 0
     if args.name == 'frf':
         from machine_ctrl.experiments import tracking
         result = tracking.frf(machine, progress=progress, workers=args.jobs)
         if args.json:
-            print(json.dumps({key: result[key] for key in ('bandwidth_hz', 'crossover_hz', 'design_hz',
-                                                            'frequencies_hz', 'gain')}))
+            print(json.dumps({**{key: result[key] for key in ('bandwidth_hz', 'crossover_hz', 'design_hz',
+                                                               'frequencies_hz', 'gain')}, **belief}))
         else:
             _print_frf(machine.name, result)
         return 0
     result = contouring(machine, args.name, progress=progress, steps=args.steps, record_dir=args.record,
                         workers=args.jobs, coupled=coupled)
     if args.json:
-        print(json.dumps(contouring_json(result)))
+        print(json.dumps({**contouring_json(result), **belief}))
     else:
         _print_contouring(args.name, machine.name, result)
     return 0
