@@ -12,6 +12,11 @@ Arguments (``name:=value``):
 * ``dual_stage`` — ``true``/``false``: the dual-stage coupling at start; default true.
 * ``compensation`` — geometric error model (YAML of ``machine-ctrl fit-errors``): the
   compensation node sits between the trajectory node and the servos; default none.
+* ``identified`` — belief files of ``machine-ctrl identify --out``, comma-separated: the
+  servo nodes' ``belief`` parameter, the controllers' values over the config's (README
+  "Identification"), as ``machine-ctrl bringup --identified``; hw_sim keeps the plant. A file
+  that cannot be read or sets anything else stops the launch before any node starts, with the
+  reason. Default none.
 * ``params_file`` — a ROS parameters file applied after the graph's own values (e.g.
   ``config/params/<machine>.yaml`` edited, or a ``ros2 param dump``); default none.
 * ``robot_state_publisher`` — ``true`` starts robot_state_publisher (TF for RViz) when it is
@@ -44,6 +49,7 @@ ARGUMENTS = (
     ('record', '', 'bag directory to record into (default: no recording)'),
     ('dual_stage', 'true', 'dual-stage coupling on at start (true/false)'),
     ('compensation', '', 'geometric error model YAML: compensation on (default: off)'),
+    ('identified', '', 'belief files of machine-ctrl identify --out, comma-separated: the servos\' values'),
     ('params_file', '', 'ROS parameters file applied after the graph\'s values'),
     ('robot_state_publisher', 'false', 'start robot_state_publisher when installed (true/false)'),
     ('respawn', 'true', 'start a dead controller node again (not hw_sim, not the recorder)'),
@@ -81,10 +87,13 @@ def _nodes(context):
 
     value = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
     machine = load_machine(value['machine'])
+    belief = [path.strip() for path in value['identified'].split(',') if path.strip()]
+    if belief:                          # a bad belief file: the reason here, before any node starts
+        load_machine(value['machine'], belief=belief)
     namespace = contract.normal_namespace(value['namespace'])
     record = value['record'] or None
     specs = graph_specs(machine, _flag('dual_stage', value['dual_stage']), value['compensation'] or None,
-                        record is not None, namespace=namespace)
+                        record is not None, namespace=namespace, belief=belief)
     if record is not None:
         from machine_ctrl.app.cli.common import fresh_directory
         fresh_directory(record)

@@ -111,7 +111,8 @@ def test_experiment_command_json_is_one_object():
     assert result.returncode == 0, result.stderr
     data = json.loads(result.stdout)
     assert set(data) == {'smc', 'dsfd', 'ccc', 'measured', 'true', 'at_rest', 'noise_floor', 'command_use',
-                         'encoder_count_um', 'steps', 'notes'}
+                         'encoder_count_um', 'steps', 'notes', 'identified'}
+    assert data['identified'] == []                    # the config's own values: no belief file
     assert set(data['command_use']) == {'smc', 'dsfd', 'ccc'} and max(data['command_use'].values()) < 1.0
     for mode in ('smc', 'dsfd', 'ccc'):
         assert set(data[mode]) == set(data['measured'][mode]) == set(data['true'][mode]) == set(STAT_KEYS)

@@ -205,9 +205,13 @@ def test_two_machines_in_two_namespaces_run_side_by_side_one_records_and_both_st
     graph only); a goal to mill1 reaches mill1 only; mill2 publishes its robot_description,
     moves with a goal of its own and records it; Ctrl-C ends every node of both cleanly,
     mill2's bag closed. (One start-up of the two graphs for what were two tests: a launch in
-    a namespace with a recording, and two machines side by side.)"""
+    a namespace with a recording, and two machines side by side.) mill1 runs with a belief
+    file (`identified:=`): its servos have it as their `belief` parameter."""
     bag = tmp_path / 'bag'
-    mill1 = Launch(cli_env, tmp_path / 'mill1.log', 'machine:=micromill_9axis', 'namespace:=mill1')
+    belief = tmp_path / 'x_c.yaml'
+    belief.write_text('axes:\n  x_c:\n    drive:\n      mass: 21.3\n      damping: 25.0\n')
+    mill1 = Launch(cli_env, tmp_path / 'mill1.log', 'machine:=micromill_9axis', 'namespace:=mill1',
+                   f'identified:={belief}')
     mill2 = Launch(cli_env, tmp_path / 'mill2.log', 'machine:=trt_5axis', 'namespace:=mill2', f'record:={bag}')
     try:
         side_by_side((wait_ready, cli_env, '/mill1', mill1), (wait_ready, cli_env, '/mill2', mill2))
@@ -218,8 +222,10 @@ def test_two_machines_in_two_namespaces_run_side_by_side_one_records_and_both_st
             (echo_until, cli_env, '/mill2/joint_states', 'sensor_msgs/msg/JointState', bool, mill2, 60.0, False))
         assert states1['name'] == ['x_c', 'y_c', 'z_c', 'x_f', 'y_f', 'z_f', 'a_f', 'b_f', 'c_f']
         assert states2['name'] == ['x', 'y', 'z', 'a', 'c']
-        listed, *infos = side_by_side((ros2, cli_env, 'topic', 'list'),
-                                      *((ros2, cli_env, 'topic', 'info', '-v', f'{ns}/clock') for ns in ('/mill1', '/mill2')))
+        listed, believed, *infos = side_by_side(
+            (ros2, cli_env, 'topic', 'list'), (ros2, cli_env, 'param', 'get', '/mill1/servo_coarse', 'belief'),
+            *((ros2, cli_env, 'topic', 'info', '-v', f'{ns}/clock') for ns in ('/mill1', '/mill2')))
+        assert str(belief) in believed, believed
         topics = listed.split()
         assert '/clock' not in topics and '/joint_states' not in topics, topics     # nothing in the root
         for ns, info in zip(('/mill1', '/mill2'), infos):          # each clock heard by its own graph only
@@ -293,3 +299,14 @@ def test_a_killed_servo_is_respawned_and_a_reset_continues(cli_env, tmp_path):
     finally:
         launch.close()
     assert status == 0, launch.text()[-3000:]
+
+
+def test_a_belief_file_that_cannot_be_read_stops_the_launch_before_any_node_starts(cli_env, tmp_path):
+    """`identified:=` with a file that is not there: the launch ends with the reason naming
+    it, and no node was started (as `machine-ctrl bringup --identified` refuses)."""
+    missing = tmp_path / 'missing.yaml'
+    result = subprocess.run([str(ROS2), 'launch', 'machine_ctrl', 'bringup.launch.py', f'identified:={missing}'],
+                            env=cli_env, capture_output=True, text=True, timeout=EXIT_TIMEOUT, start_new_session=True)
+    text = result.stdout + result.stderr
+    assert result.returncode != 0 and str(missing) in text, text[-3000:]
+    assert 'process started' not in text, text[-3000:]

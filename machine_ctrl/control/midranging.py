@@ -367,10 +367,13 @@ class MVPCConfig:
     tracking_time: float | None = None  # assumed: tracking time constant T_t of the
     # anti-windup = T_i of the fast PI (Åström and Hägglund's rule of thumb for a PI; seed 004
     # and Haugwitz et al. as cited give no value). None means T_i. Grid: T_i/2, T_i, 2 T_i.
-    feedforward: float = 1.0      # assumed: the MVPC modification (Allison and Isaksson 1998,
-    # cited by seed 004 §3.1; its Fig. 3.2 is an image not in the seed text) is read as a
-    # feedforward of the slow controller's output into the fast input with the static
-    # decoupling gain K_s/K_f; both closed loops of (3.17) have unit DC gain, so 1 (0: VPC).
+    feedforward: float = 0.0      # assumed: F, a feedforward of the slow controller's output into
+    # the fast input (the MVPC modification of Allison and Isaksson 1998, cited by seed 004 §3.1,
+    # read as the static decoupling gain K_s/K_f = 1 for (3.17); its Fig. 3.2 is an image not in
+    # the seed text). 0 here: only then do §3.2's PIs, each "designed using the same desired
+    # closed-loop system", give their loops that response (with F = 1 the slow PI's loop is
+    # -(1 - H_cl^f + H_cl^s), not H_cl^s, and the fast loop sees half its gain); Table 3.1's
+    # rows 1-2 agree within 1 % with it (experiments/midrange.py, History). 1 remains selectable.
 
 
 class MVPC:
@@ -378,7 +381,7 @@ class MVPC:
 
         e   = r_r - y_r
         v   = C_f' e                      (fast PI, the primary controller)
-        w_f = v - F w_s                   (MVPC feedforward, F = static decoupling gain)
+        w_f = v - F w_s                   (MVPC feedforward F: MVPCConfig.feedforward, 0 by default)
         w_s = C_s' (w_f - r_s), r_s = 0   (slow PI, the valve position controller)
 
     The algebraic loop w_f <-> w_s (both PIs have a direct term) is solved exactly each

@@ -6,17 +6,29 @@ normalized by the AIMC's.
     python -c "from machine_ctrl.experiments.midrange import table_3_1, format_table; \\
                print(format_table(table_3_1()))"
 
-What the seed fixes: the plant and desired responses (3.17)-(3.18), h, u_sat, the reference
-kind ("a ramped square-wave with a superimposed low-frequency sine wave", §3.3), the step
-heights r_r of the rows, that row 3 adds measurement noise, that the estimators get an
-initial guess and an estimation phase with a low-amplitude square wave (§3.2, §3.3), and the
-gain steps of Fig. 3.7 (+50 % at 8 s, then -60 % at 16 s, same input without the ramp).
-What it leaves open is in :class:`Choices` (each marked ``# assumed:`` with its reason);
+What the seed fixes: the plant and desired responses (3.17)-(3.18), h, u_sat, that Table 3.1
+is "the average Integrated Absolute Error (IAE) over several step responses" (§3.5; its
+caption: "Normalized IAE value of step responses"), the step heights r_r of the rows, that
+row 3 adds measurement noise, that the estimators get an initial guess and an estimation
+phase with a low-amplitude square wave (§3.2, §3.3), Fig. 3.6's reference ("a ramped
+square-wave with a superimposed low-frequency sine wave", §3.3) and the gain steps of
+Fig. 3.7 (+50 % at 8 s, then -60 % at 16 s, Fig. 3.6's input without the ramp). What it
+leaves open is in :class:`Choices` (each marked ``# assumed:`` with its reason);
 :func:`table_3_1` also runs each of them at a low and a high value, one at a time, and
-reports the spread of every ratio. The values were chosen before any result was seen and
-have not been changed after; the MVPC feedforward gain (a reading of the structure, nominal
-1 chosen first) was added to the grid after the first results, to show how much row 1
-depends on that reading.
+reports the spread of every ratio.
+
+History, said because two readings changed after results were seen (2026-11-28): the table
+was first run on Fig. 3.6's ramped square wave with its sine, which §3.3 names for that
+figure, not for the table; it is now run on step responses, as §3.5 and the caption say (the
+ramped reference's ratios are still printed, for information). And the MVPC's feedforward
+F (a reading of Fig. 3.2, an image the seed text lacks) was 1, a static decoupling; it is
+now 0. The reason is the tuning sentence of §3.2: both PIs "designed using the same desired
+closed-loop system as for the proposed controller". With F = 0 the loop the slow PI closes
+is exactly H_s^cl, so each direct-synthesis PI gives its loop its design response; with
+F = 1 it is -(1 - H_cl^f + H_cl^s), and the design does not hold (the fast loop sees half
+its gain). F = 1 stays in the spread. With both readings rows 1 and 2 come within 1 %, and
+row 2's anti-windup ordering (MVPC+AW better than MVPC) comes out as in the seed; with the
+old ones row 1 was +20 % and that ordering reversed.
 
 Definitions used here (also assumed where the seed is silent):
 
@@ -24,8 +36,9 @@ Definitions used here (also assumed where the seed is silent):
   says row 1's r_r "is small enough to fulfill |u_f| <= u_sat"; a step of height S gives the
   AIMC an inner control of k_c S (b_f0 - b_s0)/b_f0 = 4.5 S, within 10 for S = 1.5 but not
   for a step of 2 r_r = 3. The ramp and sine scale with r_r too (one reference shape).
-* IAE (3.19) is summed over the whole run, h sum_k |r_r,k - y_r,k|, with the true y_r (the
-  simulation knows it; noise is a sensor property, not an error of the position).
+* IAE (3.19) is summed over the whole run of steps (a sum over several step responses; the
+  ratio to the AIMC's is the ratio of their averages), h sum_k |r_r,k - y_r,k|, with the true
+  y_r (the simulation knows it; noise is a sensor property, not an error of the position).
 * Each controller starts from rest at t = 0 on the same reference. The AIMC's estimators
   start from the state the estimation phase left (the phase runs on the same plant, which
   is then put back at rest).
@@ -58,7 +71,10 @@ FIG37_TOL = 0.05          # convergence tolerance of the gain estimate (5 % of t
 @dataclass(frozen=True)
 class Choices:
     """Everything Table 3.1 needs that seed 004 does not state."""
-    square_period: float = 4.0     # assumed: 4 s. Fig. 3.7's gain steps at 8 s and 16 s fall on
+    step_period: float = 8.0       # assumed: Table 3.1's square wave of steps, 8 s: each 4 s half
+    # is 4 time constants of the slow loop (tau_s = 1 s, Eq. 3.17), so every step response settles
+    # before the next, and 24 s hold 6 of them ("several step responses", §3.5)
+    square_period: float = 4.0     # assumed: Figs. 3.6-3.7's square wave, 4 s. Fig. 3.7's gain steps at 8 s and 16 s fall on
     # period boundaries, the text says a change shows "for one period of the square-wave", and
     # a 2 s half period is 2 time constants of the slow loop (tau_s = 1 s, Eq. 3.17) and 20 of
     # the fast one: each step settles in the fast loop, the slow one takes over visibly.
@@ -75,7 +91,8 @@ class Choices:
     # position (y_f, y_s, y_r), 1 % of the row-3 step height 5: "substantial" (§3.6) for a
     # position sensor, small against the steps. Seed 0 of numpy's default generator.
     tracking_time: float | None = None   # assumed: see MVPCConfig.tracking_time (None: T_i)
-    feedforward: float = 1.0       # assumed: see MVPCConfig.feedforward (static decoupling gain)
+    feedforward: float = 0.0       # assumed: the MVPC's feedforward F (MVPCConfig.feedforward): 0, the
+    # reading under which §3.2's tuning sentence holds (module docstring, History); 1 in the spread
     estimation_time: float = 8.0   # assumed: estimation phase of 8 s (4 periods of its square)
     estimation_amplitude: float = 0.5    # assumed: "low amplitude square-wave" (§3.3) of 0.5
     # on both loop references: inner u_f = 5 x 0.5 = 2.5, clear of u_sat as §3.2 requires
@@ -94,16 +111,13 @@ NOMINAL = Choices()
 # stands for T_i, so its grid is T_i/2 and 2 T_i (T_i = h a/b = 0.096 s for Eq. 3.17).
 _TI = PlantConfig().h * PlantConfig().fast_model()[0] / PlantConfig().fast_model()[1]
 GRID = {
-    'square_period': (2.0, 8.0),
-    'ramp': (0.025, 0.1),
-    'sine_amplitude': (0.05, 0.2),
-    'sine_frequency': (0.05, 0.2),
+    'step_period': (4.0, 16.0),
     'forgetting': (0.99, 0.9975),
     'p0': (50.0, 200.0),
     'guess_bandwidth': (0.25, 1.0),
     'noise': (0.025, 0.1),
     'tracking_time': (_TI / 2.0, 2.0 * _TI),
-    'feedforward': (0.5, 2.0),
+    'feedforward': (0.5, 1.0),      # the static decoupling (1: the reading before 2026-11-28) and half of it
 }
 # which controllers a choice affects (the others' runs are shared)
 _AFFECTS = {
@@ -112,8 +126,16 @@ _AFFECTS = {
 }
 
 
+def steps(r_r: float, choices: Choices) -> np.ndarray:
+    """Table 3.1's reference: a square wave 0 / r_r (period step_period, high first) for the
+    run's duration: step responses (§3.5)."""
+    h = PlantConfig().h
+    t = np.arange(int(round(choices.duration / h))) * h
+    return r_r * ((t % choices.step_period) < choices.step_period / 2.0).astype(float)
+
+
 def reference(r_r: float, choices: Choices, ramp: bool = True) -> np.ndarray:
-    """r_r,k for k = 0..N-1: square wave 0 / r_r (period from `choices`, high first) plus a
+    """Fig. 3.6's r_r,k for k = 0..N-1: square wave 0 / r_r (square_period, high first) plus a
     ramp and a sine, all scaled by r_r (§3.3, "a ramped square-wave with a superimposed
     low-frequency sine wave"; Fig. 3.7: the same without the ramp)."""
     h = PlantConfig().h
@@ -224,7 +246,8 @@ def run(controller: str, r: np.ndarray, choices: Choices, sigma: float = 0.0,
     return out
 
 
-def _iae(controller: str, r_r: float, noisy: bool, choices: Choices, cache: dict) -> float:
+def _iae(controller: str, r_r: float, noisy: bool, choices: Choices, cache: dict,
+         fig_3_6: bool = False) -> float:
     # the run depends only on the choices that reach this controller: share the others'
     relevant = dataclasses.replace(
         choices, **{name: getattr(NOMINAL, name) for name, who in _AFFECTS.items()
@@ -232,17 +255,17 @@ def _iae(controller: str, r_r: float, noisy: bool, choices: Choices, cache: dict
     sigma = choices.noise if noisy else 0.0
     if not noisy:
         relevant = dataclasses.replace(relevant, noise=NOMINAL.noise)
-    key = (controller, r_r, noisy, relevant)
+    key = (controller, r_r, noisy, relevant, fig_3_6)
     if key not in cache:
-        res = run(controller, reference(r_r, choices), choices, sigma,
+        res = run(controller, reference(r_r, choices) if fig_3_6 else steps(r_r, choices), choices, sigma,
                   estimation_cache=cache.setdefault('estimation', {}))
         cache[key] = (res['iae'], res['peak_u_f'])
     return cache[key]
 
 
-def _row(label, r_r, noisy, choices: Choices, cache: dict) -> dict:
+def _row(label, r_r, noisy, choices: Choices, cache: dict, fig_3_6: bool = False) -> dict:
     (aimc, pu_a), (aw, pu_aw), (mv, pu_mv) = (
-        _iae(c, r_r, noisy, choices, cache) for c in ('aimc', 'mvpc_aw', 'mvpc'))
+        _iae(c, r_r, noisy, choices, cache, fig_3_6) for c in ('aimc', 'mvpc_aw', 'mvpc'))
     return {'iae': {'aimc': aimc, 'mvpc_aw': aw, 'mvpc': mv},
             'ratio': {'mvpc_aw': aw / aimc, 'mvpc': mv / aimc},
             'peak_u_f': {'aimc': pu_a, 'mvpc_aw': pu_aw, 'mvpc': pu_mv}}
@@ -263,7 +286,8 @@ def table_3_1(choices: Choices = NOMINAL, grid: dict | None = None) -> dict:
     (MVPC+AW, MVPC over AIMC), seed ratio, ours/seed, within (10 %), spread (min, max of each
     ratio over the grid, nominal included), the grid point of each extreme and 'by_choice'
     {choice: [(value, ratio), ...]}, and
-    'steps_only': the ratios for the square wave alone (no ramp, no sine), for information."""
+    'fig_3_6_reference': the ratios on Fig. 3.6's ramped square wave with its sine (the
+    reading before 2026-11-28), for information."""
     grid = GRID if grid is None else grid
     try:
         cache: dict = {}
@@ -288,13 +312,11 @@ def table_3_1(choices: Choices = NOMINAL, grid: dict | None = None) -> dict:
                             s[0], s[2] = v, f'{name}={value:g}'
                         if v > s[1]:
                             s[1], s[3] = v, f'{name}={value:g}'
-            # the caption's other reading, "step responses": the square wave alone (information,
-            # not part of the spread: the seed's §3.3 names the ramp and the sine)
-            steps = _row(label, r_r, noisy,
-                         dataclasses.replace(choices, ramp=0.0, sine_amplitude=0.0), cache)
+            # Fig. 3.6's reference, the reading before 2026-11-28 (information, not in the spread)
+            ramped = _row(label, r_r, noisy, choices, cache, fig_3_6=True)
             rows.append({'label': label, 'r_r': r_r, 'noise': choices.noise if noisy else 0.0,
                          **row, 'seed': seed, 'ours_over_seed': vs,
-                         'steps_only': steps['ratio'],
+                         'fig_3_6_reference': ramped['ratio'],
                          'within': {c: abs(vs[c] - 1.0) <= TOLERANCE for c in seed},
                          'spread': {c: {'min': s[0], 'max': s[1], 'min_at': s[2],
                                         'max_at': s[3], 'by_choice': by_choice[c]}
@@ -381,9 +403,9 @@ def format_table(result: dict) -> str:
         lines.append(f"{'':26s} IAE: AIMC {iae['aimc']:.3f}, MVPC+AW {iae['mvpc_aw']:.3f}, "
                      f"MVPC {iae['mvpc']:.3f}; peak |u_f|: "
                      + ', '.join(f"{k} {v:.1f}" for k, v in row['peak_u_f'].items()))
-        so = row['steps_only']
-        lines.append(f"{'':26s} square wave alone (no ramp/sine): MVPC+AW {so['mvpc_aw']:.3f}, "
-                     f"MVPC {so['mvpc']:.3f}")
+        so = row['fig_3_6_reference']
+        lines.append(f"{'':26s} on Fig. 3.6's ramped square wave with its sine instead: MVPC+AW "
+                     f"{so['mvpc_aw']:.3f}, MVPC {so['mvpc']:.3f}")
     fig = result.get('fig_3_7') or {}
     if fig.get('segments'):
         lines.append(f"Fig. 3.7 (r_r = {fig['r_r']:g}): RLS estimate of the H_p^f gain factor")
