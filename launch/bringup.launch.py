@@ -12,7 +12,8 @@ Arguments (``name:=value``):
 * ``dual_stage`` — ``true``/``false``: the dual-stage coupling at start; default true.
 * ``compensation`` — geometric error model (YAML of ``machine-ctrl fit-errors``): the
   compensation node sits between the trajectory node and the servos; default none.
-* ``identified`` — belief files of ``machine-ctrl identify --out``, comma-separated: the
+* ``identified`` — belief files of ``machine-ctrl identify --out``, comma-separated (``~``
+  expanded; a path may not hold a comma): the
   servo nodes' ``belief`` parameter, the controllers' values over the config's (README
   "Identification"), as ``machine-ctrl bringup --identified``; hw_sim keeps the plant. A file
   that cannot be read or sets anything else stops the launch before any node starts, with the
@@ -37,6 +38,8 @@ at once and exits 0; the recorder drains and closes the bag first (launch waits 
 ``RECORDER_STOP_TIMEOUT`` s, 60, for it before its SIGTERM, as ``machine-ctrl bringup`` does).
 """
 from __future__ import annotations
+
+import os
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, LogInfo, OpaqueFunction
@@ -87,7 +90,9 @@ def _nodes(context):
 
     value = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
     machine = load_machine(value['machine'])
-    belief = [path.strip() for path in value['identified'].split(',') if path.strip()]
+    belief = [os.path.expanduser(path.strip()) for path in value['identified'].split(',') if path.strip()]
+    if value['identified'].strip() and not belief:
+        raise ValueError(f"launch argument identified:={value['identified']!r} names no file")
     if belief:                          # a bad belief file: the reason here, before any node starts
         load_machine(value['machine'], belief=belief)
     namespace = contract.normal_namespace(value['namespace'])

@@ -56,7 +56,6 @@ class PlantConfig:
     # the zero-order-hold discretization of 1/(s + 1). With it printed as is, T_s = H_cl^s
     # (3.18) has no delay while H_cl^f has one, and C_f = (T_f - T_s)/H_cl^f (3.3) is
     # improper (needs the next sample's error). We use the ZOH form (1 - e^-h) z^-1/(...).
-    slow_delay: int = 1
 
     def fast_model(self, gain_factor: float = 1.0) -> tuple[float, float]:
         """(a, b) of H_cl^f = b z^-1/(1 - a z^-1) = H_c H_p/(1 + H_c H_p), Eq. (3.17):
@@ -372,8 +371,10 @@ class MVPCConfig:
     # read as the static decoupling gain K_s/K_f = 1 for (3.17); its Fig. 3.2 is an image not in
     # the seed text). 0 here: only then do §3.2's PIs, each "designed using the same desired
     # closed-loop system", give their loops that response (with F = 1 the slow PI's loop is
-    # -(1 - H_cl^f + H_cl^s), not H_cl^s, and the fast loop sees half its gain); Table 3.1's
-    # rows 1-2 agree within 1 % with it (experiments/midrange.py, History). 1 remains selectable.
+    # -(1 - H_cl^f + H_cl^s), not H_cl^s, and the fast loop sees half its gain). With 0 the
+    # structure is plain valve position control (VPC): the modification, as read, is gone.
+    # Table 3.1's rows 1-2 agree within 1 % with it (experiments/midrange.py, History; chosen
+    # after results were seen). 1 remains selectable.
 
 
 class MVPC:

@@ -179,8 +179,8 @@ def closed_loop_frf(machine: MachineConfig, axis: str) -> dict:
     the servo's feedback alone (the feed-forward off, the fine stages uncoupled: as the stepped
     sine of `experiment frf`): 'frequencies_hz', 'gain', 'phase_deg', 'coherence' per Welch line,
     'bandwidth_hz' (the -3 dB point, None where the coherence there is below MIN_COHERENCE),
-    'coherence_at_bandwidth', 'coherent_band_hz' (the longest run of lines at MIN_COHERENCE or
-    more), 'crossover_hz' (a law acting on the error alone: L = T/(1 - T); else None), and
+    'coherence_at_bandwidth', 'coherent_band_hz' (the widest run of lines, in log frequency, at
+    MIN_COHERENCE or more), 'crossover_hz' (a law acting on the error alone: L = T/(1 - T); else None), and
     'excitation' (what was applied)."""
     period = machine.control_period
     rate = 1.0 / period
@@ -508,7 +508,7 @@ def frf_lines(frf: dict) -> list[str]:
              f'averages): -3 dB at {hz(frf["bandwidth_hz"])} (coherence {frf["coherence_at_bandwidth"]:.3f}), '
              f'open-loop crossover {hz(frf["crossover_hz"])}; coherence >= {MIN_COHERENCE:g} from '
              + ('-' if band is None else f'{band[0]:.1f} to {band[1]:.1f} Hz')]
-    points = [k for k in (int(np.argmin(np.abs(f - target))) for target in (2, 5, 10, 20, 50, 100, 200, 500))]
+    points = [int(np.argmin(np.abs(f - target))) for target in (2, 5, 10, 20, 50, 100, 200, 500)]
     lines.append('    ' + ', '.join(f'{f[k]:.0f} Hz {20 * math.log10(gain[k]):+.1f} dB (coh. {coherence[k]:.2f})'
                                       for k in points))
     return lines

@@ -17,25 +17,34 @@ leaves open is in :class:`Choices` (each marked ``# assumed:`` with its reason);
 :func:`table_3_1` also runs each of them at a low and a high value, one at a time, and
 reports the spread of every ratio.
 
-History, said because two readings changed after results were seen (2026-11-28): the table
-was first run on Fig. 3.6's ramped square wave with its sine, which §3.3 names for that
+History, said because three choices were made after results were seen (2026-11-28): the
+table was first run on Fig. 3.6's ramped square wave with its sine, which §3.3 names for that
 figure, not for the table; it is now run on step responses, as §3.5 and the caption say (the
-ramped reference's ratios are still printed, for information). And the MVPC's feedforward
-F (a reading of Fig. 3.2, an image the seed text lacks) was 1, a static decoupling; it is
-now 0. The reason is the tuning sentence of §3.2: both PIs "designed using the same desired
-closed-loop system as for the proposed controller". With F = 0 the loop the slow PI closes
-is exactly H_s^cl, so each direct-synthesis PI gives its loop its design response; with
-F = 1 it is -(1 - H_cl^f + H_cl^s), and the design does not hold (the fast loop sees half
-its gain). F = 1 stays in the spread. With both readings rows 1 and 2 come within 1 %, and
-row 2's anti-windup ordering (MVPC+AW better than MVPC) comes out as in the seed; with the
-old ones row 1 was +20 % and that ordering reversed.
+ramped reference's ratios are still printed, for information), with a step period chosen in
+the same change (step_period). And the MVPC's feedforward F (a reading of Fig. 3.2, an image
+the seed text lacks) was 1, a static decoupling; it is now 0, which makes the "MVPC" columns
+plain valve position control (VPC): the modification, as we read it, is gone. The reason is
+the tuning sentence of §3.2: both PIs "designed using the same desired closed-loop system as
+for the proposed controller". With F = 0 the loop the slow PI closes is exactly H_cl^s, so
+each direct-synthesis PI gives its loop its design response; with F = 1 it is
+-(1 - H_cl^f + H_cl^s), and the design does not hold (the fast loop sees half its gain).
+F = 1 stays in the spread. Only the combination agrees: rows 1 and 2 (MVPC+AW / MVPC):
+
+    F = 0, steps (8 s)     1.528;  1.447 / 1.544      (seed 1.525; 1.458 / 1.555)
+    F = 0, steps (4 s)     1.357;  1.317 / 1.423
+    F = 0, ramped wave     1.250;  1.237 / 1.337
+    F = 1, steps (8 s)     2.137;  1.718 / 1.687
+    F = 1, ramped wave     1.838;  1.497 / 1.460      (the reading before)
+
+and with it row 2's anti-windup ordering (MVPC+AW better than MVPC) is the seed's; with the
+old readings row 1 was +20 % and that ordering reversed.
 
 Definitions used here (also assumed where the seed is silent):
 
 * r_r is the height of each square-wave step (the reference goes 0 -> r_r -> 0 ...): §3.5
   says row 1's r_r "is small enough to fulfill |u_f| <= u_sat"; a step of height S gives the
   AIMC an inner control of k_c S (b_f0 - b_s0)/b_f0 = 4.5 S, within 10 for S = 1.5 but not
-  for a step of 2 r_r = 3. The ramp and sine scale with r_r too (one reference shape).
+  for a step of 2 r_r = 3. In Figs. 3.6-3.7 the ramp and sine scale with r_r too.
 * IAE (3.19) is summed over the whole run of steps (a sum over several step responses; the
   ratio to the AIMC's is the ratio of their averages), h sum_k |r_r,k - y_r,k|, with the true
   y_r (the simulation knows it; noise is a sensor property, not an error of the position).
@@ -70,7 +79,8 @@ FIG37_TOL = 0.05          # convergence tolerance of the gain estimate (5 % of t
 
 @dataclass(frozen=True)
 class Choices:
-    """Everything Table 3.1 needs that seed 004 does not state."""
+    """Everything Table 3.1 (step_period onwards but square_period, ramp, sine_*) and Figs.
+    3.6-3.7 (square_period, ramp, sine_*, duration) need that seed 004 does not state."""
     step_period: float = 8.0       # assumed: Table 3.1's square wave of steps, 8 s: each 4 s half
     # is 4 time constants of the slow loop (tau_s = 1 s, Eq. 3.17), so every step response settles
     # before the next, and 24 s hold 6 of them ("several step responses", §3.5)
@@ -108,7 +118,8 @@ NOMINAL = Choices()
 
 # one-at-a-time grid: each unstated choice at a low and a high value (half / double, or for
 # the forgetting factor half / double its memory 1/(1 - lambda)); the tracking time None
-# stands for T_i, so its grid is T_i/2 and 2 T_i (T_i = h a/b = 0.096 s for Eq. 3.17).
+# stands for T_i, so its grid is T_i/2 and 2 T_i (T_i = h a/b = 0.096 s for Eq. 3.17); the
+# feedforward, nominally 0, at the former reading 1 and half of it.
 _TI = PlantConfig().h * PlantConfig().fast_model()[0] / PlantConfig().fast_model()[1]
 GRID = {
     'step_period': (4.0, 16.0),
@@ -247,7 +258,7 @@ def run(controller: str, r: np.ndarray, choices: Choices, sigma: float = 0.0,
 
 
 def _iae(controller: str, r_r: float, noisy: bool, choices: Choices, cache: dict,
-         fig_3_6: bool = False) -> float:
+         fig_3_6: bool = False) -> tuple[float, float]:
     # the run depends only on the choices that reach this controller: share the others'
     relevant = dataclasses.replace(
         choices, **{name: getattr(NOMINAL, name) for name, who in _AFFECTS.items()
@@ -421,8 +432,8 @@ def format_table(result: dict) -> str:
 
 
 def plots(result: dict, directory) -> list[str]:
-    """midrange.png: the AIMC on the row-2 reference (r_r = 5: the relative position, both
-    loops' positions, Fig. 3.6 without its disturbance) and the RLS's gain estimate through
+    """midrange.png: the AIMC on Fig. 3.6's ramped reference at row 2's r_r = 5 (the relative
+    position, both loops' positions; Fig. 3.6 without its disturbance) and the RLS's gain estimate through
     the gain steps of Fig. 3.7 beside the true gain and |u_f| / u_sat. Reruns both with
     the result's choices (the same numbers)."""
     if result.get('status') != 'ok':

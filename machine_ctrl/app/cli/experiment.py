@@ -286,7 +286,7 @@ def cmd_experiment(args) -> int:
             return error('experiment', exc)
     if args.name == 'frf' and (args.steps is not None or args.sensitivity):
         return error('experiment', f'{"--steps" if args.steps is not None else "--sensitivity"} is for circle and square')
-    belief = {'identified': [os.path.abspath(f) for f in args.identified]}     # what the controllers believed
+    belief = {'identified': [str(Path(f).resolve()) for f in args.identified]}   # as the servos' belief parameter
     if args.sensitivity:
         from machine_ctrl.experiments import sensitivity
         result = sensitivity.sensitivity(machine, args.name, steps=args.steps, workers=args.jobs, progress=progress)
