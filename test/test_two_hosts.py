@@ -165,4 +165,7 @@ with client_session(load_machine({machine!r}), 'two_hosts_reset') as client:
     client.wait_ready(timeout=120)
     ok, message = client.call({service!r}, timeout=60)
     print('reset:', ok, message)
+    # the trajectory node takes goals again once it has heard hw_sim alive again (its liveliness,
+    # lost while the link was down) and healthy: wait for that, as a user waits for 'idle'
+    client.wait(lambda: client.status().get('state') == 'idle', 'the trajectory node idle after the reset', 120)
 '''
