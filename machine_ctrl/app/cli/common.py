@@ -32,3 +32,15 @@ def _namespace(text: str) -> str:
         return contract.normal_namespace(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def whole_number(text: str) -> int:
+    """argparse type: an int > 0, else the reason (argparse prints it)."""
+    import argparse
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f'must be a whole number > 0, got {text!r}')
+    return value

@@ -18,6 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from machine_ctrl.app.cli.common import whole_number
 from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
 from machine_ctrl.model.errors import ConfigError
 
@@ -41,20 +42,9 @@ def register_experiment(experiments) -> None:
                            help='measurement CSV, fitted model and plots (default: a temp dir)')
     geometric.add_argument('--json', action='store_true', help='one JSON object on stdout')
     geometric.add_argument('--quiet', action='store_true', help='no progress on stderr')
-    geometric.add_argument('--servo-stride', type=_stride, default=1, metavar='K',
+    geometric.add_argument('--servo-stride', type=whole_number, default=1, metavar='K',
                            help='Table 6.3 through the servo at every K-th 1 mm position (default 1: all; a quick look)')
     geometric.set_defaults(run=cmd_experiment_geometric, usage_parser=geometric)
-
-
-def _stride(text: str) -> int:
-    import argparse
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be a whole number > 0, got {text!r}')
-    return value
 
 
 def _fail(message: str) -> int:

@@ -37,7 +37,7 @@ import sys
 from pathlib import Path
 
 from machine_ctrl.app.cli import errors
-from machine_ctrl.app.cli.common import error, fresh_directory
+from machine_ctrl.app.cli.common import error, fresh_directory, whole_number
 from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
 
 EXPERIMENT_TITLES = {
@@ -85,16 +85,6 @@ SEED_TABLES = (
 )
 
 
-def _whole_number(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f'must be a whole number > 0, got {text!r}')
-    return value
-
-
 def register(subparsers) -> None:
     experiment = subparsers.add_parser('experiment', help='thesis experiments on the simulated machine',
                                        description='experiments on the simulated machine (offline runner)')
@@ -116,10 +106,10 @@ def register(subparsers) -> None:
         parser.add_argument('--identified', metavar='FILE', action='append', default=[],
                             help="the controllers' values from FILE (machine-ctrl identify --out) over the "
                                  "machine's own; hw_sim's plant stays the truth (repeat for several axes)")
-        parser.add_argument('--jobs', type=_whole_number, metavar='N',
+        parser.add_argument('--jobs', type=whole_number, metavar='N',
                             help='run the independent simulations in up to N processes (default: the '
                                  'available CPUs; the same numbers whatever N)')
-        parser.add_argument('--steps', type=_whole_number, metavar='N',
+        parser.add_argument('--steps', type=whole_number, metavar='N',
                             help=('run only the first N control steps of the contour (and of its at-rest '
                                   'twins): a quick look; the table then describes that part only'
                                   if name != 'frf' else argparse.SUPPRESS))
@@ -132,7 +122,7 @@ def register(subparsers) -> None:
     contour.add_argument('--no-helix', action='store_true', help='skip the micromill helix run')
     contour.add_argument('--sensitivity', action='store_true',
                          help="only the trt run's sensitivity to its assumed friction (rotary, linear; halved, doubled)")
-    contour.add_argument('--jobs', type=_whole_number, metavar='N', help='--sensitivity: runs in up to N processes')
+    contour.add_argument('--jobs', type=whole_number, metavar='N', help='--sensitivity: runs in up to N processes')
     contour.set_defaults(run=cmd_contour, usage_parser=contour)
     for name, module, entry, help_text, plots in SEED_TABLES:
         parser = names.add_parser(name, help=help_text)
