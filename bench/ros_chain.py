@@ -137,6 +137,38 @@ class Head(Relay):
         return elapsed
 
 
+class PacedHead(Head):
+    """Node 0 paced by the wall clock instead: a timer sends step k+1 every `period` s whether
+    or not step k came back, and the time until each step comes back is kept, a step not
+    back at the next tick counted as missed with what it had waited (hw_sim's paced mode
+    measures its graph the same way: hw_sim/pacing.py)."""
+
+    def run_paced(self, executor, period: float, seconds: float):
+        """Pace the ring for `seconds`; returns (LatencyHistogram of the round trips, missed, ticks)."""
+        from rclpy.clock import Clock, ClockType
+
+        from hw_sim.pacing import LatencyHistogram
+        self.latency, self.missed, self.ticks, self.back = LatencyHistogram(), 0, 0, True
+
+        def tick() -> None:
+            now = time.monotonic()
+            if not self.back:
+                self.missed += 1
+                self.latency.add(now - self.sent_at)
+            self.back, self.sent_at = False, now
+            self.ticks += 1
+            self._send(self.sent + 1)
+        timer = self.node.create_timer(period, tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        executor.spin_until_future_complete(Future(), timeout_sec=seconds)
+        self.node.destroy_timer(timer)
+        return self.latency, self.missed, self.ticks
+
+    def _returned(self, msg: JointState) -> None:
+        if not self.back and step_of(msg) == self.sent:
+            self.back = True
+            self.latency.add(time.monotonic() - self.sent_at)
+
+
 def init_context(domain_id: int, args=None) -> Context:
     """A private context in ``domain_id`` with localhost-only discovery. rcl reads
     ROS_AUTOMATIC_DISCOVERY_RANGE when the context is initialised and rclpy cannot pass it
@@ -173,12 +205,12 @@ class Chain:
     executor kind ``executor``.
     """
 
-    def __init__(self, hops: int, multiprocess: bool, executor: str = 'single'):
+    def __init__(self, hops: int, multiprocess: bool, executor: str = 'single', head=Head):
         if hops < 2:
             raise ValueError('a ring needs at least 2 hops')
         if executor not in EXECUTORS:
             raise ValueError(f'executor must be one of {EXECUTORS}, not {executor!r}')
-        self.hops, self.multiprocess, self.executor_kind = hops, multiprocess, executor
+        self.hops, self.multiprocess, self.executor_kind, self.head_class = hops, multiprocess, executor, head
         self._stack = contextlib.ExitStack()
 
     def __enter__(self) -> Chain:
@@ -199,7 +231,7 @@ class Chain:
         self.supervisor = self._stack.enter_context(Supervisor(self._child_env(lease.domain_id), stop_timeout=3.0))
         self.context = init_context(lease.domain_id)
         self._stack.callback(self.context.try_shutdown)
-        ring = [Head(self._node('chain_head'), self.hops)]
+        ring = [self.head_class(self._node('chain_head'), self.hops)]
         if self.multiprocess:
             for i in range(1, self.hops):
                 self.supervisor.start(f'chain_relay_{i}', self._relay_argv(i))

@@ -18,18 +18,21 @@ Modes:
   from step 0 while the recorder reports that it has written no state yet (step -1); a
   recorder that leaves the graph releases the hold. Holding delays a run, it never changes
   it.
-* paced (:class:`PacedSession`): one step per timer tick (period = control period /
-  `real_time_factor`), applying the latest step-k command of each axis and, for an axis
-  without one, the command applied before (zero-order hold), counting those as missed
-  deadlines.
+* paced (:class:`PacedSession`): a step each time the wall clock says one is due (one per
+  control period / `real_time_factor`; hw_sim/pacing.py), applying the latest step-k command of each
+  axis and, for an axis without one, the command applied before (zero-order hold), counting
+  those as missed deadlines; a step's latency (state out to its last command in) and
+  hw_sim's own tick lateness as percentiles in the diagnostics, the periods hw_sim itself
+  slipped behind the wall clock as overruns.
 
 Faults (the simulator stops: drives off, axes held; the session keeps running and
 reporting): a non-finite command, a stroke violation (found by the simulator), a command
 missing for `command_timeout` s (lock-step, from step 1 on: at step 0 the graph is still
 coming up; never while every command is in hand and the session holds for the recorder).
-In lock-step mode also a stall of hw_sim itself: its process did not run (SIGSTOP,
-starved) for more than `command_timeout` s (:meth:`LockStepSession.watch`, from step 1 on):
-whatever the nodes did meanwhile, the machine stops rather than go on from a gap.
+In both modes also a stall of hw_sim itself: its process did not run (SIGSTOP, starved) for
+more than `command_timeout` s (:meth:`LockStepSession.watch`, from step 1 on; paced: a timer
+call that far behind the wall clock): whatever the nodes did meanwhile, the machine stops
+rather than go on from a gap.
 Malformed commands (unknown or duplicate axes, length mismatch, off-grid or future stamps)
 and progress reports (off-grid, not a published step) are refused with a reason and change
 nothing. A reset clears a fault and restarts the current step from where the axes are
@@ -49,6 +52,7 @@ from typing import NamedTuple, Protocol
 
 from machine_ctrl.model.numeric import all_finite
 from hw_sim.lockstep import NOTHING_RECORDED, LockStep, RecorderGate
+from hw_sim.pacing import LatencyHistogram, WallClockPacer
 from hw_sim.simulator import MachineSimulator
 from machine_ctrl.contract import StepClock
 from machine_ctrl.model.errors import InvalidMessage
@@ -315,35 +319,81 @@ class LockStepSession(Session):
 
 
 class PacedSession(Session):
-    """Paced mode: one step per timer tick whatever has arrived (the contract a driver for
-    real hardware implements)."""
+    """Paced mode: a step when the wall clock says it is due, whatever has arrived (the
+    contract a driver for real hardware implements; hw_sim/pacing.py). Once the graph is
+    ready, every axis without its command at a step's deadline counts as a missed deadline,
+    and an axis without any for `command_timeout` s faults the machine (a drive's watchdog:
+    its controller is dead or hung). A timer call that finds more than one step due means
+    hw_sim itself ran late: it takes one step (the controllers must see every state: a
+    simulator that caught up would skip states they answer), counts the periods it slipped
+    as overruns and shifts the schedule by as many periods (hw_sim/pacing.py); slipped more than
+    `command_timeout` s, its process did not run (stopped, starved): the machine faults, as
+    in lock-step mode."""
     mode = 'paced'
 
     def __init__(self, sim: MachineSimulator, clock: StepClock, io: SessionIO, *, real_time_factor: float = 0.1,
-                 **common):
+                 command_timeout: float = 5.0, **common):
         super().__init__(sim, clock, io, **common)
-        self.real_time_factor = real_time_factor
+        self.real_time_factor, self.command_timeout = real_time_factor, command_timeout
+        self.pacer = WallClockPacer(self.timer_period)
+        self.step_latency = LatencyHistogram()
+        self.overruns = 0                        # periods hw_sim slipped behind the wall clock
         self._latest: dict[str, float] = {}      # the current step's command per axis
         self._commanded: set[str] = set()        # axes commanded at least once (until ready)
+        self._commanded_at: dict[str, float] = {}     # wall time of each axis's newest command
 
     @property
     def timer_period(self) -> float:
         return self.clock.period / self.real_time_factor
 
+    def start(self, now: float) -> None:
+        self.pacer.restart(now, self.lockstep.step)
+        super().start(now)
+
     def on_timer(self, now: float) -> None:
-        """Take a step with the commands in hand; hold the previous one for axes without."""
+        """Take the next step once due, with the commands in hand, holding the previous
+        command of each axis without one."""
+        step = self.lockstep.step
+        slipped = self.pacer.due(now) - step - 1
+        if slipped < 0:
+            return                               # a timer call before the next step is due
+        if self.ready:
+            self.pacer.tick_lateness.add(self.pacer.lateness(now, step + 1))
+        if slipped:
+            if slipped * self.timer_period > self.command_timeout:
+                self.fault(f'hw_sim stalled: {slipped * self.timer_period:.1f} s behind the wall clock (its process '
+                           f'did not run: stopped or starved; limit command_timeout {self.command_timeout:g} s)', now)
+            if self.ready:
+                self.overruns += slipped
+            self.pacer.slip(now, step + 1)
         axes = self.lockstep.axis_names
-        missed = [a for a in axes if a not in self._latest]
-        self.missed_deadlines += len(missed)
+        if self.ready:
+            waiting = len(axes) - len(self._latest)
+            if waiting:                          # not all in hand: latency at least this long
+                self.step_latency.add(now - self._step_started_at)
+                self.missed_deadlines += waiting
+                silent = [a for a in axes if now - self._commanded_at[a] > self.command_timeout]
+                if silent:
+                    self.fault(f'missing command for {" ".join(silent)} (none within {self.command_timeout:g} s)', now)
         held = dict(zip(axes, self.sim.applied))
         commands = [self._latest.get(a, held[a]) for a in axes]
         self._latest.clear()
-        self.lockstep.restart(self.lockstep.step + 1)
+        self.lockstep.restart(step + 1)
         self._advance(commands, now)
+
+    def status(self, now: float) -> Status:
+        status = super().status(now)
+        status.values.update({'overruns': self.overruns, **self.step_latency.summary('step_latency'),
+                              **self.pacer.tick_lateness.summary('tick_lateness')})
+        return status
 
     def _take(self, step: int, names, values, now: float) -> None:
         if step == self.lockstep.step and len(values) == len(names):
+            waiting = len(self._latest) < len(self.lockstep.axis_names)
             self._latest.update((n, v) for n, v in zip(names, values) if n in self.lockstep.axis_names)
+            self._commanded_at.update((n, now) for n in names if n in self.lockstep.axis_names)
             if not self.ready:
                 self._commanded.update(self._latest)
                 self.ready = len(self._commanded) == len(self.lockstep.axis_names)
+            elif waiting and len(self._latest) == len(self.lockstep.axis_names):
+                self.step_latency.add(now - self._step_started_at)      # the step's last command

@@ -50,6 +50,7 @@ ARGUMENTS = (
     ('machine', 'micromill_9axis', 'machine name (config/machines/) or YAML path'),
     ('namespace', '', 'ROS namespace of the graph (default: the root)'),
     ('record', '', 'bag directory to record into (default: no recording)'),
+    ('paced', '', 'hw_sim steps on the wall clock at this real-time factor, in (0, 1] (default: lock-step)'),
     ('dual_stage', 'true', 'dual-stage coupling on at start (true/false)'),
     ('compensation', '', 'geometric error model YAML: compensation on (default: off)'),
     ('identified', '', 'belief files of machine-ctrl identify --out, comma-separated: the servos\' values'),
@@ -78,6 +79,16 @@ def _flag(name: str, text: str) -> bool:
     raise ValueError(f'launch argument {name}:={text!r} must be true or false')
 
 
+def _factor(text: str) -> float | None:
+    """paced:= as a number (None: empty, lock-step); its range is checked with hw_sim's parameter."""
+    if not text.strip():
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f'launch argument paced:={text!r} must be a real-time factor in (0, 1]') from None
+
+
 def _executable(spec) -> str:
     return spec.module.rsplit('.', 1)[-1]          # setup.py EXECUTABLES: the module's name
 
@@ -98,7 +109,7 @@ def _nodes(context):
     namespace = contract.normal_namespace(value['namespace'])
     record = value['record'] or None
     specs = graph_specs(machine, _flag('dual_stage', value['dual_stage']), value['compensation'] or None,
-                        record is not None, namespace=namespace, belief=belief)
+                        record is not None, namespace=namespace, belief=belief, paced=_factor(value['paced']))
     if record is not None:
         from machine_ctrl.app.cli.common import fresh_directory
         fresh_directory(record)

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from machine_ctrl.recording import analysis
 
@@ -113,3 +114,47 @@ def test_a_node_takes_its_parameters_from_a_params_file(ros_supervisor, ros_node
         assert values[1].string_value == str(micromill.yaml_path)  # from -p
     finally:
         executor.shutdown()
+
+
+def test_paced_bringup_steps_on_the_wall_clock_moves_records_and_reports_its_timing(
+        ros_supervisor, ros_env, ros_node, tmp_path, trt):
+    """`bringup trt_5axis --paced --real-time-factor 0.2 --single-process --record`: hw_sim
+    steps on the wall clock (never ahead of it: at most 200 steps per wall second), a move
+    succeeds, hw_sim's diagnostics carry the paced timing (the step latency of every step
+    since ready, its percentiles in order), and the recording (which hw_sim does not wait for
+    when paced) holds the move."""
+    import time
+
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    bag = tmp_path / 'bag'
+    child = ros_supervisor.start('bringup', [EXE, 'bringup', 'trt_5axis', '--paced', '--real-time-factor', '0.2',
+                                             '--single-process', '--record', str(bag)])
+    ros_supervisor.wait_for_line('bringup', 'paced by the wall clock at 0.2x real time', timeout=60)
+    ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
+    done = client(ros_env, 'move', 'x=0.01', '--machine', 'trt_5axis')
+    assert done.returncode == 0, done.stderr
+
+    node = ros_node('paced_probe')
+    heard = []                                     # (wall time, hw_sim's values)
+    node.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: heard.extend(
+        (time.monotonic(), {kv.key: kv.value for kv in s.values}) for s in msg.status if s.name == 'hw_sim'), 10)
+    executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    deadline = time.monotonic() + 60
+    while len(heard) < 4 and time.monotonic() < deadline:       # 1 Hz: three whole seconds between first and last
+        executor.spin_once(timeout_sec=0.1)
+    executor.shutdown()
+    assert len(heard) >= 4, heard
+    (t0, first), (t1, last) = heard[0], heard[-1]
+    assert first['mode'] == 'paced' and last['fault'] == ''
+    assert int(last['step']) - int(first['step']) <= 200 * (t1 - t0) * 1.05 + 2     # never ahead of the wall clock
+    assert int(last['step_latency_count']) > 0 and int(last['overruns']) >= 0 and int(last['missed_deadlines']) >= 0
+    p50, p99, top = (float(last[f'step_latency_{k}']) for k in ('p50', 'p99', 'max'))
+    assert 0.0 < p50 <= p99 <= top
+
+    child.signal_group(signal.SIGINT)
+    assert ros_supervisor.wait('bringup', timeout=120) == 0
+    run = analysis.load(bag)
+    assert run.reference[-1][0] == pytest.approx(0.01, abs=1e-9)       # the move's goal, recorded

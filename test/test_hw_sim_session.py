@@ -268,8 +268,11 @@ def test_diagnostics_keys(make):
     assert list(status.values) == keys and status.fault is None and status.message == 'running, step 0'
     assert status.values['mode'] == 'lockstep' and status.values['waiting_for'] == 'x_f y_f z_f a_f b_f c_f'
     assert list(make(recorder_window=5)[0].status(0.0).values) == keys + gate_keys
+    paced_keys = ['overruns'] + [f'{name}_{what}' for name in ('step_latency', 'tick_lateness')
+                                 for what in ('count', 'p50', 'p99', 'max')]
     paced = make(PacedSession)[0].status(0.0).values
-    assert list(paced) == keys and paced['mode'] == 'paced' and paced['waiting_for'] == ''
+    assert list(paced) == keys + paced_keys and paced['mode'] == 'paced' and paced['waiting_for'] == ''
+    assert paced['step_latency_count'] == 0 and paced['step_latency_p99'] == '' and paced['overruns'] == 0
 
 
 # -- the recorder window ------------------------------------------------------------------
@@ -465,3 +468,87 @@ def test_a_recorder_that_has_written_nothing_holds_step_0_until_it_has_state_0(m
     assert s.step == 0 and ('state', 0) in io.take()
     s.on_progress(0, 0, 0.6)                      # state 0 is in the bag
     assert s.step == 1
+
+
+def test_paced_mode_counts_nothing_before_the_graph_is_ready(make):
+    s, _ = make(PacedSession, real_time_factor=0.1)          # 1 ms per step of wall time
+    command(s, 0, COARSE)
+    s.on_timer(now=0.001)
+    s.on_timer(now=0.0045)                         # 2 periods slipped, but not ready: not counted
+    assert s.step == 2 and not s.ready
+    assert s.missed_deadlines == 0 and s.overruns == 0 and s.step_latency.count == 0
+
+
+def test_paced_mode_steps_when_due_and_slips_when_hw_sim_itself_is_late(make, micromill):
+    """A step at each due time; a timer call more than a period late takes one step (the
+    controllers see every state), counts the periods slipped and shifts the schedule by them."""
+    s, io = make(PacedSession, real_time_factor=0.1)          # 1 ms per step
+    reference = MachineSimulator(micromill)
+    first = [1e-3, -1e-3, 2e-3, 1e-4, 0.0, -1e-4, 1e-3, 0.0, 5e-4]
+    command(s, 0, AXES, first, now=0.0004)
+    s.on_timer(now=0.0009)                         # before step 1 is due: nothing happens
+    assert s.step == 0
+    s.on_timer(now=0.001)
+    reference.step(first)
+    assert s.ready and s.step == 1
+    io.take()
+    command(s, 1, COARSE, [2e-3, 0.0, -2e-3], now=0.0012)
+    s.on_timer(now=0.0042)                         # step 2 was due at 2 ms: 2 periods slipped
+    reference.step([2e-3, 0.0, -2e-3] + first[3:])
+    assert s.step == 2 and s.overruns == 2 and s.missed_deadlines == 6     # the fine axes at step 1
+    assert s.sim.measurement == reference.measurement and io.states() == [2]
+    s.on_timer(now=0.0049)                         # step 2 now counts as due at 4 ms (the timer's phase kept)
+    assert s.step == 2
+    s.on_timer(now=0.0050)
+    assert s.step == 3 and s.overruns == 2
+    status = s.status(0.0050).values
+    assert status['overruns'] == 2 and status['tick_lateness_count'] == 3
+    # the tick lateness: step 2 due at 2 ms, called at 4.2 ms
+    assert float(status['tick_lateness_max']) == pytest.approx(0.0022)
+
+
+def test_paced_mode_measures_each_step_latency(make):
+    """State out to the step's last command in; a step missed is counted with what it had
+    waited at its deadline (a lower bound)."""
+    s, _ = make(PacedSession, real_time_factor=0.1)          # 1 ms per step
+    command(s, 0, now=0.0003)
+    s.on_timer(now=0.001)                          # ready with step 0's answers: not timed
+    assert s.ready and s.step_latency.count == 0
+    command(s, 1, COARSE, now=0.0011)
+    command(s, 1, FINE, now=0.0014)                # complete 0.4 ms after the state went out
+    command(s, 1, FINE, now=0.0016)                # a repeat changes nothing
+    s.on_timer(now=0.002)
+    command(s, 2, COARSE, now=0.0021)              # the fine axes never answer step 2
+    s.on_timer(now=0.0030)
+    assert s.step_latency.count == 2 and s.missed_deadlines == 6
+    assert s.step_latency.maximum == pytest.approx(0.001)
+    assert 0.0004 <= s.step_latency.percentile(50) <= 0.0004 * 1.02
+    assert s.step_latency.percentile(100) == pytest.approx(0.001)
+
+
+def test_paced_mode_faults_when_hw_sim_itself_stalls(make):
+    s, io = make(PacedSession, real_time_factor=0.1, command_timeout=0.5)
+    command(s, 0)
+    s.on_timer(now=0.001)
+    io.take()
+    s.on_timer(now=0.9)                            # 0.9 s without a call: 898 periods slipped
+    events = io.take()
+    assert events[0] == ('fault', 'hw_sim stalled: 0.9 s behind the wall clock (its process did not run: '
+                                  'stopped or starved; limit command_timeout 0.5 s)')
+    assert s.step == 2 and s.overruns == 898 and s.sim.fault is not None
+    s.on_timer(now=0.901)                          # the schedule starts again from the stall
+    assert s.step == 3
+
+
+def test_paced_mode_faults_on_an_axis_silent_for_the_command_timeout(make):
+    """A drive's watchdog: held commands are fine for a while, an axis whose controller has
+    said nothing for command_timeout faults the machine, named."""
+    s, io = make(PacedSession, real_time_factor=0.1, command_timeout=0.05)      # 1 ms per step
+    command(s, 0, now=0.0)
+    k = 1
+    while s.sim.fault is None and k < 200:
+        s.on_timer(now=k * 0.001)
+        command(s, s.step, COARSE, now=k * 0.001)                   # the fine servo is silent
+        k += 1
+    assert s.sim.fault == 'missing command for x_f y_f z_f a_f b_f c_f (none within 0.05 s)'
+    assert 50 <= k <= 53

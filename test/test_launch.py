@@ -310,3 +310,13 @@ def test_a_belief_file_that_cannot_be_read_stops_the_launch_before_any_node_star
     text = result.stdout + result.stderr
     assert result.returncode != 0 and str(missing) in text, text[-3000:]
     assert 'process started' not in text, text[-3000:]
+
+
+@pytest.mark.parametrize('value, reason', [('2', 'real_time_factor: must be in (0, 1], got 2.0'),
+                                           ('fast', "paced:='fast' must be a real-time factor in (0, 1]")])
+def test_a_bad_paced_factor_stops_the_launch_before_any_node_starts(cli_env, value, reason):
+    result = subprocess.run([str(ROS2), 'launch', 'machine_ctrl', 'bringup.launch.py', f'paced:={value}'],
+                            env=cli_env, capture_output=True, text=True, timeout=EXIT_TIMEOUT, start_new_session=True)
+    text = result.stdout + result.stderr
+    assert result.returncode != 0 and reason in text, text[-3000:]
+    assert 'process started' not in text, text[-3000:]

@@ -103,6 +103,25 @@ def test_a_real_jump_is_taken_when_re_sent(answerer):
     assert inputs['computed'] == [0, 7]
 
 
+def test_a_jump_confirmed_by_its_successor_is_taken_there(answerer):
+    """States lost on the way (paced mode, a queue overrun): the state after the gap is
+    refused, its successor confirms the gap and is answered."""
+    a, inputs = answerer
+    inputs['ready'].update(range(20))
+    a.on_state(0, 'state 0', now=0.0)
+    with pytest.raises(InvalidMessage, match='skips ahead'):
+        a.on_state(7, 'state 7', now=0.0)
+    a.on_state(8, 'state 8', now=0.0)
+    a.on_state(9, 'state 9', now=0.0)
+    assert inputs['computed'] == [0, 8, 9]
+    with pytest.raises(InvalidMessage, match='skips ahead'):
+        a.on_state(15, 'state 15', now=0.0)
+    with pytest.raises(InvalidMessage, match='skips ahead'):      # neither 15 again nor 16: refused too
+        a.on_state(17, 'state 17', now=0.0)
+    a.on_state(10, 'state 10', now=0.0)
+    assert inputs['computed'] == [0, 8, 9, 10]
+
+
 def test_states_arriving_while_one_waits_are_not_skips(answerer):
     a, inputs = answerer
     a.on_state(0, 'state 0', now=0.0)            # inputs of 0 missing: pending

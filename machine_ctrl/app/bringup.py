@@ -54,13 +54,18 @@ API = [(item.name, item.type.replace('/msg/', '/').replace('/srv/', '/'), item.d
 
 
 def graph_specs(machine: MachineConfig, dual_stage: bool = True, compensation: str | None = None,
-                record: bool = False, namespace: str = '', belief=()) -> list[NodeSpec]:
+                record: bool = False, namespace: str = '', belief=(), paced: float | None = None) -> list[NodeSpec]:
     """The bringup graph: the default graph with the trajectory node and contour_error, in
-    `namespace`, the servo nodes with the controllers' values of the `belief` files; with a
-    recording, hw_sim waits at step 0 for every joint-state reader and the recorder."""
-    specs = default_graph(machine, contour=None, dual_stage=dual_stage, compensation_model=compensation,
+    `namespace`, the servo nodes with the controllers' values of the `belief` files. hw_sim
+    steps in lock-step, or with `paced` (a real-time factor in (0, 1]; ValueError outside) on
+    the wall clock. With a recording in lock-step, hw_sim waits at step 0 for every
+    joint-state reader and the recorder and holds for the recorder; paced, it waits for no
+    one (real hardware does not): the recorder may miss the first steps and, falling behind,
+    lose states (it counts them)."""
+    hw_sim = None if paced is None else {'mode': 'paced', 'real_time_factor': paced}
+    specs = default_graph(machine, contour=None, dual_stage=dual_stage, hw_sim=hw_sim, compensation_model=compensation,
                           contour_error=True, namespace=namespace, belief=belief)
-    return held_for_recorder(specs, RECORDER_WINDOW) if record else specs
+    return held_for_recorder(specs, RECORDER_WINDOW) if record and paced is None else specs
 
 
 def held_for_recorder(specs: list[NodeSpec], window: int) -> list[NodeSpec]:
@@ -107,7 +112,7 @@ class Bringup:
     def __init__(self, machine: MachineConfig, *, single_process: bool = False, record: str | None = None,
                  dual_stage: bool = True, compensation: str | None = None, env=None,
                  log_dir: str | None = None, namespace: str = '', stop_on_recording_loss: bool = False,
-                 view: int | None = None, belief=()):
+                 view: int | None = None, belief=(), paced: float | None = None):
         self.machine, self.single_process, self.record = machine, single_process, record
         self.view = view                    # the live view's port (None: no view)
         self.stop_on_recording_loss = stop_on_recording_loss
@@ -115,7 +120,7 @@ class Bringup:
         self.recording_lost: str | None = None
         self.notices: list[str] = []        # lines for the shell (recording lost), taken by run()
         self.namespace = namespace
-        self.specs = graph_specs(machine, dual_stage, compensation, record is not None, namespace, belief)
+        self.specs = graph_specs(machine, dual_stage, compensation, record is not None, namespace, belief, paced)
         self.dual_stage, self.compensation = dual_stage, compensation
         self.log_dir = Path(log_dir or tempfile.mkdtemp(prefix='machine_ctrl_bringup_'))
         self.graph = Supervisor(env, log_dir=self.log_dir, stop_timeout=5.0)
@@ -359,15 +364,17 @@ def run(args, machine: MachineConfig) -> int:
     from machine_ctrl.app.client import Timeout
     status = 0
     namespace = getattr(args, 'namespace', '')
+    paced = (getattr(args, 'real_time_factor', None) or 1.0) if getattr(args, 'paced', False) else None
     try:
         with monitor(machine, 'bringup_monitor', namespace=namespace) as client, \
                 Bringup(machine, single_process=args.single_process, record=args.record,
                         dual_stage=not args.no_dual_stage, compensation=args.compensation,
                         namespace=namespace, view=getattr(args, 'view', None),
-                        belief=getattr(args, 'identified', None) or (),
+                        belief=getattr(args, 'identified', None) or (), paced=paced,
                         stop_on_recording_loss=bool(getattr(args, 'stop_on_recording_loss', False))) as bringup:
             try:
                 print(f'starting {len(bringup.specs)} nodes ({"one process" if args.single_process else "one process each"})'
+                      f'{"" if paced is None else f", paced by the wall clock at {paced:g}x real time"}'
                       f'{", recording to " + args.record if args.record else ""}; logs in {bringup.log_dir}', flush=True)
                 recorder_status = RecorderStatus(client) if args.record else None
                 bringup.start()

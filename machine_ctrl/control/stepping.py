@@ -22,9 +22,12 @@ class StepAnswerer:
     `compute(step, state)` returns the answer, or None to give no answer; `send(answer)`
     sends it. A repeated stamp (hw_sim re-sends while waiting) gets the cached answer again;
     older stamps are ignored. A stamp more than one step ahead of the newest step seen is
-    refused (InvalidMessage) unless it comes twice in a row: hw_sim never skips a step and
-    re-sends a state it waits on, so a stray message with a future stamp cannot make the
-    node skip the real steps (and stop the machine on missing commands).
+    refused (InvalidMessage) unless it is confirmed: it comes again (hw_sim re-sends a state
+    it waits on in lock-step) or the next state is its successor (states lost on the way: in
+    paced mode hw_sim does not wait, and a queue overrun under load drops states; the
+    successor is then answered). hw_sim never skips a step, so a stray message with a
+    future stamp cannot make the node skip the real steps (and stop the machine on missing
+    commands): the real step that follows it is not its successor.
     """
 
     def __init__(self, send, ready, compute, timeout: float, streaming):
@@ -54,10 +57,12 @@ class StepAnswerer:
             if step == self.answered[0]:
                 self.send(self.answered[1])
             return
-        if self.newest is not None and step > self.newest + 1 and step != self.skip_candidate:
-            self.skip_candidate = step
-            raise InvalidMessage(f'state of step {step} skips ahead of step {self.newest + 1} '
-                                 '(taken only if it comes again)')
+        if self.newest is not None and step > self.newest + 1:
+            candidate = self.skip_candidate
+            if candidate is None or step not in (candidate, candidate + 1):
+                self.skip_candidate = step
+                raise InvalidMessage(f'state of step {step} skips ahead of step {self.newest + 1} '
+                                     '(taken only if it comes again or its next step follows)')
         self.newest = step if self.newest is None else max(self.newest, step)
         self.skip_candidate = None
         if self.pending is None or self.pending[0] != step:     # a re-send keeps its first arrival

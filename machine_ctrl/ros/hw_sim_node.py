@@ -36,11 +36,14 @@ session says:
   while the recorder reports step -1 (none written yet); a recorder that leaves the graph
   releases the hold. Holding delays a run, it never changes it.
 * paced: steps on the wall clock at `real_time_factor`, applying the latest command of
-  each axis (zero-order hold) and counting missed deadlines — the contract a driver for
-  real hardware implements.
+  each axis (zero-order hold) and counting missed deadlines, with the step latency and
+  hw_sim's own tick lateness as percentiles on /diagnostics (hw_sim/pacing.py) — the
+  contract a driver for real hardware implements.
 
 Faults (machine stopped, the node keeps running and reporting): a non-finite command, a
-stroke violation, a command missing for `command_timeout` s (lock-step, from step 1 on).
+stroke violation, a command missing for `command_timeout` s (lock-step: from step 1 on;
+paced: an axis without any command that long once the graph is ready), hw_sim's own process
+not run for that long (both modes).
 Malformed commands and progress reports are refused with the reason on /diagnostics and
 change nothing.
 """
@@ -86,7 +89,7 @@ class HwSimNode(Node):
                                            recorder_window=values.recorder_window, **common)
         else:
             self.session = PacedSession(self.sim, self.clock, self, real_time_factor=values.real_time_factor,
-                                        **common)
+                                        command_timeout=values.command_timeout, **common)
         self.encoder = JointStateEncoder(axes)
         try:
             self.true_tool_pose = true_geometry(self.machine, Kinematics.from_config(self.machine))
@@ -125,8 +128,9 @@ class HwSimNode(Node):
                                    if values.recorder_window > 0 else None)
         self.create_service(Trigger, contract.RESET.name, self.on_reset)
         wall_timer(self, 1.0, self.publish_diagnostics)
+        started = time.monotonic()              # before the timer: its calls come at or after the steps' due times
         wall_timer(self, self.session.timer_period, self.on_timer)
-        self.session.start(time.monotonic())
+        self.session.start(started)
         self.get_logger().info(f'ready: {self.machine.name}, {values.mode}, {len(axes)} axes')
 
     def check_parameters(self, initial) -> None:

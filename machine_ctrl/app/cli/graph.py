@@ -19,9 +19,21 @@ from machine_ctrl.app.cli.common import error, fresh_directory, namespace_option
 from machine_ctrl.app.demo import DEFAULT_TURNS as DEMO_TURNS
 from machine_ctrl.model.config import DEFAULT_MACHINE, load_machine
 from machine_ctrl.model.errors import ConfigError
-from machine_ctrl.parameters import VIEW
+from machine_ctrl.parameters import HW_SIM, VIEW, validate
 
 VIEW_PORT = VIEW.spec('port').default
+
+
+def real_time_factor(text: str) -> float:
+    """argparse type: hw_sim's real_time_factor, checked by its parameter's own rule."""
+    import argparse
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a number, got {text!r}') from None
+    if (problem := validate(HW_SIM.spec('real_time_factor'), value)) is not None:
+        raise argparse.ArgumentTypeError(problem)
+    return value
 
 
 def register(subparsers) -> None:
@@ -32,6 +44,11 @@ def register(subparsers) -> None:
     bring.add_argument('--stop-on-recording-loss', action='store_true',
                        help='with --record: stop the whole graph if the recording stops (recorder killed, disk '
                             'full); default: say so and keep the machine running')
+    bring.add_argument('--paced', action='store_true',
+                       help='hw_sim steps on the wall clock, as real hardware does, counting missed deadlines and '
+                            'the step latency in its diagnostics (default: lock-step, every command awaited)')
+    bring.add_argument('--real-time-factor', type=real_time_factor, metavar='F',
+                       help='with --paced: sim time per wall time, in (0, 1] (default 1)')
     bring.add_argument('--no-dual-stage', action='store_true', help='start with the dual-stage coupling off')
     bring.add_argument('--compensation', metavar='MODEL', help='geometric error model: compensation on')
     bring.add_argument('--identified', metavar='FILE', action='append', default=[],
@@ -77,6 +94,8 @@ def register(subparsers) -> None:
 
 def cmd_bringup(args) -> int:
     from machine_ctrl.app import bringup
+    if args.real_time_factor is not None and not args.paced:
+        return error('bringup', ValueError('--real-time-factor needs --paced'))
     machine = load_machine(args.machine)
     if args.identified:                       # a bad belief file: one line here, not a dead node
         load_machine(args.machine, belief=args.identified)
