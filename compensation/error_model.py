@@ -1,9 +1,9 @@
 """Error-augmented forward kinematics (Yuen thesis, seed 000_d9dd5f6a818770e4.txt, §5.2,
 Eqs. 5.1-5.7), evaluated for many configurations at once.
 
-The chain is the ideal one of :class:`machine_ctrl.model.kinematics.Kinematics`, read from its
-Pinocchio model (joint placements, joint types and axes, frame placements), so there is one
-definition of the machine. Each joint j contributes
+The chain is the ideal one of :class:`machine_ctrl.model.kinematics.Kinematics`, walked by
+machine_ctrl/model/chain.py (one definition of the machine, read from its Pinocchio model),
+with each joint's errors added after its motion. Each joint j contributes
 
     placement_j  motion_j(q_j)  E_j(q_j)                                    (Eqs. 5.3-5.5)
 
@@ -26,83 +26,10 @@ from __future__ import annotations
 import numpy as np
 
 from compensation.error_map import DIRECTIONS, ErrorMap
+from machine_ctrl.model.chain import ChainJoint, chain, end_frame, walk
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.model.kinematics import Kinematics
-
-_AXES = {'X': 0, 'Y': 1, 'Z': 2}
-
-
-class _Joint:
-    """One joint of a chain: constant placement, motion along/about a unit axis, errors."""
-
-    def __init__(self, name, index, prismatic, axis, placement):
-        self.name, self.index, self.prismatic = name, index, prismatic
-        self.axis = axis
-        self.rotation, self.translation = placement.rotation.copy(), placement.translation.copy()
-        self.errors = None                      # AxisErrors or None
-        self.squareness = np.zeros(3)           # sum of gamma * (e_about x axis)
-
-    def freeze(self) -> None:
-        """Precompute what every walk uses, once errors and squareness are set."""
-        self.turns = bool((self.rotation != np.eye(3)).any())
-        self.translation_terms = _terms(self.translation)
-        self.axis_terms = _terms(self.axis)
-        self.motion_terms = _terms(self.axis + self.squareness)
-
-
-def _joint_kind(shortname: str, model_name: str) -> tuple[bool, np.ndarray]:
-    """(prismatic?, unit axis) of an axis-aligned Pinocchio joint model."""
-    for prefix, prismatic in (('JointModelP', True), ('JointModelRUB', False), ('JointModelR', False)):
-        rest = shortname[len(prefix):]
-        if shortname.startswith(prefix) and rest in _AXES:
-            axis = np.zeros(3)
-            axis[_AXES[rest]] = 1.0
-            return prismatic, axis
-    raise ConfigError(f'joint {model_name!r}: {shortname} is not supported by the error model '
-                      '(axis-aligned prismatic/revolute joints only)')
-
-
-def _chain(kinematics: Kinematics, frame_name: str) -> tuple[list[_Joint], object]:
-    model = kinematics.model
-    frame = model.frames[model.getFrameId(frame_name)]
-    ids, j = [], frame.parentJoint
-    while j > 0:
-        ids.append(j)
-        j = model.parents[j]
-    joints = []
-    for j in reversed(ids):
-        name = model.names[j]
-        prismatic, axis = _joint_kind(model.joints[j].shortname(), name)
-        joints.append(_Joint(name, kinematics.axis_names.index(name), prismatic, axis,
-                             model.jointPlacements[j]))
-    return joints, frame.placement
-
-
-def _rotate(rot: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """rot @ (rotation by `angle` about the coordinate axis `axis`), (N, 3, 3): only two
-    columns change (the product with Pinocchio's exact cos/sin matrix, without the zeros)."""
-    i = int(np.argmax(axis))
-    a, b = (i + 1) % 3, (i + 2) % 3
-    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    out = rot.copy()
-    out[:, :, a] = rot[:, :, a] * c + rot[:, :, b] * s
-    out[:, :, b] = rot[:, :, b] * c - rot[:, :, a] * s
-    return out
-
-
-def _terms(vector: np.ndarray) -> tuple[tuple[int, float], ...]:
-    """The non-zero components (index, value) of a constant vector."""
-    return tuple((int(k), float(vector[k])) for k in np.flatnonzero(vector))
-
-
-def _apply(rot: np.ndarray, terms) -> np.ndarray:
-    """rot @ vector for a constant vector given by its _terms, summing only those."""
-    out = np.zeros(rot.shape[:2])
-    for k, value in terms:
-        out += rot[:, :, k] * value
-    return out
-
 
 def _error_matrix(errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotation part I + skew(eps) and translation delta of Eq. (5.1), (N, 3, 3) and (N, 3)."""
@@ -122,13 +49,12 @@ class ErrorKinematics:
                  error_map: ErrorMap | None = None):
         self.axis_names = kinematics.axis_names
         self.error_map = error_map or ErrorMap()
-        self._workpiece, workpiece_end = _chain(kinematics, workpiece_frame)
-        self._tool, tool_end = _chain(kinematics, tool_frame)
-        self._workpiece_frame = (workpiece_end.rotation.copy(), _terms(workpiece_end.translation))
-        self._tool_frame = (tool_end.rotation.copy(), _terms(tool_end.translation))
+        self._workpiece, workpiece_end = chain(kinematics.model, self.axis_names, workpiece_frame)
+        self._tool, tool_end = chain(kinematics.model, self.axis_names, tool_frame)
+        self._workpiece_frame, self._tool_frame = end_frame(workpiece_end), end_frame(tool_end)
         by_name = {j.name: j for j in self._workpiece + self._tool}
-        for name, errors in self.error_map.axes.items():
-            by_name[name].errors = errors
+        self._errors = dict(self.error_map.axes)                  # axis -> its error functions
+        self._squareness = {name: np.zeros(3) for name in by_name}   # sum of gamma * (e_about x axis)
         for sq in self.error_map.squareness:
             joint = by_name[sq.axis]
             about = np.zeros(3)
@@ -136,8 +62,9 @@ class ErrorKinematics:
             if not joint.prismatic:
                 raise ConfigError(f'{self.error_map.source}: squareness of {sq.axis}: '
                                   'only linear axes have a squareness error')
-            joint.squareness = joint.squareness + sq.angle * np.cross(about, joint.axis)
+            self._squareness[sq.axis] = self._squareness[sq.axis] + sq.angle * np.cross(about, joint.axis)
         for joint in by_name.values():
+            joint.motion = joint.axis + self._squareness[joint.name]
             joint.freeze()
 
     @classmethod
@@ -146,12 +73,11 @@ class ErrorKinematics:
         return cls(kinematics or Kinematics.from_config(machine), machine.workpiece_frame,
                    machine.tool_frame, error_map)
 
-    def _joint(self, axis: str) -> _Joint:
+    def _joint(self, axis: str) -> ChainJoint:
         return next(j for j in self._workpiece + self._tool if j.name == axis)
 
     def has_errors(self, axis: str) -> bool:
-        joint = self._joint(axis)
-        return joint.errors is not None or bool(joint.squareness.any())
+        return axis in self._errors or bool(self._squareness[axis].any())
 
     def direction(self, axis: str) -> int:
         """Index (0 x, 1 y, 2 z) of the axis's direction of motion in its own frame."""
@@ -160,35 +86,21 @@ class ErrorKinematics:
     def axis_errors(self, axis: str, q) -> np.ndarray:
         """(N, 6) [dx dy dz ex ey ez] of one axis at positions q, squareness included (as the
         straightness it causes relative to the nominal directions)."""
-        joint, q = self._joint(axis), np.asarray(q, float)
-        out = np.zeros((len(q), 6)) if joint.errors is None else joint.errors.evaluate(q)
-        out[:, :3] += joint.squareness * q[:, None]
+        q = np.asarray(q, float)
+        out = self._errors[axis].evaluate(q) if axis in self._errors else np.zeros((len(q), 6))
+        out[:, :3] += self._squareness[axis] * q[:, None]
         return out
 
     def _walk(self, joints, frame, q, want):
-        """Base pose (R, p) of the chain's end frame; for axes in `want` also the base
-        direction and origin of the joint axis (for the Jacobian)."""
-        n = q.shape[0]
-        rot = np.broadcast_to(np.eye(3), (n, 3, 3))
-        pos = np.zeros((n, 3))
-        axes = {}
-        for j in joints:
-            pos = pos + _apply(rot, j.translation_terms)
-            if j.turns:
-                rot = rot @ j.rotation
-            qj = q[:, j.index]
-            if j.name in want:
-                axes[j.name] = (_apply(rot, j.axis_terms), pos)
-            if j.prismatic:
-                pos = pos + _apply(rot, j.motion_terms) * qj[:, None]
-            else:
-                rot = _rotate(rot, j.axis, qj)
-            if j.errors is not None:
-                e_rot, e_pos = _error_matrix(j.errors.evaluate(qj))
-                pos = pos + np.einsum('nij,nj->ni', rot, e_pos)
-                rot = rot @ e_rot
-        frame_rotation, frame_terms = frame
-        return rot @ frame_rotation, pos + _apply(rot, frame_terms), axes
+        """machine_ctrl.model.chain.walk with each joint's errors after its motion (Eq. 5.3)."""
+        return walk(joints, frame, q, want, self._with_errors)
+
+    def _with_errors(self, joint, qj, rot, pos):
+        errors = self._errors.get(joint.name)
+        if errors is None:
+            return rot, pos
+        e_rot, e_pos = _error_matrix(errors.evaluate(qj))
+        return rot @ e_rot, pos + np.einsum('nij,nj->ni', rot, e_pos)
 
     def tool_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """Rotation (N, 3, 3) and tool-tip position P_a (N, 3) of ^wT_t,a (Eqs. 5.6-5.7)."""

@@ -69,6 +69,19 @@ class LockStep:
         self.step += 1
         return commands
 
+    @property
+    def in_hand(self) -> int:
+        """How many axes have their command for the current step."""
+        return len(self._commands)
+
+    def take_held(self, held) -> list[float]:
+        """The step's commands in axis order, `held[i]` for an axis without one (paced mode's
+        zero-order hold); moves on to the next step."""
+        commands = [self._commands.get(i, held[i]) for i in range(len(self.axis_names))]
+        self._commands.clear()
+        self.step += 1
+        return commands
+
     def restart(self, step: int = 0) -> None:
         self._commands.clear()
         self.step = step

@@ -28,11 +28,12 @@ Modes:
 Faults (the simulator stops: drives off, axes held; the session keeps running and
 reporting): a non-finite command, a stroke violation (found by the simulator), a command
 missing for `command_timeout` s (lock-step, from step 1 on: at step 0 the graph is still
-coming up; never while every command is in hand and the session holds for the recorder).
-In both modes also a stall of hw_sim itself: its process did not run (SIGSTOP, starved) for
-more than `command_timeout` s (:meth:`LockStepSession.watch`, from step 1 on; paced: a timer
-call that far behind the wall clock): whatever the nodes did meanwhile, the machine stops
-rather than go on from a gap.
+coming up; never while every command is in hand and the session holds for the recorder;
+paced, once ready: an axis without any command, on time or late, that long). In both modes
+also a stall of hw_sim itself: its process did not run (SIGSTOP, starved) for more than
+`command_timeout` s (:meth:`LockStepSession.watch`, from step 1 on; paced: a timer call
+that far behind the wall clock, once ready): whatever the nodes did meanwhile, the machine
+stops rather than go on from a gap.
 Malformed commands (unknown or duplicate axes, length mismatch, off-grid or future stamps)
 and progress reports (off-grid, not a published step) are refused with a reason and change
 nothing. A reset clears a fault and restarts the current step from where the axes are
@@ -42,8 +43,9 @@ Readiness (:attr:`Session.ready`, the node publishes it latched on contract.READ
 graph is ready once it has completed its first step — in lock-step mode when every axis has
 answered step 0 and the machine advanced (so every servo had its first state and its first
 reference, and a trajectory node as the reference source had its first state: it streams
-only from then on); in paced mode once every axis has been commanded at least once. It stays
-true (a fault or a reset does not make the graph less up).
+only from then on); in paced mode once every axis has been commanded at least once, in time
+or late (a graph too slow for its pace is up; its diagnostics show the deadlines it misses).
+It stays true (a fault or a reset does not make the graph less up).
 """
 from __future__ import annotations
 
@@ -54,7 +56,7 @@ from machine_ctrl.model.numeric import all_finite
 from hw_sim.lockstep import NOTHING_RECORDED, LockStep, RecorderGate
 from hw_sim.pacing import LatencyHistogram, WallClockPacer
 from hw_sim.simulator import MachineSimulator
-from machine_ctrl.contract import StepClock
+from machine_ctrl.contract import NS_PER_SECOND, StepClock, ns_to_seconds
 from machine_ctrl.model.errors import InvalidMessage
 
 
@@ -320,27 +322,33 @@ class LockStepSession(Session):
 
 class PacedSession(Session):
     """Paced mode: a step when the wall clock says it is due, whatever has arrived (the
-    contract a driver for real hardware implements; hw_sim/pacing.py). Once the graph is
-    ready, every axis without its command at a step's deadline counts as a missed deadline,
-    and an axis without any for `command_timeout` s faults the machine (a drive's watchdog:
-    its controller is dead or hung). A timer call that finds more than one step due means
-    hw_sim itself ran late: it takes one step (the controllers must see every state: a
-    simulator that caught up would skip states they answer), counts the periods it slipped
-    as overruns and shifts the schedule by as many periods (hw_sim/pacing.py); slipped more than
-    `command_timeout` s, its process did not run (stopped, starved): the machine faults, as
-    in lock-step mode."""
+    contract a driver for real hardware implements; hw_sim/pacing.py). Commands are checked
+    as in lock-step (:class:`hw_sim.lockstep.LockStep`: malformed or future ones refused);
+    one for a step already taken is late, counted as stale and dropped. Once the graph is
+    ready, every axis without its command when the next step is due counts as a missed
+    deadline, and an axis without any command, on time or late, for `command_timeout` s
+    faults the machine (a drive's watchdog: its controller is dead or hung; a reset re-arms
+    it). A timer call that finds more than one step due means hw_sim itself ran late: it takes
+    one step (the controllers must see every state: a simulator that caught up would skip
+    states they answer), counts the periods it slipped as overruns and shifts the schedule
+    by as many periods; slipped more than `command_timeout` s once ready, its process did
+    not run (stopped, starved): the machine faults, as in lock-step mode. Before ready a slip
+    only shifts the schedule (the graph is still coming up: in one process the other nodes
+    are built after hw_sim's timer started)."""
     mode = 'paced'
 
     def __init__(self, sim: MachineSimulator, clock: StepClock, io: SessionIO, *, real_time_factor: float = 0.1,
                  command_timeout: float = 5.0, **common):
         super().__init__(sim, clock, io, **common)
         self.real_time_factor, self.command_timeout = real_time_factor, command_timeout
-        self.pacer = WallClockPacer(self.timer_period)
+        # the node's timer runs on whole ns (rclpy truncates its period): the schedule does too,
+        # or it would drift against the timer's calls
+        self.pacer = WallClockPacer(ns_to_seconds(int(self.timer_period * NS_PER_SECOND)))
         self.step_latency = LatencyHistogram()
         self.overruns = 0                        # periods hw_sim slipped behind the wall clock
-        self._latest: dict[str, float] = {}      # the current step's command per axis
         self._commanded: set[str] = set()        # axes commanded at least once (until ready)
         self._commanded_at: dict[str, float] = {}     # wall time of each axis's newest command
+        self._published_at = 0.0                 # wall time the current step's state went out
 
     @property
     def timer_period(self) -> float:
@@ -349,6 +357,12 @@ class PacedSession(Session):
     def start(self, now: float) -> None:
         self.pacer.restart(now, self.lockstep.step)
         super().start(now)
+        self._published_at = now
+
+    def reset(self, now: float) -> str:
+        """As in lock-step; the watchdog starts again for every axis."""
+        self._commanded_at = dict.fromkeys(self.lockstep.axis_names, now)
+        return super().reset(now)
 
     def on_timer(self, now: float) -> None:
         """Take the next step once due, with the commands in hand, holding the previous
@@ -360,26 +374,22 @@ class PacedSession(Session):
         if self.ready:
             self.pacer.tick_lateness.add(self.pacer.lateness(now, step + 1))
         if slipped:
-            if slipped * self.timer_period > self.command_timeout:
-                self.fault(f'hw_sim stalled: {slipped * self.timer_period:.1f} s behind the wall clock (its process '
-                           f'did not run: stopped or starved; limit command_timeout {self.command_timeout:g} s)', now)
             if self.ready:
                 self.overruns += slipped
+                if slipped * self.pacer.period > self.command_timeout:
+                    self.fault(f'hw_sim stalled: {slipped * self.pacer.period:.1f} s behind the wall clock (its '
+                               f'process did not run: stopped or starved; limit command_timeout '
+                               f'{self.command_timeout:g} s)', now)
             self.pacer.slip(now, step + 1)
-        axes = self.lockstep.axis_names
-        if self.ready:
-            waiting = len(axes) - len(self._latest)
-            if waiting:                          # not all in hand: latency at least this long
-                self.step_latency.add(now - self._step_started_at)
-                self.missed_deadlines += waiting
-                silent = [a for a in axes if now - self._commanded_at[a] > self.command_timeout]
-                if silent:
-                    self.fault(f'missing command for {" ".join(silent)} (none within {self.command_timeout:g} s)', now)
-        held = dict(zip(axes, self.sim.applied))
-        commands = [self._latest.get(a, held[a]) for a in axes]
-        self._latest.clear()
-        self.lockstep.restart(step + 1)
-        self._advance(commands, now)
+        waiting = len(self.lockstep.axis_names) - self.lockstep.in_hand
+        if self.ready and waiting:               # not all in hand: latency at least this long
+            self.step_latency.add(now - self._published_at)
+            self.missed_deadlines += waiting
+            silent = [a for a in self.lockstep.axis_names if now - self._commanded_at[a] > self.command_timeout]
+            if silent:
+                self.fault(f'missing command for {" ".join(silent)} (none within {self.command_timeout:g} s)', now)
+        self._advance(self.lockstep.take_held(self.sim.applied), now)
+        self._published_at = now
 
     def status(self, now: float) -> Status:
         status = super().status(now)
@@ -388,12 +398,14 @@ class PacedSession(Session):
         return status
 
     def _take(self, step: int, names, values, now: float) -> None:
-        if step == self.lockstep.step and len(values) == len(names):
-            waiting = len(self._latest) < len(self.lockstep.axis_names)
-            self._latest.update((n, v) for n, v in zip(names, values) if n in self.lockstep.axis_names)
-            self._commanded_at.update((n, now) for n in names if n in self.lockstep.axis_names)
-            if not self.ready:
-                self._commanded.update(self._latest)
-                self.ready = len(self._commanded) == len(self.lockstep.axis_names)
-            elif waiting and len(self._latest) == len(self.lockstep.axis_names):
-                self.step_latency.add(now - self._step_started_at)      # the step's last command
+        complete = self.lockstep.complete()
+        reason = self.lockstep.offer(step, names, values)
+        if reason is not None:
+            self.io.refuse_command(reason)
+            return
+        self._commanded_at.update((n, now) for n in names)     # late ones too: the controller is alive
+        if not self.ready:                       # late ones too: the graph is up, if too slow for the pace
+            self._commanded.update(names)
+            self.ready = len(self._commanded) == len(self.lockstep.axis_names)
+        elif step == self.lockstep.step and not complete and self.lockstep.complete():
+            self.step_latency.add(now - self._published_at)     # the step's last command

@@ -291,8 +291,9 @@ HW_SIM = NodeParameters('hw_sim_node', (
     # assumed: 5 s, above the transport's own stall of a healthy process after a reader's death
     # (up to 2.4 s measured; contract.LIVELINESS_LEASE says why): a dead or stopped node is
     # still detected, a stalled publisher is not taken for one
-    ParameterSpec('command_timeout', DOUBLE, 5.0, 's', 'wall time a command may be late (lock-step) or hw_sim '
-                  'may not run (both modes) before the machine faults', low=0.0, low_open=True),
+    ParameterSpec('command_timeout', DOUBLE, 5.0, 's', 'wall time before the machine faults: a command missing '
+                  '(lock-step), an axis without any command (paced), hw_sim itself not run (both)', low=0.0,
+                  low_open=True),
     ParameterSpec('republish_period', DOUBLE, 0.2, 's', 'lock-step: wall time between re-sends of the state '
                   'waited on', low=0.0, low_open=True),
     ParameterSpec('clock_decimation', INTEGER, 10, 'steps', f'publish {contract.CLOCK.name} every N steps', low=1),

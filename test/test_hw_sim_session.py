@@ -238,7 +238,7 @@ def test_paced_mode_is_ready_once_every_axis_has_been_commanded(make):
     command(s, 0, COARSE)
     s.on_timer(now=0.001)
     assert not s.ready and s.step == 1             # stepping, but the fine axes have not spoken
-    command(s, 1, FINE)
+    command(s, 0, FINE)                            # late (step 0 was taken), but they have
     assert s.ready
 
 
@@ -551,4 +551,52 @@ def test_paced_mode_faults_on_an_axis_silent_for_the_command_timeout(make):
         command(s, s.step, COARSE, now=k * 0.001)                   # the fine servo is silent
         k += 1
     assert s.sim.fault == 'missing command for x_f y_f z_f a_f b_f c_f (none within 0.05 s)'
-    assert 50 <= k <= 53
+    assert k == 52                                 # the first tick more than 50 ms after step 0's answers
+
+
+def test_paced_mode_watchdog_counts_late_commands_as_alive(make):
+    """A controller always a little late (its commands for a step already taken) misses
+    every deadline, each late command counted stale, but is alive: no fault."""
+    s, _ = make(PacedSession, real_time_factor=0.1, command_timeout=0.05)      # 1 ms per step
+    command(s, 0, now=0.0)
+    for k in range(1, 200):
+        s.on_timer(now=k * 0.001)
+        command(s, s.step - 1, now=k * 0.001 + 0.0002)                  # answers the step before
+    assert s.sim.fault is None and s.missed_deadlines == 9 * 198       # step 0 was answered in time
+    assert s.lockstep.stats.stale == 199 and s.status(0.2).values['stale_commands'] == 199
+
+
+def test_a_reset_in_paced_mode_re_arms_the_watchdog(make):
+    s, io = make(PacedSession, real_time_factor=0.1, command_timeout=0.05)
+    command(s, 0, now=0.0)
+    k = 1
+    while s.sim.fault is None:                     # every servo silent: a fault after 50 ms
+        s.on_timer(now=k * 0.001)
+        k += 1
+    assert k == 52 and s.sim.fault.startswith('missing command for x_c')
+    s.reset(now=0.052)
+    for t in (0.053, 0.054, 0.055):                # the servos come back from the third step on
+        s.on_timer(now=t)
+    command(s, s.step, now=0.0555)
+    s.on_timer(now=0.056)
+    assert s.sim.fault is None
+
+
+def test_paced_mode_does_not_fault_on_a_slow_start(make):
+    """In one process hw_sim's timer starts before the other nodes are built: a first call
+    long after the start only shifts the schedule while the graph is not ready."""
+    s, io = make(PacedSession, real_time_factor=0.1, command_timeout=0.5)
+    s.on_timer(now=6.0)
+    assert s.step == 1 and s.sim.fault is None and s.overruns == 0
+    s.on_timer(now=6.0009)
+    assert s.step == 1
+    s.on_timer(now=6.001)
+    assert s.step == 2
+
+
+def test_the_paced_schedule_runs_on_the_timer_s_whole_nanoseconds(make):
+    """rclpy truncates a timer's period to whole ns; the schedule uses the same period, so
+    it keeps the timer's phase however long it runs."""
+    s, _ = make(PacedSession, real_time_factor=0.3)                         # 1e-4 / 0.3 s
+    assert s.pacer.period == 333_333e-9
+    assert s.pacer.due(1e6 * 333_333e-9) == 1_000_000

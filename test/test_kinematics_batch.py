@@ -25,3 +25,14 @@ def test_forward_many_takes_one_row_and_refuses_the_wrong_width(trt_kin, trt):
     np.testing.assert_allclose(p[0], trt_kin.forward(trt.home)[0], atol=1e-15)
     with pytest.raises(ValueError, match='expected rows of 5 axis positions'):
         trt_kin.forward_many(np.zeros((2, 4)))
+
+
+def test_a_machine_the_walk_does_not_take_gets_forward_row_by_row(trt):
+    """Without the walked chains (a joint that is not axis-aligned), forward_many is
+    forward on each row: the same bits."""
+    kinematics = Kinematics.from_config(trt)
+    kinematics._chains = None
+    q = random_configurations(trt, 20, seed=4)
+    positions, axes = kinematics.forward_many(q)
+    assert np.array_equal(positions, [kinematics.forward(row)[0] for row in q])
+    assert np.array_equal(axes, [kinematics.forward(row)[1] for row in q])

@@ -122,6 +122,20 @@ def test_a_jump_confirmed_by_its_successor_is_taken_there(answerer):
     assert inputs['computed'] == [0, 8, 9, 10]
 
 
+def test_a_stray_stream_interleaved_with_the_real_steps_is_refused(answerer):
+    """Another hw_sim's states (a second graph in the domain): a real step between two of
+    them clears the candidate, so its successor is a new stray, refused again. (Two of them
+    back to back would be taken: the rule guards against single strays, README.)"""
+    a, inputs = answerer
+    inputs['ready'].update(range(10))
+    a.on_state(0, 'state 0', now=0.0)
+    for real, stray in ((1, 500), (2, 501), (3, 502)):
+        with pytest.raises(InvalidMessage, match='skips ahead'):
+            a.on_state(stray, 'stray', now=0.0)
+        a.on_state(real, f'state {real}', now=0.0)
+    assert inputs['computed'] == [0, 1, 2, 3]
+
+
 def test_states_arriving_while_one_waits_are_not_skips(answerer):
     a, inputs = answerer
     a.on_state(0, 'state 0', now=0.0)            # inputs of 0 missing: pending

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from machine_ctrl.model.chain import chain, end_frame, walk
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.errors import ConfigError
 
@@ -81,67 +82,38 @@ class Kinematics:
                                     int(np.flatnonzero(gather == self.n + 2 * j + 1)[0]))
                                    for j, i in enumerate(circle_axes))
         self._configuration_buffer = np.zeros(self.model.nq)
-        self._chain = self._plain_chain()
+        try:                 # the two chains as forward_many walks them (None: a joint it does not take)
+            self._chains = tuple(self._walked(frame) for frame in (workpiece_frame, tool_frame))
+        except ConfigError:
+            self._chains = None
 
-    def _plain_chain(self):
-        """The model as plain arrays for :meth:`forward_many`: per joint (in Pinocchio's order,
-        parents first) its parent, placement (R, p), 'P' (prismatic) or 'R' (revolute,
-        continuous included), its axis (0-2) and machine axis (R None: the identity, skipped);
-        None when a joint is of another
-        kind (forward_many then calls forward row by row)."""
-        chain = []
-        for j in range(1, self.model.njoints):
-            kind = self.model.joints[j].shortname().removeprefix('JointModel')
-            kind = {'RUBX': 'RX', 'RUBY': 'RY', 'RUBZ': 'RZ'}.get(kind, kind)
-            if len(kind) != 2 or kind[0] not in 'PR' or kind[1] not in 'XYZ':
-                return None
-            placement = self.model.jointPlacements[j]
-            rotation = None if np.array_equal(placement.rotation, np.eye(3)) else placement.rotation.copy()
-            chain.append((self.model.parents[j], rotation, placement.translation.copy(), kind[0],
-                          'XYZ'.index(kind[1]), self.axis_names.index(self.model.names[j])))
-        frames = [(self.model.frames[f].parentJoint, self.model.frames[f].placement) for f in (self._frame_w, self._frame_t)]
-        return chain, [(j, placement.rotation.copy(), placement.translation.copy()) for j, placement in frames]
+    def _walked(self, frame: str):
+        joints, placement = chain(self.model, self.axis_names, frame)
+        for joint in joints:
+            joint.freeze()
+        return joints, end_frame(placement)
 
     def forward_many(self, q) -> tuple[np.ndarray, np.ndarray]:
-        """P and O (m x 3 each) of m configurations (the rows of q, m x n) at once: the chain
-        of :meth:`forward` (joint placements, then the joint's own motion: a translation along
-        or a rotation about a coordinate axis) composed with numpy over every row, so a chunk
-        of rows costs a few numpy calls per joint instead of a Pinocchio call per row. Equal
-        to :meth:`forward` within rounding (1e-15 m / rad on our machines, tested)."""
+        """P and O (m x 3 each) of m configurations (the rows of q, m x n) at once: the two
+        chains walked with numpy over every row (machine_ctrl/model/chain.py), so a chunk of
+        rows costs a few numpy calls per joint instead of a Pinocchio call per row. Equal to
+        :meth:`forward` within rounding (1e-15 m / rad on our machines, tested); a machine
+        with a joint the walk does not take gets :meth:`forward` row by row."""
         q = np.asarray(q, dtype=float)
         q = q[None] if q.ndim == 1 else q
         if q.ndim != 2 or q.shape[1] != self.n:
             raise ValueError(f'expected rows of {self.n} axis positions ({" ".join(self.axis_names)}), '
                              f'got shape {q.shape}')
-        if self._chain is None:
+        if self._chains is None:
             rows = [self.forward(row) for row in q]
             return np.array([p for p, _ in rows]).reshape(-1, 3), np.array([o for _, o in rows]).reshape(-1, 3)
-        joints, frames = self._chain
-        m = len(q)
-        rotations = [np.broadcast_to(np.eye(3), (m, 3, 3))]
-        positions = [np.zeros((m, 3))]
-        for parent, r, p, kind, axis, column in joints:
-            rotation = rotations[parent] if r is None else rotations[parent] @ r
-            position = positions[parent] + rotations[parent] @ p
-            value = q[:, column]
-            if kind == 'P':
-                position = position + value[:, None] * rotation[:, :, axis]
-            else:                                   # the columns of rotation @ Rot(axis, value)
-                a, b = (axis + 1) % 3, (axis + 2) % 3
-                c, s = np.cos(value)[:, None], np.sin(value)[:, None]
-                turned = np.empty_like(rotation)
-                turned[:, :, axis] = rotation[:, :, axis]
-                turned[:, :, a] = c * rotation[:, :, a] + s * rotation[:, :, b]
-                turned[:, :, b] = c * rotation[:, :, b] - s * rotation[:, :, a]
-                rotation = turned
-            rotations.append(rotation)
-            positions.append(position)
-        (wj, wr, wp), (tj, tr, tp) = frames
-        w_rotation, t_rotation = rotations[wj] @ wr, rotations[tj] @ tr
-        w_position, t_position = positions[wj] + rotations[wj] @ wp, positions[tj] + rotations[tj] @ tp
+        (w_joints, w_frame), (t_joints, t_frame) = self._chains
+        w_rotation, w_position, _ = walk(w_joints, w_frame, q)
+        t_rotation, t_position, _ = walk(t_joints, t_frame, q)
         # ^wT_t = (^BT_w)^-1 ^BT_t: P = R_w^T (p_t - p_w), O = R_w^T R_t e_z
         inverse = np.swapaxes(w_rotation, 1, 2)
-        return (inverse @ (t_position - w_position)[:, :, None])[:, :, 0], (inverse @ t_rotation[:, :, 2:3])[:, :, 0]
+        return (np.einsum('nij,nj->ni', inverse, t_position - w_position),
+                np.einsum('nij,nj->ni', inverse, t_rotation[:, :, 2]))
 
     @classmethod
     def from_config(cls, machine: MachineConfig) -> Kinematics:

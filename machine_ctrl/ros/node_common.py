@@ -99,7 +99,8 @@ def spin(nodes, executor=None) -> None:
     # Everything made so far (modules, nodes, models) lives as long as the process: moved out of
     # the collector's view, a full collection scans only what the callbacks made since. It took
     # 26-50 ms a few times a minute in a one-process graph (hw_sim's paced steps slipped that
-    # long, bench/RESULTS.md "Paced"), now ~4 ms.
+    # long, bench/RESULTS.md "Paced"), now ~4 ms. The garbage of building them goes first.
+    gc.collect()
     gc.freeze()
     try:
         while rclpy.ok() and not stop.done():
