@@ -276,6 +276,16 @@ def _at_least(name: str, other: str, factor: int):
     return Check(name, (name, other), test, f'>= {"%d x " % factor if factor != 1 else ""}{other}')
 
 
+def _facts_problem(facts) -> str | None:
+    for fact in facts:
+        if fact:
+            try:
+                contract.session_fact(fact)
+            except ValueError as exc:
+                return str(exc)
+    return None
+
+
 def _window_needs_lockstep(values):
     if values['recorder_window'] > 0 and values['mode'] != 'lockstep':
         return f'needs mode lockstep (0 with mode {values["mode"]}), got {values["recorder_window"]}'
@@ -411,10 +421,14 @@ RECORDER = NodeParameters('recorder_node', (
                   'many answer streams (each publisher of ' + ' and '.join(t.name for t in contract.STEP_ANSWERS) +
                   ') have sent: hw_sim, holding step 0 for this recorder (min_subscribers), then starts with '
                   'every answer reaching the bag (0: subscribe at once)', low=0),
+    ParameterSpec('session', STRING_ARRAY, [''], description="facts of the recorded graph, KEY=VALUE each, kept in "
+                  "the bag's custom_data as machine_ctrl.session.KEY (bringup and the launch file give hw_sim's mode "
+                  "and real-time factor and the servos' belief files; empty: none)"),
 ), checks=(Check('start_streams', ('start_streams', 'topics'),
                  lambda values: (f'needs every topic recorded (topics empty), got {values["start_streams"]}'
                                  if values['start_streams'] and any(values['topics']) else None),
-                 '0 unless topics is empty'),))
+                 '0 unless topics is empty'),
+           Check('session', ('session',), lambda values: _facts_problem(values['session']), 'each KEY=VALUE'),))
 
 REPLAY = NodeParameters('replay_node', (
     ParameterSpec('bag', STRING, '', description='bag directory or .mcap file', required=True),

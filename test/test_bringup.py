@@ -157,3 +157,21 @@ def test_paced_bringup_steps_on_the_wall_clock_moves_records_and_reports_its_tim
     assert ros_supervisor.wait('bringup', timeout=120) == 0
     run = analysis.load(bag)
     assert run.reference[-1][0] == pytest.approx(0.01, abs=1e-9)       # the move's goal, recorded
+    assert run.session == {'mode': 'paced', 'real_time_factor': '0.2'}    # the bag says how its graph ran
+
+
+def test_the_recorder_of_a_bringup_keeps_how_its_graph_runs(trt, tmp_path):
+    """bringup's (and the launch file's) recorder gets the session facts: hw_sim's mode, its
+    real-time factor when paced, the servos' belief files; a bad fact is refused."""
+    from machine_ctrl.app.bringup import graph_specs, recorder_spec
+    from machine_ctrl.ros.graph import NodeSpec
+    belief = tmp_path / 'x.yaml'
+    belief.write_text('axes:\n  x:\n    drive:\n      mass: 300.0\n')
+
+    def session(**options):
+        specs = graph_specs(trt, record=True, **options)
+        return recorder_spec(trt, str(tmp_path / 'bag'), specs).parameters['session']
+    assert session() == ['mode=lockstep']
+    assert session(paced=0.5, belief=[str(belief)]) == ['mode=paced', 'real_time_factor=0.5', f'belief_1={belief}']
+    with pytest.raises(ValueError, match="parameter session: 'bad' is not KEY=VALUE"):
+        NodeSpec('recorder', 'machine_ctrl.ros.recorder_node', 'RecorderNode', {'output': 'x', 'session': ['bad']})

@@ -189,3 +189,19 @@ def test_the_coupled_offline_run_is_reproducible_bit_for_bit_and_moves_only_the_
     differs = [a for i, a in enumerate(micromill.axis_names)
                if not np.array_equal(plain.commands[:, i], runs[0].commands[:, i])]
     assert differs == ['x_f', 'y_f', 'z_f']
+
+
+def test_a_step_waits_for_the_rows_its_estimate_reads(micromill):
+    """On, step k's estimate reads the rows to the end of the 500-step block holding
+    k + horizon (2000 steps at 10 kHz): has_rows_for says whether they are here, so a node
+    waits for a lagging stream instead of estimating from fewer rows; off, nothing is needed."""
+    coupling = ContourCoupling(micromill, enabled=True)
+    n = len(micromill.axes)
+    zeros = np.zeros((2500, n))
+    coupling.add_reference(0, zeros, zeros, zeros)          # rows 0..2499
+    assert coupling.has_rows_for(0) and coupling.has_rows_for(499)      # block end 2500
+    assert not coupling.has_rows_for(500)                   # 500 + 2000 -> block end 3000
+    coupling.add_reference(2500, zeros[:500], zeros[:500], zeros[:500])
+    assert coupling.has_rows_for(999) and not coupling.has_rows_for(1000)
+    coupling.set_enabled(False)
+    assert coupling.has_rows_for(10_000)

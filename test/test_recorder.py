@@ -174,3 +174,19 @@ def test_a_namespaced_recording_keeps_its_namespace_and_checks_its_own_streams(t
     with Bag(tmp_path / 'bag') as bag:
         assert bag.custom_data['machine_ctrl.namespace'] == '/mill1'
         assert bag.custom_data['machine_ctrl.lost/mill1/joint_states'] == '1'
+
+
+def test_session_facts_go_into_custom_data_and_come_back(tmp_path):
+    """KEY=VALUE facts of the recorded graph: machine_ctrl.session.KEY in the bag, read back
+    by session_of; a fact that is not KEY=VALUE is refused naming it."""
+    data = recorder.session_data(['mode=paced', 'real_time_factor=0.2', 'belief_1=/tmp/a=b.yaml'])
+    assert data == {'machine_ctrl.session.mode': 'paced', 'machine_ctrl.session.real_time_factor': '0.2',
+                    'machine_ctrl.session.belief_1': '/tmp/a=b.yaml'}
+    recording = recorder.Recording(tmp_path / 'bag', data)
+    recording.close()
+    with Bag(tmp_path / 'bag') as bag:
+        assert recorder.session_of(bag.custom_data) == {'mode': 'paced', 'real_time_factor': '0.2',
+                                                        'belief_1': '/tmp/a=b.yaml'}
+    for bad in ('mode', '=paced', '1mode=x', 'a b=c'):
+        with pytest.raises(ValueError, match='is not KEY=VALUE'):
+            recorder.session_data([bad])

@@ -85,10 +85,25 @@ def single_process_argv(specs: list[NodeSpec], directory) -> list[str]:
 
 
 def recorder_spec(machine: MachineConfig, output: str, graph: list[NodeSpec], namespace: str = '') -> NodeSpec:
-    """The recorder of `graph`: it waits for the first answer of each of its step nodes."""
+    """The recorder of `graph`: it waits for the first answer of each of its step nodes, and
+    keeps the graph's session facts with the bag (:func:`session_facts`)."""
     return NodeSpec('recorder', 'machine_ctrl.ros.recorder_node', 'RecorderNode',
                     {'output': str(output), 'machine': str(machine.yaml_path),
-                     'start_streams': sum(spec.cls in STEP_ANSWERERS for spec in graph)}, namespace=namespace)
+                     'start_streams': sum(spec.cls in STEP_ANSWERERS for spec in graph),
+                     'session': session_facts(graph) or ['']}, namespace=namespace)
+
+
+def session_facts(graph: list[NodeSpec]) -> list[str]:
+    """How `graph` runs, as the recorder's KEY=VALUE facts: hw_sim's `mode` (and
+    `real_time_factor` when paced), and the servos' belief files (`belief_1`, `belief_2`, ...:
+    the controllers' values were those, not the machine config's)."""
+    hw_sim = next(spec for spec in graph if spec.name == 'hw_sim')
+    values = {**hw_sim.table.defaults(), **hw_sim.parameters}
+    facts = [f'mode={values["mode"]}']
+    if values['mode'] == 'paced':
+        facts.append(f'real_time_factor={values["real_time_factor"]:g}')
+    belief = next((spec.parameters.get('belief') for spec in graph if spec.parameters.get('belief')), [])
+    return facts + [f'belief_{i}={path}' for i, path in enumerate(belief, 1)]
 
 
 def view_spec(machine: MachineConfig, port: int, namespace: str = '') -> NodeSpec:

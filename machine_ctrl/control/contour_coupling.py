@@ -45,9 +45,11 @@ steps aligned on the step count, up to the end of the block holding step + HORIZ
 rows an estimate sees is then a function of the step alone, so the servo node (reference
 streamed in chunks, 3000 rows ahead) computes what the offline runner (the whole reference
 at once) computes, bit for bit: with the control on from the start and the stream ahead of
-each step's block (a lagging stream, or a chunk re-sent from an earlier step, which drops
-the rows after it until they come again, leaves an estimate fewer rows; it may then be
-invalid and fade).
+each step's block. The servo node waits for that block (:meth:`ContourCoupling.has_rows_for`,
+up to its input timeout), so a stream lagging under load delays a lock-step run, it does
+not change it; a stream later than the timeout, or a chunk re-sent from an earlier step
+(which drops the rows after it until they come again), leaves an estimate fewer rows: it
+may then be invalid and fade.
 
 **Gains** (machine YAML ``contour_control``): live between two steps (:meth:`retune`); the
 integral is held as k_i * integral(eps), so a new k_i does not step the correction, and a new
@@ -192,6 +194,16 @@ class ContourCoupling:
         self.reference.add(first_step, q, qd, qdd)
         self._converted = min(self._converted, first_step)     # tool rows from here on are stale
 
+    def _block_end(self, step: int) -> int:
+        """The first step past the block holding step + horizon: the rows step's estimate reads."""
+        return ((step + self.trajectory.horizon) // BLOCK + 1) * BLOCK
+
+    def has_rows_for(self, step: int) -> bool:
+        """Whether the reference rows that step's estimate reads are here (always while off):
+        a node waits for them (its input timeout), so that what it computes does not depend
+        on how far ahead the stream happens to be."""
+        return not self.enabled or self.reference.end >= self._block_end(step)
+
     def _tool_rows(self, step: int) -> None:
         """Tool rows up to the end of the block holding step + horizon (module docstring), from
         the kept axis rows; switched on, from step - history."""
@@ -200,7 +212,7 @@ class ContourCoupling:
             self.trajectory = ToolTrajectory(self.period)
             self._converted = max(step - self.history, rows.first)
             self._synced = True
-        end = min(rows.end, ((step + self.trajectory.horizon) // BLOCK + 1) * BLOCK)
+        end = min(rows.end, self._block_end(step))
         start = max(self._converted, rows.first)
         if start < end:
             q, qd, qdd = rows.rows[:, start - rows.first:end - rows.first]

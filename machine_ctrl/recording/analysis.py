@@ -10,6 +10,9 @@ waits) counts once. The machine is the one named in the bag's custom_data (recor
 
 Results (SI: m, rad, s; the text table prints um / urad):
 
+* ``session``: how the graph ran, as its recorder kept it (the bag's session facts,
+  machine_ctrl.recording.recorder.session_of: hw_sim's mode, real-time factor, belief
+  files); {} for a bag without.
 * ``tracking``: per axis, reference - measured: mean |e|, max |e|, RMS.
 * ``dual_stage``: per dual-stage pair, the error of the pair's combined position
   (coarse + sign * fine), which is what the workpiece sees.
@@ -26,7 +29,7 @@ Results (SI: m, rad, s; the text table prints um / urad):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from mcap_ros2._dynamic import generate_dynamic
@@ -36,7 +39,7 @@ from machine_ctrl.recording.bag import Bag, BagError
 from machine_ctrl.model.config import MachineConfig, load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.model.kinematics import Kinematics
-from machine_ctrl.recording.recorder import MACHINE_FILE_KEY, MACHINE_KEY, namespace_of
+from machine_ctrl.recording.recorder import MACHINE_FILE_KEY, MACHINE_KEY, namespace_of, session_of
 
 REQUIRED = (contract.JOINT_STATES, contract.REFERENCE)
 # assumed: the tool tip lags its reference by far less than 50 ms at the feeds we run
@@ -59,6 +62,7 @@ class Run:
     measured: np.ndarray        # (n, axes)
     reference: np.ndarray       # (n, axes)
     source: str
+    session: dict = field(default_factory=dict)     # how the graph ran (recorder.session_of), {} when unsaid
 
 
 def _decoder(bag: Bag, topic: str):
@@ -90,7 +94,7 @@ def machine_of(bag: Bag, machine: str | MachineConfig | None) -> MachineConfig:
 def load(path, machine: str | MachineConfig | None = None) -> Run:
     """Decode and align a bag; AnalysisError / BagError (one line) when it cannot be used."""
     with Bag(path) as bag:
-        namespace = namespace_of(bag.custom_data)
+        namespace, session = namespace_of(bag.custom_data), session_of(bag.custom_data)
         states_topic, reference_topic = (topic.full(namespace) for topic in REQUIRED)
         for topic in REQUIRED:
             info = bag.topics.get(topic.full(namespace))
@@ -108,7 +112,7 @@ def load(path, machine: str | MachineConfig | None = None) -> Run:
     if len(steps) == 0:
         raise AnalysisError(f'{path}: no control step has both a {states_topic} and a {reference_topic} row')
     return Run(config, steps, np.array([states[k] for k in steps]), np.array([reference[k] for k in steps]),
-               str(path))
+               str(path), session)
 
 
 def _columns(message_names, wanted, topic) -> list[int]:
@@ -204,7 +208,7 @@ def analyse(run: Run) -> dict:
     contiguous = bool(np.all(np.diff(run.steps) == 1))
     result = {'source': run.source, 'machine': machine.name, 'steps': int(len(run.steps)),
               'first_step': int(run.steps[0]), 'last_step': int(run.steps[-1]),
-              'duration': float((run.steps[-1] - run.steps[0]) * machine.control_period),
+              'duration': float((run.steps[-1] - run.steps[0]) * machine.control_period), 'session': dict(run.session),
               'tracking': {a: error_stats(run.reference[:, i] - run.measured[:, i]) for i, a in enumerate(names)}}
     result['dual_stage'] = {}
     for pair in machine.dual_stage:
@@ -255,6 +259,8 @@ def table(results: list[dict], machines: list[MachineConfig]) -> str:
     labels = [r['source'] for r in results]
     lines = [' | '.join(f'[{i + 1}] {label}: {r["machine"]}, {r["steps"]} steps, {r["duration"]:.4f} s'
                         for i, (label, r) in enumerate(zip(labels, results)))]
+    lines += [f'[{i + 1}] session: ' + ', '.join(f'{k} {v}' for k, v in r['session'].items())
+              for i, r in enumerate(results) if r['session']]
     head = f'{"":34s}' + ''.join(f'{f"[{i + 1}]":>12s}' for i in range(len(results)))
     if len(results) == 2:
         head += f'{"[1]/[2]":>10s}'

@@ -75,6 +75,22 @@ MACHINE_FILE_KEY = 'machine_ctrl.machine_file'
 NAMESPACE_KEY = 'machine_ctrl.namespace'        # the graph's namespace ('' for the root)
 LOST_KEY = 'machine_ctrl.lost'                  # + topic name: messages lost (stamp gaps)
 STAMPS_BACK_KEY = 'machine_ctrl.stamps_back'    # + topic name: stamps that went back
+SESSION_KEY = 'machine_ctrl.session.'           # + a fact's key: how the recorded graph ran
+
+
+def session_data(facts) -> dict[str, str]:
+    """custom_data entries of KEY=VALUE facts (contract.session_fact; ValueError naming a
+    bad one; a key given twice keeps its last value)."""
+    entries = {}
+    for fact in facts:
+        key, value = contract.session_fact(fact)
+        entries[SESSION_KEY + key] = value
+    return entries
+
+
+def session_of(custom_data: dict) -> dict[str, str]:
+    """The session facts of a bag's custom_data, KEY -> VALUE ({} for a bag without)."""
+    return {key[len(SESSION_KEY):]: value for key, value in custom_data.items() if key.startswith(SESSION_KEY)}
 
 
 def namespace_of(custom_data: dict) -> str:

@@ -7,7 +7,9 @@ node's namespace; empty: every topic of the node's namespace but ``/rosout`` and
 ``/parameter_events``), ``machine`` (name or YAML path, stored in the bag's
 custom_data for ``machine-ctrl analyze``), ``discovery_period`` (s, wall), ``duration``
 (s, wall; 0: until stopped), ``start_streams`` (bringup's recorder: /joint_states is
-subscribed only once that many step nodes have answered, :meth:`RecorderNode.start_states`).
+subscribed only once that many step nodes have answered, :meth:`RecorderNode.start_states`),
+``session`` (KEY=VALUE facts of the recorded graph, kept in custom_data as
+machine_ctrl.session.KEY).
 
 Progress: when it records /joint_states, the node publishes on /recorder/progress
 (builtin_interfaces/Time, reliable, transient local, depth 1) a stamp up to which every
@@ -98,7 +100,8 @@ class RecorderNode(Node):
             namespace = self.get_namespace()
             self.wanted = recorder.wanted_topics([t for t in topics if t], namespace) or None
             config = load_machine(machine) if machine else None
-            self.recording = recorder.Recording(output, self._machine_data(config),
+            self.recording = recorder.Recording(output, {**self._machine_data(config),
+                                                         **recorder.session_data(f for f in values.session if f)},
                                                 contract.StepClock.of(config).period_ns if config else None,
                                                 namespace)
         except (ValueError, ConfigError) as exc:      # BagError is a ValueError

@@ -170,7 +170,8 @@ class ServoNode(StepNode):
 
     def ready(self, step: int) -> bool:
         return self.buffer.has(step) and (not self.wait_for_offsets or step in self.offsets.pending) \
-            and (not self.accelerometer_axes or self._accelerations_of(step))
+            and (not self.accelerometer_axes or self._accelerations_of(step)) \
+            and (self.contour is None or self.contour.has_rows_for(step))
 
     def compute(self, step: int, msg: JointStateData) -> bytes | None:
         measured = self.positions(msg, self.axes, velocities=True)
