@@ -288,13 +288,13 @@ def join_ns(sec: int, nanosec: int) -> int:
     return sec * NS_PER_SECOND + nanosec
 
 
-_SESSION_FACT = re.compile(r'^([A-Za-z][A-Za-z0-9_]*)=(.*)$')
+_SESSION_FACT = re.compile(r'([A-Za-z][A-Za-z0-9_]*)=(.*)', re.DOTALL)
 
 
 def session_fact(text: str) -> tuple[str, str]:
     """A fact about a recorded graph (the recorder's `session` parameter), KEY=VALUE with a
     KEY of a letter, then letters, digits and _: (KEY, VALUE); ValueError naming it else."""
-    match = _SESSION_FACT.match(text)
+    match = _SESSION_FACT.fullmatch(text)
     if match is None:
         raise ValueError(f'{text!r} is not KEY=VALUE (KEY: a letter, then letters, digits, _)')
     return match.group(1), match.group(2)

@@ -97,11 +97,13 @@ def session_facts(graph: list[NodeSpec]) -> list[str]:
     """How `graph` runs, as the recorder's KEY=VALUE facts: hw_sim's `mode` (and
     `real_time_factor` when paced), and the servos' belief files (`belief_1`, `belief_2`, ...:
     the controllers' values were those, not the machine config's)."""
-    hw_sim = next(spec for spec in graph if spec.name == 'hw_sim')
+    hw_sim = next((spec for spec in graph if spec.name == 'hw_sim'), None)
+    if hw_sim is None:
+        return []
     values = {**hw_sim.table.defaults(), **hw_sim.parameters}
     facts = [f'mode={values["mode"]}']
     if values['mode'] == 'paced':
-        facts.append(f'real_time_factor={values["real_time_factor"]:g}')
+        facts.append(f'real_time_factor={values["real_time_factor"]!r}')
     belief = next((spec.parameters.get('belief') for spec in graph if spec.parameters.get('belief')), [])
     return facts + [f'belief_{i}={path}' for i, path in enumerate(belief, 1)]
 

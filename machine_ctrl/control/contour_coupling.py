@@ -46,10 +46,12 @@ rows an estimate sees is then a function of the step alone, so the servo node (r
 streamed in chunks, 3000 rows ahead) computes what the offline runner (the whole reference
 at once) computes, bit for bit: with the control on from the start and the stream ahead of
 each step's block. The servo node waits for that block (:meth:`ContourCoupling.has_rows_for`,
-up to its input timeout), so a stream lagging under load delays a lock-step run, it does
-not change it; a stream later than the timeout, or a chunk re-sent from an earlier step
-(which drops the rows after it until they come again), leaves an estimate fewer rows: it
-may then be invalid and fade.
+up to its input timeout from the first step that lacked it), so a stream lagging under
+load delays a lock-step run, it does not change it; a stream later than the timeout, or a
+chunk re-sent from an earlier step (which drops the rows after it until they come again),
+leaves an estimate fewer rows: it may then be invalid and fade. The sources must stream at
+least the block's reach ahead (horizon + BLOCK: 2500 rows at 10 kHz; their default
+lookahead is 3000), or steps wait for the timeout.
 
 **Gains** (machine YAML ``contour_control``): live between two steps (:meth:`retune`); the
 integral is held as k_i * integral(eps), so a new k_i does not step the correction, and a new

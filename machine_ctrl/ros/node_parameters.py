@@ -306,7 +306,11 @@ def params_document(machine: MachineConfig) -> dict:
     if machine.fine_axes:
         nodes.append(('compensation', parameters.COMPENSATION, {'machine': machine.name}))
     nodes.append(('recorder', parameters.RECORDER, {'machine': machine.name}))
-    return {f'/**/{name}': {'ros__parameters': _nested(_section(table, values))} for name, table, values in nodes}
+    document = {f'/**/{name}': {'ros__parameters': _nested(_section(table, values))} for name, table, values in nodes}
+    # the session facts describe one graph (bringup and the launch file compute them): a params
+    # file given after them (launch params_file:=) must not blank them
+    del document['/**/recorder']['ros__parameters']['session']
+    return document
 
 
 def params_file_text(machine: MachineConfig) -> str:
@@ -319,7 +323,7 @@ def params_file_text(machine: MachineConfig) -> str:
         '# machine_ctrl/parameters.py, the bringup graph and the machine config (test/test_ros_parameters.py\n'
         '# checks that this file is what the code generates): edit those, not this file.\n'
         '# Left to the command line: compensation `model` (-p model:=MODEL.yaml; the trajectory node then\n'
-        f'# publishes on {between}: -p output_topic:={between}) and recorder `output`.\n')
+        f'# publishes on {between}: -p output_topic:={between}), recorder `output` and `session`.\n')
     from machine_ctrl.ros.graph import params_yaml
     return header + params_yaml(params_document(machine))
 

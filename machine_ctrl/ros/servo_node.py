@@ -31,6 +31,7 @@ cost a hop per step). Their values in effect are in the node's /diagnostics stat
 from __future__ import annotations
 
 import dataclasses
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import Imu, JointState
@@ -62,6 +63,8 @@ class ServoNode(StepNode):
         self.servo = ServoGroup(self.machine, values.axes, feedforward=values.feedforward)
         self.axes = self.servo.axis_names
         self.contour = None             # the cross-coupled contour control, if this node holds its axes
+        self._contour_late_since = None  # wall time the contour block was first missing (None: here)
+        self.contour_short = 0          # steps estimated without their whole reference block
         if contour_axes(self.machine, self.axes):
             self.contour = ContourCoupling(self.machine, enabled=values.contour_control)
             self.contour_slots = coupled_slots(self.contour, self.axes)
@@ -170,8 +173,21 @@ class ServoNode(StepNode):
 
     def ready(self, step: int) -> bool:
         return self.buffer.has(step) and (not self.wait_for_offsets or step in self.offsets.pending) \
-            and (not self.accelerometer_axes or self._accelerations_of(step)) \
-            and (self.contour is None or self.contour.has_rows_for(step))
+            and (not self.accelerometer_axes or self._accelerations_of(step)) and self._contour_rows(step)
+
+    def _contour_rows(self, step: int) -> bool:
+        """Whether the contour control's estimate of `step` may go on: the reference block it
+        reads is here (ContourCoupling.has_rows_for), or has been missing for input_timeout,
+        timed from the first step that lacked it (in paced mode every step is new: a wait
+        timed per step would never end). A lock-step run then does not depend on how far
+        ahead the stream happens to be, unless it lags by longer than that."""
+        if self.contour is None or self.contour.has_rows_for(step):
+            self._contour_late_since = None
+            return True
+        now = time.monotonic()
+        if self._contour_late_since is None:
+            self._contour_late_since = now
+        return now - self._contour_late_since > self.input_timeout
 
     def compute(self, step: int, msg: JointStateData) -> bytes | None:
         measured = self.positions(msg, self.axes, velocities=True)
@@ -197,6 +213,8 @@ class ServoNode(StepNode):
         if offsets is not None:
             ref_pos = apply_offsets(ref_pos, self.fine_slots, offsets)
         if self.contour is not None:
+            if not self.contour.has_rows_for(step):
+                self.contour_short += 1          # estimated from fewer rows than its block
             corrections = self.contour.step(step, q).corrections
             ref_pos = apply_offsets(ref_pos, [slot for slot, _ in self.contour_slots],
                                     [corrections[k] for _, k in self.contour_slots])
@@ -238,6 +256,7 @@ class ServoNode(StepNode):
         if self.contour is None:
             return {}
         return {'contour_control': self.contour.enabled, 'contour_control_status': self.contour.last.status.value,
+                'contour_reference_short_steps': self.contour_short,
                 'contour_control_reason': self.contour.last.reason,
                 **{f'contour_invalid_{k}_steps': v for k, v in self.contour.invalid_steps.items()}}
 
