@@ -413,3 +413,27 @@ def test_a_fault_refuses_goals_until_hw_sim_is_reset(micromill, graph, client):
     client.send_goal(['x_c'], [[held[0] + 1e-3]])
     client.wait_states(n, ['running', 'idle'], check=graph.check)
     client.wait(lambda: abs(client.truth[0] - held[0] - 1e-3) < 2e-6, 'moving again', check=graph.check)
+
+
+def test_the_node_stops_its_planner_process_at_once_even_mid_plan(micromill, rclpy_context):
+    """destroy_node terminates a plan under way and waits for the planner's pool: no worker
+    and no pool thread outlive the node (a pool thread left running raced the interpreter's
+    exit hook in a loaded run: OSError EBADF and a traceback at exit)."""
+    import multiprocessing
+
+    from rclpy.parameter import Parameter
+
+    from machine_ctrl.ros.trajectory_node import TrajectoryNode
+    threads_before = set(threading.enumerate())
+    node = TrajectoryNode(context=rclpy_context,
+                          parameter_overrides=[Parameter('machine', value=str(micromill.yaml_path))])
+    try:
+        worker = next(p for p in multiprocessing.active_children() if p.pid == node.planner_pid)
+        started = node.planner.submit(time.sleep, 0.0)
+        started.result()                                   # the worker takes jobs
+        node.planner.submit(time.sleep, 3600.0)            # a "plan" that would outlast any test
+    finally:
+        node.destroy_node()
+    assert not worker.is_alive()
+    assert worker.exitcode is not None and worker.exitcode < 0, 'the worker was terminated, not finished'
+    assert set(threading.enumerate()) <= threads_before, 'a thread of the planner pool outlived the node'

@@ -77,6 +77,7 @@ lease, so a client learns within it that this node is gone (README "Faults").
 from __future__ import annotations
 
 import multiprocessing
+import os
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -146,7 +147,7 @@ class TrajectoryNode(Node):
         self.session = Session(self.machine, NodeOutputs(self), self.chunk_steps, self.lookahead)
         # Planning takes seconds of CPU; in a process of its own (spawned once, now) it
         # cannot hold up the streaming, as a thread would through the GIL.
-        self.planner = self.start_planner()
+        self.start_planner()
         self.planning: Future | None = None
 
         self.pub_reference = self.create_publisher(JointTrajectory, output_topic, ros_io.REFERENCE_QOS)
@@ -185,12 +186,25 @@ class TrajectoryNode(Node):
         self.pub_goals.publish(GoalStatusArray())     # latched: no goal yet
         self.get_logger().info(f'ready: feed {self.feed * 1e3:g} mm/s; waiting for {contract.JOINT_STATES.name}')
 
-    @staticmethod
-    def start_planner() -> ProcessPoolExecutor:
-        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
-                                   initializer=planner_process_init)
-        pool.submit(int).result()          # spawn and import now, not at the first goal
-        return pool
+    def start_planner(self) -> None:
+        """The planner process: spawned and its imports done now, not at the first goal."""
+        self.planner = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
+                                           initializer=planner_process_init)
+        self.planner_pid = self.planner.submit(os.getpid).result()
+
+    def stop_planner(self) -> None:
+        """Stop the planner process, abandoning a plan under way, and wait for its pool.
+
+        The worker is terminated (a plan can take seconds), so the wait is short. The wait
+        itself matters: a pool left to stop by itself (``shutdown(wait=False)``) races
+        CPython 3.11's exit hook, which may write to the wake-up pipe the pool's thread has
+        just closed (OSError EBADF and a traceback at exit; seen once in a loaded run).
+        The worker is found among this process's live children, so a pid already reaped is
+        never signalled."""
+        for child in multiprocessing.active_children():
+            if child.pid == self.planner_pid:
+                child.terminate()
+        self.planner.shutdown(wait=True, cancel_futures=True)
 
     # -- time ------------------------------------------------------------------------------
     def on_first_state(self, msg: JointState) -> None:
@@ -267,7 +281,8 @@ class TrajectoryNode(Node):
         try:
             reference, failure = future.result()
         except BrokenProcessPool:
-            self.planner = self.start_planner()
+            self.stop_planner()
+            self.start_planner()
             reference, failure = None, 'the planner process died (restarted)'
         except Exception as exc:  # noqa: BLE001 - any planning error refuses the goal, the node goes on
             reference, failure = None, error_text(exc)
@@ -369,7 +384,7 @@ class TrajectoryNode(Node):
             GoalStatus(goal_info=self.goal_info(g), status=int(g.state)) for g in self.session.goals.goals]))
 
     def destroy_node(self):
-        self.planner.shutdown(wait=False, cancel_futures=True)
+        self.stop_planner()
         return super().destroy_node()
 
 
