@@ -66,6 +66,7 @@ REQUIRES = [
     'scipy>=1.17,<2',
     'pin>=4.1,<5',  # Pinocchio (import pinocchio)
     'ruckig>=0.19,<0.20',
+    'numba>=0.68.1,<0.69',  # trajectory/resolved_rate.py: Algorithm 1's inner loop compiled
     # recording and analysis
     'mcap>=1.6,<2',
     'mcap-ros2-support>=0.6,<0.7',  # import mcap_ros2

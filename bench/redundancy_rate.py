@@ -22,7 +22,7 @@ class Helix:
     """P = c + (r cos t, r sin t, a t), t = s / k (unit speed); O from two small angles,
     alpha = A sin t, gamma = G cos t: O = (cos alpha sin gamma, -sin alpha, cos alpha cos gamma).
     Derivatives of O by central differences (good enough for a rate measurement). Takes an
-    array s (M,) and returns (M, 3) arrays, as trajectory.redundancy expects."""
+    array s (M,) and returns (M, 3) arrays; trajectory.redundancy calls `tangents`."""
 
     def __init__(self, centre, length, radius=2e-3, pitch=0.5e-3, tilt=3e-3):
         self.c, self.r, self.a = np.asarray(centre, float), radius, pitch / (2 * math.pi)
@@ -54,6 +54,9 @@ class Helix:
         else:
             o = (self._o(s + 2 * h) - 2 * self._o(s + h) + 2 * self._o(s - h) - self._o(s - 2 * h)) / (2 * h**3)
         return p, o
+
+    def tangents(self, s):
+        return [self.evaluate(s), self.derivatives(s, 1)]
 
 
 def main():

@@ -26,6 +26,7 @@ DISTRIBUTION_TO_KEY = {
     'ruckig': 'python3-ruckig-pip',  # the ROS package ruckig is the C++ library only
     'mcap': 'python3-mcap-pip',
     'nfoursid': 'python3-nfoursid-pip',
+    'numba': 'python3-numba-pip',  # pinned to the numpy of the other wheels, as Debian's is not
     'pandas': 'python3-pandas',
     'mcap-ros2-support': 'mcap-ros2-support',  # rosdep's key for it has no python3- prefix
     'pytest': 'python3-pytest',

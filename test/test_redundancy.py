@@ -85,6 +85,9 @@ class JetPath:
     def derivatives(self, s, order):
         return self._order(s, order)
 
+    def tangents(self, s):
+        return [self._order(s, 0), self._order(s, 1)]
+
 
 def circle(radius, centre, turns=1.0):
     """x-y circle P = c + R (cos(s/R), sin(s/R), 0), O = +z (thesis §3.4)."""
@@ -318,10 +321,14 @@ def test_grid_stencils_are_exact_for_degree_6_polynomials_and_converge_on_a_sine
 
 
 class CountingKinematics:
-    """Kinematics wrapper counting forward_and_jacobian calls."""
+    """Kinematics wrapper counting forward_and_jacobian calls; without packed chains, so
+    resolve runs its interpreted loop on these calls."""
 
     def __init__(self, kin):
         self.kin, self.calls = kin, 0
+
+    def packed_chains(self):
+        return None
 
     def forward_and_jacobian(self, q):
         self.calls += 1

@@ -102,6 +102,48 @@ def test_time_law_spline_has_the_lp_differences_at_the_nodes():
     assert spline(np.linspace(0.0, 2e-3, 401)).min() >= 0.0        # control points >= 0
 
 
+def exact_uniform_cubic(length, coefficients, x) -> float:
+    """A cubic B-spline with knots k length/spans (k = -3 ... spans + 3, exactly uniform) at
+    x, by de Boor's algorithm in rational arithmetic."""
+    from fractions import Fraction
+    spans = len(coefficients) - 3
+    h = Fraction(length) / spans
+    knots = [k * h for k in range(-3, spans + 4)]
+    c = [Fraction(v) for v in coefficients]
+    x = Fraction(x)
+    i = min(max(int(x / h), 0), spans - 1) + 3              # knots[i] <= x < knots[i + 1]
+    d = [c[i - 3 + j] for j in range(4)]
+    for r in range(1, 4):
+        for j in range(3, r - 1, -1):
+            a = (x - knots[j + i - 3]) / (knots[j + 1 + i - r] - knots[j + i - 3])
+            d[j] = (1 - a) * d[j - 1] + a * d[j]
+    return float(d[3])
+
+
+def test_the_uniform_cubic_is_the_exact_b_spline_and_scipys_within_rounding():
+    from scipy.interpolate import BSpline
+
+    from trajectory.sampling import UniformCubic
+    rng = np.random.default_rng(8)
+    length, spans = 0.033, 999
+    coefficients = rng.random(spans + 3)
+    mine = UniformCubic(length, coefficients)
+    x = np.concatenate((rng.uniform(0.0, length, 300), [0.0, length, length / 2]))
+    exact = np.array([exact_uniform_cubic(length, coefficients, v) for v in x])
+    # the float h = length / spans is rounded (1e-16): at span k ~ 1000 the parameter within
+    # the span is off by ~k 1e-16, and the value (control points ~1) by as much
+    np.testing.assert_allclose(mine(x), exact, rtol=0, atol=1e-13)
+    # scipy's knots h k (h = length / spans) are rounded, ~1e-13 of a span at k ~ 1000
+    h = length / spans
+    reference = BSpline(h * np.arange(-3, spans + 4), coefficients, 3)
+    x = np.concatenate((rng.uniform(0.0, length, 20_000), h * np.arange(spans + 1)))
+    for nu in (0, 1, 2):
+        want = reference(x, nu)
+        assert np.abs(mine(x, nu) - want).max() <= 1e-12 * np.abs(want).max()
+    with pytest.raises(ValueError, match='derivative order'):
+        mine(x, 3)
+
+
 def fake_sampling(s, need):
     from machine_ctrl.model.reference import Reference
     from trajectory.sampling import Sampling

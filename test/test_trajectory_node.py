@@ -415,12 +415,43 @@ def test_a_fault_refuses_goals_until_hw_sim_is_reset(micromill, graph, client):
     client.wait(lambda: abs(client.truth[0] - held[0] - 1e-3) < 2e-6, 'moving again', check=graph.check)
 
 
-def test_the_node_stops_its_planner_process_at_once_even_mid_plan(micromill, rclpy_context):
+def started_then_sleeping(flag: str) -> None:
+    """A "plan" for the planner process that says it began, then outlasts any test."""
+    Path(flag).touch()
+    time.sleep(3600.0)
+
+
+def wait_until(condition, what: str, timeout: float = 300.0) -> None:
+    """Poll `condition` (the planner process may first load, or after a change to its
+    source compile, its numba kernel: seconds to a minute on a loaded machine)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f'no {what} within {timeout} s'
+        time.sleep(0.01)
+
+
+@pytest.fixture
+def trajectory_node(micromill, rclpy_context):
+    from rclpy.parameter import Parameter
+
+    from machine_ctrl.ros.trajectory_node import TrajectoryNode
+    node = TrajectoryNode(context=rclpy_context,
+                          parameter_overrides=[Parameter('machine', value=str(micromill.yaml_path))])
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+
+
+def planner_worker(node):
+    import multiprocessing
+    return next(p for p in multiprocessing.active_children() if p.pid == node.planner_pid)
+
+
+def test_the_node_stops_its_planner_process_at_once_even_mid_plan(micromill, rclpy_context, tmp_path):
     """destroy_node terminates a plan under way and waits for the planner's pool: no worker
     and no pool thread outlive the node (a pool thread left running raced the interpreter's
     exit hook in a loaded run: OSError EBADF and a traceback at exit)."""
-    import multiprocessing
-
     from rclpy.parameter import Parameter
 
     from machine_ctrl.ros.trajectory_node import TrajectoryNode
@@ -428,12 +459,33 @@ def test_the_node_stops_its_planner_process_at_once_even_mid_plan(micromill, rcl
     node = TrajectoryNode(context=rclpy_context,
                           parameter_overrides=[Parameter('machine', value=str(micromill.yaml_path))])
     try:
-        worker = next(p for p in multiprocessing.active_children() if p.pid == node.planner_pid)
-        started = node.planner.submit(time.sleep, 0.0)
-        started.result()                                   # the worker takes jobs
-        node.planner.submit(time.sleep, 3600.0)            # a "plan" that would outlast any test
+        worker = planner_worker(node)
+        flag = tmp_path / 'started'
+        node.submit_plan(started_then_sleeping, str(flag))
+        wait_until(flag.exists, 'start of the long plan')
     finally:
         node.destroy_node()
     assert not worker.is_alive()
     assert worker.exitcode is not None and worker.exitcode < 0, 'the worker was terminated, not finished'
     assert set(threading.enumerate()) <= threads_before, 'a thread of the planner pool outlived the node'
+
+
+def test_a_planner_process_that_died_idle_is_restarted_at_the_next_goal(trajectory_node):
+    import os
+    from concurrent.futures.process import BrokenProcessPool
+    node = trajectory_node
+    first = node.planner_pid
+    worker = planner_worker(node)
+    worker.kill()
+    worker.join()
+    answers = []
+
+    def restarted() -> bool:
+        node.submit_plan(os.getpid)
+        try:
+            answers.append(node.planning.result(timeout=60))
+        except BrokenProcessPool:       # submitted before the pool saw its worker die: the next one restarts it
+            return False
+        return True
+    wait_until(restarted, 'restarted planner')
+    assert answers[-1] == node.planner_pid != first

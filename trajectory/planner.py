@@ -156,9 +156,7 @@ def feed_and_sample(interp: SepticInterpolant, fs, derivatives, limits: FeedLimi
 def pose_deviations(kinematics: Kinematics, q, p_path, o_path) -> tuple[float, float]:
     """Largest |FK position(q[k]) - p_path[k]| (m) and angle between the FK tool axis and
     o_path[k] (rad) over the rows k of q."""
-    fk = [kinematics.forward(row) for row in q]
-    p = np.array([f[0] for f in fk])
-    o = np.array([f[1] for f in fk])
+    p, o = kinematics.forward_many(q)          # batched: ~1e-15 of Pinocchio's, far below what this checks
     cross = np.linalg.norm(np.cross(o, o_path), axis=1)
     angle = np.arctan2(cross, np.sum(o * o_path, axis=1))
     return float(np.max(np.linalg.norm(p - p_path, axis=1))), float(np.max(angle))

@@ -2,9 +2,9 @@
 Algorithm 1): axis positions q[n] and their geometric derivatives dq/ds, d²q/ds², d³q/ds³
 at fixed displacement steps s[n] = n Δs.
 
-The toolpath R(s) = [P(s); O(s)] (Eq. 3.12) is any object with ``length`` (m),
-``evaluate(s) -> (P, O)`` and ``derivatives(s, order) -> (d^kP/ds^k, d^kO/ds^k)`` that take
-an array s (M,) and return (M, 3) arrays (as spline.ArcLengthPath); when it also has
+The toolpath R(s) = [P(s); O(s)] (Eq. 3.12) is any object with ``length`` (m) and
+``tangents(s) -> [(P, O), (dP/ds, dO/ds)]`` that takes an array s (M,) and returns (M, 3)
+arrays (as spline.ArcLengthPath); when it also has
 ``knot_s``, the arc lengths of its CL points, a failure names the points where.
 
 Resolved rate (Eq. 3.27, with the errata of seed-notes.md applied)::
@@ -368,9 +368,8 @@ def _along_s(f: np.ndarray, h: float, order: int) -> np.ndarray:
 
 def _path_samples(path, s):
     """P, O, dP/ds, dO/ds of R at the arc lengths s (M,), each (M, 3)."""
-    p, o = (np.asarray(a, float).reshape(len(s), 3) for a in path.evaluate(s))
-    dp, do = (np.asarray(a, float).reshape(len(s), 3) for a in path.derivatives(s, 1))
-    return p, o, dp, do
+    (p, o), (dp, do) = path.tangents(s)
+    return tuple(np.asarray(a, float).reshape(len(s), 3) for a in (p, o, dp, do))
 
 
 class PoseSolver:
@@ -458,6 +457,45 @@ def _task_rank(res: _Resolver, q) -> int:
     return int(np.count_nonzero(sig > 1e-9 * sig[0])) if sig[0] > 0 else 0
 
 
+def _interpreted(res: _Resolver, _chains, target, ds: float, q, qs, dq, progress) -> tuple[float, float]:
+    """The RK4 loop of Algorithm 1 in Python, on the Kinematics' own (Pinocchio) calls: for
+    a machine whose chains do not pack (resolved_rate.integrate has the contract)."""
+    settings = res.settings
+    at = lambda j: tuple(a[j] for a in target)           # noqa: E731
+    q, ep, eo, task = res.project(target[0][0], target[1][0], q, 0, 0.0)
+    max_ep, max_eo = ep, eo
+    qs[0] = q
+    n_steps = len(qs) - 1
+    for k in range(n_steps):
+        progress[0] = k
+        k1, dq[k] = res.rate(at(2 * k), q, task)
+        k2 = res.rate(at(2 * k + 1), q + 0.5 * ds * k1)[0]
+        k3 = res.rate(at(2 * k + 1), q + 0.5 * ds * k2)[0]
+        k4 = res.rate(at(2 * k + 2), q + ds * k3)[0]
+        q = q + (k1 + 2.0 * k2 + 2.0 * k3 + k4) * (ds / 6.0)
+        q, ep, eo, task = res.project(target[0][2 * k + 2], target[1][2 * k + 2], q,
+                                      settings.projection_iterations, settings.projection_tolerance)
+        max_ep, max_eo = max(max_ep, ep), max(max_eo, eo)
+        qs[k + 1] = q
+    progress[0] = n_steps
+    dq[-1] = res.rate(at(2 * n_steps), q, task)[1]
+    return max_ep, max_eo
+
+
+def _compiled(res: _Resolver, chains, target, ds: float, q, qs, dq, progress) -> tuple[float, float]:
+    """The same loop compiled (trajectory/resolved_rate.py), on the packed chains."""
+    from trajectory import resolved_rate      # here: numba's import (~0.5 s) only where a path is resolved
+    settings = res.settings
+    stroke = (res.limited.astype(np.int64), np.ascontiguousarray(res.centre, float),
+              np.ascontiguousarray(res.half, float))
+    gains = (float(settings.beta), float(settings.drift_gain), float(settings.manipulability_threshold),
+             float(settings.damping_max))
+    return resolved_rate.integrate(chains, res.active.astype(np.int64), stroke, gains, int(res.rank),
+                                   int(settings.projection_iterations), float(settings.projection_tolerance),
+                                   tuple(np.ascontiguousarray(a, float) for a in target), float(ds),
+                                   np.ascontiguousarray(q, float), qs, dq, progress)
+
+
 def resolve(path, kinematics: Kinematics, machine: MachineConfig,
             settings: RedundancySettings | None = None, q0=None) -> Resolution:
     """Algorithm 1 of the thesis: integrate Eq. 3.27 with RK4 (Eq. 3.24) from q0 over
@@ -485,28 +523,14 @@ def resolve(path, kinematics: Kinematics, machine: MachineConfig,
     half = np.arange(2 * n_steps + 1) * (0.5 * ds)       # R at the grid and the RK4 midpoints
     half[-1] = length
     target = _path_samples(path, half)
-    at = lambda j: tuple(a[j] for a in target)           # noqa: E731
     qs, dq = np.empty((n_steps + 1, len(q))), np.empty((n_steps + 1, len(q)))
-    q, ep, eo, task = res.project(target[0][0], target[1][0], q, 0, 0.0)
-    max_ep, max_eo = ep, eo
-    qs[0] = q
-    k = 0
+    chains = kinematics.packed_chains()
+    integrate = _compiled if chains is not None else _interpreted
+    progress = np.zeros(1, np.int64)
     try:
-        for k in range(n_steps):
-            k1, dq[k] = res.rate(at(2 * k), q, task)
-            k2 = res.rate(at(2 * k + 1), q + 0.5 * ds * k1)[0]
-            k3 = res.rate(at(2 * k + 1), q + 0.5 * ds * k2)[0]
-            k4 = res.rate(at(2 * k + 2), q + ds * k3)[0]
-            q = q + (k1 + 2.0 * k2 + 2.0 * k3 + k4) * (ds / 6.0)
-            q, ep, eo, task = res.project(target[0][2 * k + 2], target[1][2 * k + 2], q,
-                                          settings.projection_iterations,
-                                          settings.projection_tolerance)
-            max_ep, max_eo = max(max_ep, ep), max(max_eo, eo)
-            qs[k + 1] = q
-        k = n_steps
-        dq[-1] = res.rate(at(2 * n_steps), q, task)[1]
+        max_ep, max_eo = integrate(res, chains, target, ds, q, qs, dq, progress)
     except np.linalg.LinAlgError:       # "Singular matrix": say why, and where
-        raise _failure(machine, s, qs[:k + 1], path) from None
+        raise _failure(machine, s, qs[:int(progress[0]) + 1], path) from None
     bad = ~(np.isfinite(qs).all(axis=1) & np.isfinite(dq).all(axis=1))
     if bad.any():                       # the rate blew up without a LinAlgError
         raise _failure(machine, s, qs[:int(np.argmax(bad)) + 1], path)

@@ -165,6 +165,13 @@ def planner_process_init() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def warm_planner() -> None:
+    """Load the compiled redundancy resolution (trajectory/resolved_rate.py; compiled here
+    the first time after an installation) in the planner process ahead of the first goal."""
+    from trajectory import resolved_rate       # here: the node's own process never needs numba
+    resolved_rate.warm()
+
+
 def _kinematics_of(machine: MachineConfig) -> Kinematics:
     """The machine's kinematics, built once per machine and (planner) process."""
     return _kinematics.get(machine.yaml_path) or _kinematics.setdefault(machine.yaml_path,

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline
 
+from trajectory.blocks import BLOCK, in_blocks
 from trajectory.toolpath import MIN_SPACING, CLData
 
 DEGREE = 5  # quintic: C4 in u, so C3 (jerk-continuous) in s; thesis Eq. 3.12 asks for C3
@@ -47,6 +48,13 @@ _MIN_AXIS_NORM = 0.5
 # assumed: |P'(u)| below this (chord length gives ~1) means the fitted curve nearly stops
 # (a cusp from wildly uneven point spacing): arc length would be ill-conditioned.
 _MIN_SPEED = 1e-3
+
+
+def _lengths(v: np.ndarray) -> np.ndarray:
+    """|v| over the last axis (3 components), summed in the order np.linalg.norm sums them
+    (bit-identical), without its slow reduction over a short last axis (~40x here)."""
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.sqrt(x * x + y * y + z * z)
 
 
 @dataclass(frozen=True)
@@ -77,12 +85,12 @@ class ArcLengthPath:
         # quadrature nodes of every span, for the knot arc lengths and the sanity checks
         half = np.diff(u) / 2
         nodes = (u[:-1] + half)[:, None] + half[:, None] * _GL_X[None, :]
-        speed = np.linalg.norm(pos(nodes, nu=1), axis=-1)
+        speed = _lengths(pos(nodes, nu=1))
         bad = np.flatnonzero(speed.min(axis=1) < _MIN_SPEED)
         if len(bad):
             raise ValueError(f'the fitted path nearly stops between points {bad[0]} and {bad[0] + 1} '
                              '(very uneven point spacing)')
-        bad = np.flatnonzero(np.linalg.norm(axis(nodes), axis=-1).min(axis=1) < _MIN_AXIS_NORM)
+        bad = np.flatnonzero(_lengths(axis(nodes)).min(axis=1) < _MIN_AXIS_NORM)
         if len(bad):
             raise ValueError(f'tool axis turns too far between points {bad[0]} and {bad[0] + 1} '
                              '(interpolated axis nearly zero)')
@@ -94,7 +102,7 @@ class ArcLengthPath:
     # ------------------------------------------------------------ s -> u
 
     def _speed(self, u):
-        return np.linalg.norm(self.position_spline(u, nu=1), axis=-1)
+        return _lengths(self.position_spline(u, nu=1))
 
     def parameter(self, s) -> np.ndarray:
         """The chord-length parameter u at arc length(s) s (exact inversion, see module)."""
@@ -109,11 +117,16 @@ class ArcLengthPath:
         u0, u1 = self.knot_u[i], self.knot_u[i + 1]
         s0 = self.knot_s[i]
         u = u0 + (s - s0) / (self.knot_s[i + 1] - s0) * (u1 - u0)
-        for _ in range(_NEWTON_ITERATIONS):
+
+        def newton_step(u0, u, s0, s):
             half = (u - u0) / 2
             nodes = (u0 + half)[..., None] + half[..., None] * _GL_X
             f = s0 + (self._speed(nodes) * _GL_W).sum(axis=-1) * half - s
-            step = f / self._speed(u)
+            return f / self._speed(u)
+
+        for _ in range(_NEWTON_ITERATIONS):
+            # in blocks (trajectory/blocks.py): 16 nodes x 3 components per s
+            step = in_blocks(newton_step, u0, u, s0, s, size=BLOCK // 8)
             u = np.clip(u - step, u0, u1)
             if np.all(np.abs(step) <= 4e-16 * np.maximum(np.abs(u), self.knot_u[-1])):
                 break
@@ -125,7 +138,21 @@ class ArcLengthPath:
         """P(s) (m) and unit O(s): shape (3,) each for scalar s, (M, 3) for an array."""
         u = self.parameter(s)
         o = self.axis_spline(u)
-        return self.position_spline(u), o / np.linalg.norm(o, axis=-1, keepdims=True)
+        return self.position_spline(u), o / _lengths(o)[..., None]
+
+    def tangents(self, s):
+        """[(P, O), (P', O')] at s, from one s -> u inversion: the same numbers as
+        :meth:`evaluate` and ``derivatives(s, 1)`` (their formulas), at about half the cost
+        of calling both."""
+        u = self.parameter(s)
+        dot = lambda a, b: np.sum(a * b, axis=-1, keepdims=True)  # noqa: E731
+        p1 = self.position_spline(u, nu=1)
+        u1 = 1 / np.sqrt(dot(p1, p1))                  # du/ds
+        o0, o1 = self.axis_spline(u), self.axis_spline(u, nu=1)
+        r = np.sqrt(dot(o0, o0))
+        n = o0 / r
+        n1 = (o1 - dot(o0, o1) / r * n) / r
+        return [(self.position_spline(u), o0 / _lengths(o0)[..., None]), (p1 * u1, n1 * u1)]
 
     def derivatives(self, s, order: int):
         """(d^k P/ds^k, d^k O/ds^k) for k = order in {1, 2, 3}, shapes as `evaluate`."""

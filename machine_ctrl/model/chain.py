@@ -126,3 +126,28 @@ def walk(joints, frame, q: np.ndarray, want=(), after=None):
             rot, pos = after(j, qj, rot, pos)
     frame_rotation, frame_terms = frame
     return rot @ frame_rotation, pos + apply(rot, frame_terms), axes
+
+
+def packed(chains) -> tuple:
+    """Chains (each (joints, end_frame(...)) as Kinematics keeps them) as flat arrays, for
+    compiled code that walks them (trajectory/resolved_rate.py): per joint, over the chains
+    one after another, the placement rotation (J, 3, 3) and translation (J, 3), prismatic
+    (J,) bool, coordinate axis 0/1/2 (J,), column of q (J,) and chain number (J,); per chain,
+    the end frame's rotation (C, 3, 3) and translation (C, 3). A tilted motion (a caller's
+    error term) is not represented: only :attr:`ChainJoint.motion` == axis chains pack."""
+    joints = [(c, j) for c, (chain_joints, _) in enumerate(chains) for j in chain_joints]
+    if any(j.motion is not j.axis for _, j in joints):
+        raise ValueError('a chain with a tilted motion does not pack')
+    frames = [frame for _, frame in chains]
+    frame_translation = np.zeros((len(frames), 3))
+    for c, (_, frame_terms) in enumerate(frames):
+        for k, value in frame_terms:
+            frame_translation[c, k] = value
+    return (np.array([j.rotation for _, j in joints]).reshape(-1, 3, 3),
+            np.array([j.translation for _, j in joints]).reshape(-1, 3),
+            np.array([j.prismatic for _, j in joints], dtype=np.bool_),
+            np.array([int(np.argmax(j.axis)) for _, j in joints], dtype=np.int64),
+            np.array([j.index for _, j in joints], dtype=np.int64),
+            np.array([c for c, _ in joints], dtype=np.int64),
+            np.array([rotation for rotation, _ in frames]).reshape(-1, 3, 3),
+            frame_translation)

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from machine_ctrl.model.chain import chain, end_frame, walk
+from machine_ctrl.model.chain import chain, end_frame, packed, walk
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.model.errors import ConfigError
 
@@ -86,6 +86,7 @@ class Kinematics:
             self._chains = tuple(self._walked(frame) for frame in (workpiece_frame, tool_frame))
         except ConfigError:
             self._chains = None
+        self._packed = None if self._chains is None else packed(self._chains)
 
     def _walked(self, frame: str):
         joints, placement = chain(self.model, self.axis_names, frame)
@@ -114,6 +115,12 @@ class Kinematics:
         inverse = np.swapaxes(w_rotation, 1, 2)
         return (np.einsum('nij,nj->ni', inverse, t_position - w_position),
                 np.einsum('nij,nj->ni', inverse, t_rotation[:, :, 2]))
+
+    def packed_chains(self) -> tuple | None:
+        """The workpiece chain (number 0) and the tool chain (1) as flat arrays for compiled
+        code (:func:`machine_ctrl.model.chain.packed`); None for a machine with a joint the
+        batched walk does not take."""
+        return self._packed
 
     @classmethod
     def from_config(cls, machine: MachineConfig) -> Kinematics:

@@ -101,7 +101,8 @@ from machine_ctrl.ros.node_common import main_for, qos, use_sim_time, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 from trajectory.freeform import Turning
 from trajectory.goals import Goal, GoalState
-from trajectory.session import Answer, Session, plan_freeform, plan_path, plan_program_text, planner_process_init
+from trajectory.session import (Answer, Session, plan_freeform, plan_path, plan_program_text, planner_process_init,
+                                warm_planner)
 
 LATCHED = ros_io.qos(contract.LATCHED_QOS)
 GOAL_QOS = ros_io.qos(contract.COMMAND_QOS)
@@ -187,10 +188,32 @@ class TrajectoryNode(Node):
         self.get_logger().info(f'ready: feed {self.feed * 1e3:g} mm/s; waiting for {contract.JOINT_STATES.name}')
 
     def start_planner(self) -> None:
-        """The planner process: spawned and its imports done now, not at the first goal."""
+        """The planner process: spawned and its imports done now, not at the first goal; its
+        compiled resolution loaded next (a first goal waits for that, the node does not)."""
         self.planner = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
                                            initializer=planner_process_init)
         self.planner_pid = self.planner.submit(os.getpid).result()
+        self.planner.submit(warm_planner).add_done_callback(self.warmed)
+
+    def warmed(self, future: Future) -> None:
+        """(The pool's thread.) Say why the compiled resolution did not load ahead, if so:
+        the first plan then loads, or compiles, it itself."""
+        error = None if future.cancelled() else future.exception()
+        if error is not None and not isinstance(error, BrokenProcessPool):     # not a stop
+            self.get_logger().warning(f'the planner process did not load its compiled resolution ahead: '
+                                      f'{error_text(error)}; the first plan will')
+
+    def submit_plan(self, function, *args) -> None:
+        """Hand `function(*args)` to the planner process. A pool whose worker died while it
+        waited for work (BrokenProcessPool at the submit: e.g. after a plan a fault dropped)
+        is restarted first, so that a goal is never lost to it."""
+        try:
+            self.planning = self.planner.submit(function, *args)
+        except BrokenProcessPool:
+            self.get_logger().warning('the planner process had died while idle: restarted')
+            self.stop_planner()
+            self.start_planner()
+            self.planning = self.planner.submit(function, *args)
 
     def stop_planner(self) -> None:
         """Stop the planner process, abandoning a plan under way, and wait for its pool.
@@ -241,7 +264,7 @@ class TrajectoryNode(Node):
         except ValueError as exc:
             self.session.refuse('path', str(exc), stamp, label)
             return
-        self.planning = self.planner.submit(plan_path, self.machine, cl, self.feed)
+        self.submit_plan(plan_path, self.machine, cl, self.feed)
         self.session.planning(f'path of {len(cl)} points', stamp)
         self.session.touch(time.monotonic())         # reading a long path took this callback's time
 
@@ -253,7 +276,7 @@ class TrajectoryNode(Node):
         stamp, label = self.clock.split(self.session.step), f'program of {lines} line{"s" if lines > 1 else ""}'
         if not self.session.may_accept('program', stamp, label):
             return
-        self.planning = self.planner.submit(plan_program_text, self.machine, msg.data, self.sub_program.topic_name)
+        self.submit_plan(plan_program_text, self.machine, msg.data, self.sub_program.topic_name)
         self.session.planning(label, stamp, kind='program')
         self.session.touch(time.monotonic())
 
@@ -325,8 +348,7 @@ class TrajectoryNode(Node):
         turning = Turning(v['freeform.spindle_speed'], v['freeform.feed_per_rev'], v['freeform.start_radius'],
                           v['freeform.duration'], v['freeform.start_angle'])
         here = self.session.stream.position(self.session.stream.next_step)
-        self.planning = self.planner.submit(plan_freeform, self.machine, v['freeform.surface'], turning, here,
-                                            v['freeform.lead'])
+        self.submit_plan(plan_freeform, self.machine, v['freeform.surface'], turning, here, v['freeform.lead'])
         goal = self.session.planning(label, stamp, kind='freeform')
         return self.answer(response, Answer(True, f'planning {label} (goal {goal.uuid})'))
 
