@@ -124,8 +124,11 @@ def recovered(micromill, graph, client):
         else:
             graph[name].stopping = True
             restart(graph, micromill, name)
-    client.wait(lambda: client.trajectory_alive and client.status().get('state') is not None,
-                'the trajectory node', GUARD, graph.check)
+    # streaming: a trajectory node just restarted refuses goals until it has heard a state
+    # (run48: a goal sent right after the restart was refused, "no joint_states")
+    client.wait(lambda: client.trajectory_alive and client.status().get('state') is not None
+                and client.status().get('streamed_to_step', '') != '', 'the trajectory node streaming', GUARD,
+                graph.check)
     if client.status().get('state') not in ('idle', 'fault'):
         client.call(contract.STOP.name)
     if client.status().get('feed_override_setting') != '1.0':
