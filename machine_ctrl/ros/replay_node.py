@@ -9,9 +9,9 @@ that falls behind (its process starved of CPU, or stopped) gets every message la
 a shorter queue dropped the oldest unacknowledged ones (a loaded CI run: a recorder fed at
 rate 2 lost 3 of 20001 states with depth 1000). The depth is a bound, not allocated up
 front, and the queue holds at most one pass, which this node holds in memory anyway. At the
-end it waits until every subscriber has acknowledged everything (at least ACK_WAIT s, or a
-pass's duration), prints the counts and exits; 1 when some subscriber did not (it may have
-lost messages).
+end it waits until every subscriber has acknowledged everything (up to ACK_WAIT s, or a
+pass's duration if longer), prints the counts and exits; 1 when some subscriber did not
+(it may have lost messages).
 """
 from __future__ import annotations
 
@@ -31,7 +31,10 @@ from machine_ctrl import parameters
 from machine_ctrl.ros.node_parameters import declare_parameters
 from machine_ctrl.ros.messages import message_class
 
-ACK_WAIT = 10.0     # s, assumed: at least this long for every subscriber to acknowledge the last messages
+# s, assumed: how long every subscriber has, after the last message, to acknowledge everything
+# (a bound: the wait ends at the last acknowledgement). A recorder continued after a stop
+# needed more than 10 s for its backlog on a loaded 2-core run (run49).
+ACK_WAIT = 30.0
 
 
 def publisher_qos(offers: list[dict], pass_length: int) -> QoSProfile:
@@ -121,8 +124,10 @@ class ReplayNode(Node):
             number += 1
             self.clock.new_pass(number)
         wait = max(ACK_WAIT, self.pass_seconds)        # a subscriber's backlog may be a whole pass
+        deadline = time.monotonic() + wait             # one bound for every topic together
         unacknowledged = [topic for topic, publisher in self.publishers_by_topic.items()
-                          if not publisher.wait_for_all_acked(Duration(seconds=wait))]
+                          if not publisher.wait_for_all_acked(
+                              Duration(seconds=max(deadline - time.monotonic(), 0.0)))]
         print(f'replayed {sum(self.counts.values())} messages', flush=True)
         for topic, count in sorted(self.counts.items()):
             print(f'  {topic}: {count}', flush=True)
