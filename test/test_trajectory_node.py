@@ -489,3 +489,11 @@ def test_a_planner_process_that_died_idle_is_restarted_at_the_next_goal(trajecto
         return True
     wait_until(restarted, 'restarted planner')
     assert answers[-1] == node.planner_pid != first
+
+
+def test_the_planner_runs_below_the_nodes_priority(trajectory_node):
+    import os
+
+    from trajectory.session import PLANNER_NICENESS
+    ours = os.getpriority(os.PRIO_PROCESS, 0)
+    assert os.getpriority(os.PRIO_PROCESS, trajectory_node.planner_pid) == min(ours + PLANNER_NICENESS, 19)

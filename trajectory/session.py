@@ -53,6 +53,7 @@ itself runs outside (the node's planner process runs :func:`plan_path`).
 """
 from __future__ import annotations
 
+import os
 import signal
 from dataclasses import dataclass
 from enum import StrEnum
@@ -156,13 +157,19 @@ def waypoint_program(reference: Reference, goals, arrivals=None) -> Program:
 
 
 _kinematics: dict = {}
+# assumed: the planner process's niceness above the node's. Planning is background work:
+# where the CPU is short, the nodes that answer every control step come first (a plan then
+# takes longer; on an idle core it takes as long).
+PLANNER_NICENESS = 5
 
 
 def planner_process_init() -> None:
     """Start of the node's planner process (it shares the node's process group): Ctrl-C
     (SIGINT to the group) is for the node, which shuts the planner down — the planner
-    ignores it rather than die with a KeyboardInterrupt traceback while it waits for work."""
+    ignores it rather than die with a KeyboardInterrupt traceback while it waits for work.
+    It runs PLANNER_NICENESS below the node's priority."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.nice(PLANNER_NICENESS)
 
 
 def warm_planner() -> None:
