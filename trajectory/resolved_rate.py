@@ -237,22 +237,17 @@ def integrate(chains, active, stroke, gains, rank, iterations, tolerance, target
     for k in range(n_steps):
         progress[0] = k
         k1, dq[k] = _rate(chains, active, stroke, gains, rank, target, 2 * k, q, task)
-        stage = q + 0.5 * ds * k1
-        if not _finite(stage):
-            _blown_up(qs, dq, k)
-            return max_ep, max_eo
-        k2 = _rate(chains, active, stroke, gains, rank, target, 2 * k + 1, stage, _task(chains, active, stage))[0]
-        stage = q + 0.5 * ds * k2
-        if not _finite(stage):
-            _blown_up(qs, dq, k)
-            return max_ep, max_eo
-        k3 = _rate(chains, active, stroke, gains, rank, target, 2 * k + 1, stage, _task(chains, active, stage))[0]
-        stage = q + ds * k3
-        if not _finite(stage):
-            _blown_up(qs, dq, k)
-            return max_ep, max_eo
-        k4 = _rate(chains, active, stroke, gains, rank, target, 2 * k + 2, stage, _task(chains, active, stage))[0]
-        q = q + (k1 + 2.0 * k2 + 2.0 * k3 + k4) * (ds / 6.0)
+        total, slope = k1.copy(), k1
+        for stage in range(3):          # RK4's stages 2-4: from q by ds/2, ds/2, ds along the last slope
+            last = stage == 2
+            x = q + (1.0 if last else 0.5) * ds * slope
+            if not _finite(x):
+                _blown_up(qs, dq, k)
+                return max_ep, max_eo
+            row = 2 * k + 2 if last else 2 * k + 1      # the target at the node ahead or the midpoint
+            slope = _rate(chains, active, stroke, gains, rank, target, row, x, _task(chains, active, x))[0]
+            total += (1.0 if last else 2.0) * slope
+        q = q + total * (ds / 6.0)
         if not _finite(q):
             _blown_up(qs, dq, k)
             return max_ep, max_eo

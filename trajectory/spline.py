@@ -50,6 +50,11 @@ _MIN_AXIS_NORM = 0.5
 _MIN_SPEED = 1e-3
 
 
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a . b over the last axis, kept as a length-1 axis."""
+    return np.sum(a * b, axis=-1, keepdims=True)
+
+
 def _lengths(v: np.ndarray) -> np.ndarray:
     """|v| over the last axis (3 components), summed in the order np.linalg.norm sums them
     (bit-identical), without its slow reduction over a short last axis (~40x here)."""
@@ -145,13 +150,12 @@ class ArcLengthPath:
         :meth:`evaluate` and ``derivatives(s, 1)`` (their formulas), at about half the cost
         of calling both."""
         u = self.parameter(s)
-        dot = lambda a, b: np.sum(a * b, axis=-1, keepdims=True)  # noqa: E731
         p1 = self.position_spline(u, nu=1)
-        u1 = 1 / np.sqrt(dot(p1, p1))                  # du/ds
+        u1 = 1 / np.sqrt(_dot(p1, p1))                  # du/ds
         o0, o1 = self.axis_spline(u), self.axis_spline(u, nu=1)
-        r = np.sqrt(dot(o0, o0))
+        r = np.sqrt(_dot(o0, o0))
         n = o0 / r
-        n1 = (o1 - dot(o0, o1) / r * n) / r
+        n1 = (o1 - _dot(o0, o1) / r * n) / r
         return [(self.position_spline(u), o0 / _lengths(o0)[..., None]), (p1 * u1, n1 * u1)]
 
     def derivatives(self, s, order: int):
@@ -163,11 +167,10 @@ class ArcLengthPath:
     def all_derivatives(self, s):
         """[(P, O), (P', O'), (P'', O''), (P''', O''')] with ' = d/ds, at s."""
         u = self.parameter(s)
-        dot = lambda a, b: np.sum(a * b, axis=-1, keepdims=True)  # noqa: E731
         p1, p2, p3 = (self.position_spline(u, nu=k) for k in (1, 2, 3))
-        g = np.sqrt(dot(p1, p1))                       # |P'(u)| = ds/du
-        gu = dot(p1, p2) / g
-        guu = (dot(p2, p2) + dot(p1, p3) - gu**2) / g
+        g = np.sqrt(_dot(p1, p1))                       # |P'(u)| = ds/du
+        gu = _dot(p1, p2) / g
+        guu = (_dot(p2, p2) + _dot(p1, p3) - gu**2) / g
         u1 = 1 / g                                     # du/ds
         u2 = -gu / g**3                                # d2u/ds2
         u3 = (-guu / g**3 + 3 * gu**2 / g**4) / g      # d3u/ds3
@@ -177,10 +180,10 @@ class ArcLengthPath:
 
         # normalized axis n = o / r and its u-derivatives, from o = r n differentiated
         o0, o1, o2, o3 = (self.axis_spline(u, nu=k) for k in (0, 1, 2, 3))
-        r = np.sqrt(dot(o0, o0))
-        r1 = dot(o0, o1) / r
-        r2 = (dot(o1, o1) + dot(o0, o2) - r1**2) / r
-        r3 = (3 * dot(o1, o2) + dot(o0, o3) - 3 * r1 * r2) / r
+        r = np.sqrt(_dot(o0, o0))
+        r1 = _dot(o0, o1) / r
+        r2 = (_dot(o1, o1) + _dot(o0, o2) - r1**2) / r
+        r3 = (3 * _dot(o1, o2) + _dot(o0, o3) - 3 * r1 * r2) / r
         n = o0 / r
         n1 = (o1 - r1 * n) / r
         n2 = (o2 - r2 * n - 2 * r1 * n1) / r
