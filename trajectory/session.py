@@ -595,8 +595,9 @@ class Session:
         self._watched_at = now
 
     def machine_heard(self, now: float) -> None:
-        """A message from hw_sim (its /diagnostics, 1 Hz) came at wall time `now`: a liveliness
-        loss reported before it was false (a reader delayed by this node's own long callback)."""
+        """A message from hw_sim (a /clock step, or its 1 Hz /diagnostics) came at wall time
+        `now`: a liveliness loss reported before it was false (a reader delayed by this node's
+        own long callback, or a lease missed in a loaded process)."""
         self.hw_sim.heard(now)
 
     def machine_alive(self, alive: bool, now: float | None = None) -> None:

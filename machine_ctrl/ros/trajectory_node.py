@@ -246,7 +246,11 @@ class TrajectoryNode(Node):
             step = self.clock.step(msg.clock)
         except ros_io.InvalidMessage:
             return
-        self.session.watch(time.monotonic(), step)     # a stall of this node first (README "Faults")
+        now = time.monotonic()
+        # hw_sim's clock is a sign of life: a lease loss reported while it comes is false (seen
+        # once in a loaded single-process run, hw_sim stepping on)
+        self.session.machine_heard(now)
+        self.session.watch(now, step)     # a stall of this node first (README "Faults")
         self.session.tick(step)
 
     # -- goals -----------------------------------------------------------------------------
