@@ -40,8 +40,9 @@ DEFAULT_FEED = 10e-3
 # assumed: <= 1000 feed nodes (optimize_feed takes ~2 s for 9 axes at this size; its grid
 # error is a few %, which the sampler's verification absorbs).
 MAX_FEED_NODES = 1000
-# assumed: at most 8 local slow-down passes (each one LP re-solve, warm-started, and one
-# sampling); what is left after them is removed by a global time stretch.
+# assumed: at most 8 local slow-down passes (each lowers b around the samples over a limit,
+# sampling.local_slowdown, and samples again); what is left after them is removed by a
+# global time stretch.
 LOCAL_PASSES = 8
 
 
