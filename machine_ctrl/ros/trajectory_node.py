@@ -247,9 +247,7 @@ class TrajectoryNode(Node):
         except ros_io.InvalidMessage:
             return
         now = time.monotonic()
-        # hw_sim's clock is a sign of life: a lease loss reported while it comes is false (seen
-        # once in a loaded single-process run, hw_sim stepping on)
-        self.session.machine_heard(now)
+        self.session.machine_heard(now)   # hw_sim's clock: a sign of life (Session.machine_heard)
         self.session.watch(now, step)     # a stall of this node first (README "Faults")
         self.session.tick(step)
 
