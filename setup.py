@@ -70,6 +70,7 @@ REQUIRES = [
     # recording and analysis
     'mcap>=1.6,<2',
     'mcap-ros2-support>=0.6,<0.7',  # import mcap_ros2
+    'zstandard>=0.25,<0.26',  # machine_ctrl/recording/mcap_file.py compresses the chunks
     'matplotlib>=3.11,<4',
     'PyYAML>=6.0,<7',  # import yaml
     # identification

@@ -25,6 +25,7 @@ DISTRIBUTION_TO_KEY = {
     'pin': 'pinocchio',  # the ROS package carries the Python bindings (4.1.0 in Jazzy)
     'ruckig': 'python3-ruckig-pip',  # the ROS package ruckig is the C++ library only
     'mcap': 'python3-mcap-pip',
+    'zstandard': 'python3-zstandard-pip',  # rosdep/python.yaml at 8468e88 has no key for it
     'nfoursid': 'python3-nfoursid-pip',
     'numba': 'python3-numba-pip',  # pinned to the numpy of the other wheels, as Debian's is not
     'pandas': 'python3-pandas',

@@ -64,10 +64,10 @@ from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import get_chunk_data_stream
-from mcap.writer import CompressionType, Writer
 
 from machine_ctrl import contract
 from machine_ctrl.recording import msgdefs
+from machine_ctrl.recording.mcap_file import McapWriter
 
 METADATA_VERSION = 9           # rosbag2 of ROS 2 Jazzy
 ROS_DISTRO = 'jazzy'
@@ -113,10 +113,10 @@ class TopicInfo:
 
 
 class _RecordFile:
-    """The .mcap file under the mcap Writer: unbuffered, so what the Writer hands over (it
-    assembles whole records, a chunk and its message indexes at a time) is in the operating
+    """The .mcap file under the :class:`McapWriter`: unbuffered, so what the writer hands
+    over (whole records, a chunk and its message indexes in one call) is in the operating
     system's page cache when ``write`` returns, and no user-space buffer is lost when the
-    process is killed. Counts its position (the Writer asks ``tell``)."""
+    process is killed. Counts its position (the writer asks ``tell``)."""
 
     def __init__(self, path: Path):
         self.path = path
@@ -242,13 +242,11 @@ class BagWriter:
         self._good_end = 0                    # bytes of the file that end with a complete record
         self._durable: dict[str, int] = {}    # counts per topic in the completed chunks
         self._syncer: _Syncer | None = None
-        kind = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4, 'none': CompressionType.NONE}[compression]
         try:
             self._file = _RecordFile(path)
         except OSError as exc:
             raise BagError(f'{path}: cannot write: {exc.strerror}') from None
-        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE if chunk_size is None else chunk_size,
-                              compression=kind)
+        self._writer = McapWriter(self._file, CHUNK_SIZE if chunk_size is None else chunk_size, compression)
         self._guarded(self._start, custom_data)
 
     def _start(self, custom_data) -> None:
