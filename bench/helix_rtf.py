@@ -7,8 +7,9 @@ many hops as the graph's critical path) as a real-time factor at the machine's p
     .venv/bin/python bench/helix_rtf.py [--runs 3] [--modes multi,single]
 
 The factor is taken over the send command's whole run (planning in the trajectory node
-included: the graph keeps stepping meanwhile) and, as "moving", over the wall seconds in
-which the machine's first axis moved by more than 1 µm.
+included: the graph keeps stepping meanwhile) and, as "moving", from the trajectory node's
+status 'running' to its next state. The probe reads only /clock (every 10th step) and the
+status, so it takes little of the CPU the graph runs on.
 """
 from __future__ import annotations
 
@@ -28,11 +29,13 @@ TOOL = str(Path(sys.executable).with_name('machine-ctrl'))
 
 
 def helix_rtf(single_process: bool) -> tuple[float, float, float]:
-    """(factor over the whole send, factor while moving, wall s of the send)."""
+    """(factor over the whole send, factor while the trajectory node says 'running', wall
+    s of the send)."""
     import rclpy
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from diagnostic_msgs.msg import DiagnosticStatus
     from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import JointState
+
+    from machine_ctrl.ros.messages import qos
 
     with reserve_ros_domain() as lease, Supervisor(isolated_ros_env(lease.domain_id), stop_timeout=5.0) as sup:
         sup.start('bringup', [TOOL, 'bringup'] + (['--single-process'] if single_process else []))
@@ -40,34 +43,36 @@ def helix_rtf(single_process: bool) -> tuple[float, float, float]:
         context = init_context(lease.domain_id)
         try:
             node = rclpy.create_node('rtf_probe', context=context)
-            samples = []            # (wall s, sim s, first axis position)
-            position = [None]
-            best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-            node.create_subscription(JointState, contract.JOINT_STATES.name,
-                                     lambda m: position.__setitem__(0, m.position[0] if m.position else None),
-                                     best_effort)
-            node.create_subscription(Clock, contract.CLOCK.name, lambda m: samples.append(
-                (time.monotonic(), m.clock.sec + 1e-9 * m.clock.nanosec, position[0])), best_effort)
+            clocks = []             # (wall s, sim s): hw_sim's /clock comes every 10 steps
+            states = []             # (wall s, /trajectory/status message)
+            node.create_subscription(Clock, contract.CLOCK.name, lambda m: clocks.append(
+                (time.monotonic(), m.clock.sec + 1e-9 * m.clock.nanosec)), qos(contract.CLOCK_READER_QOS))
+            node.create_subscription(DiagnosticStatus, contract.TRAJECTORY_STATUS.name,
+                                     lambda m: states.append((time.monotonic(), m.message)),
+                                     qos(contract.LATCHED_READER_QOS))
             executor = rclpy.executors.SingleThreadedExecutor(context=context)
             executor.add_node(node)
             sup.start('send', [TOOL, 'send', 'helix'])
             start = time.monotonic()
             while sup['send'].running():
                 executor.spin_once(timeout_sec=0.05)
-            wall = time.monotonic() - start
+            end = time.monotonic()
             if sup['send'].returncode != 0:
                 raise SystemExit(f'send helix failed ({sup["send"].returncode}):\n' + '\n'.join(sup['send'].tail()))
             executor.shutdown()
             node.destroy_node()
         finally:
             context.try_shutdown()
-    inside = [s for s in samples if s[0] >= start]
-    whole = (inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0])
-    moving_sim = moving_wall = 0.0
-    for (t0, s0, p0), (t1, s1, p1) in zip(inside, inside[1:]):
-        if p0 is not None and p1 is not None and abs(p1 - p0) > 1e-6:
-            moving_sim, moving_wall = moving_sim + s1 - s0, moving_wall + t1 - t0
-    return whole, (moving_sim / moving_wall if moving_wall else float('nan')), wall
+    running = [t for t, state in states if state == 'running']
+    stopped = [t for t, state in states if running and t > running[0] and state != 'running']
+    return (factor(clocks, start, end), factor(clocks, running[0], stopped[0]) if running and stopped
+            else float('nan'), end - start)
+
+
+def factor(clocks, start: float, end: float) -> float:
+    """Simulated s per wall s between the first and the last /clock inside [start, end]."""
+    inside = [c for c in clocks if start <= c[0] <= end]
+    return (inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0])
 
 
 def main(argv=None) -> None:
