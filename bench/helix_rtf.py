@@ -63,10 +63,10 @@ def helix_rtf(single_process: bool) -> tuple[float, float, float]:
             node.destroy_node()
         finally:
             context.try_shutdown()
-    running = [t for t, state in states if state == 'running']
-    stopped = [t for t, state in states if running and t > running[0] and state != 'running']
-    return (factor(clocks, start, end), factor(clocks, running[0], stopped[0]) if running and stopped
-            else float('nan'), end - start)
+    running = next((t for t, state in states if state == 'running'), None)
+    stopped = next((t for t, state in states if running is not None and t > running and state != 'running'), None)
+    moving = factor(clocks, running, stopped) if stopped is not None else float('nan')
+    return factor(clocks, start, end), moving, end - start
 
 
 def factor(clocks, start: float, end: float) -> float:

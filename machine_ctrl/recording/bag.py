@@ -67,11 +67,10 @@ from mcap.stream_reader import get_chunk_data_stream
 
 from machine_ctrl import contract
 from machine_ctrl.recording import msgdefs
-from machine_ctrl.recording.mcap_file import McapWriter
+from machine_ctrl.recording.mcap_file import MAGIC, McapWriter
 
 METADATA_VERSION = 9           # rosbag2 of ROS 2 Jazzy
 ROS_DISTRO = 'jazzy'
-MAGIC = b'\x89MCAP0\r\n'
 LIBRARY = 'machine_ctrl bag writer (python mcap)'
 DURATION_INFINITE = {'sec': 9223372036, 'nsec': 854775807}   # RMW_DURATION_INFINITE
 CHUNK_SIZE = 1024 * 1024       # bytes of uncompressed messages per chunk (rosbag2's default)

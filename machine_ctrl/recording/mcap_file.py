@@ -26,7 +26,7 @@ from mcap.opcode import Opcode
 from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Metadata, MetadataIndex, Schema,
                           Statistics, SummaryOffset)
 
-MAGIC = b'\x89MCAP0\r\n'
+MAGIC = b'\x89MCAP0\r\n'                      # an MCAP file's first and last 8 bytes
 # opcode, record length, channel id, sequence, log time, publish time (MCAP spec, "Message")
 _MESSAGE = struct.Struct('<BQHIQQ')
 _MESSAGE_FIELDS = _MESSAGE.size - 9            # the record's length counts what follows opcode and length
