@@ -1,5 +1,5 @@
 """A freeform cut through the running graph (issue [3/8] "Done when"): `machine-ctrl bringup
-fts_lathe --record` at the PID's 199.6 kHz, `machine-ctrl freeform` (the trajectory node's
+fts_lathe --single-process --record` at the PID's 199.6 kHz, `machine-ctrl freeform` (the trajectory node's
 freeform.* parameters and /trajectory/freeform) as another program would, Ctrl-C, then the
 bag: the reference the servos got is the cut trajectory/freeform.py computes, row for row,
 W followed it, W's accelerometer was recorded for every state, and `machine-ctrl analyze`
@@ -25,7 +25,7 @@ LEAD = 0.002                                                # s: W lands in 2 ms
 def test_a_freeform_cut_runs_through_the_fts_lathe_graph_recorded_and_analysed(ros_supervisor, ros_env,
                                                                                   tmp_path, fts_lathe):
     bag = tmp_path / 'bag'
-    child = ros_supervisor.start('bringup', [EXE, 'bringup', 'fts_lathe', '--record', str(bag)])
+    child = ros_supervisor.start('bringup', [EXE, 'bringup', 'fts_lathe', '--single-process', '--record', str(bag)])
     ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
 
     def freeform(*args):

@@ -1,5 +1,5 @@
 """A G-code program on the running graph as a user runs it (issue [7/8], part 1): `machine-ctrl
-bringup trt_5axis --record DIR`, `machine-ctrl send circle.ngc`, the trajectory node's feed
+bringup trt_5axis --single-process --record DIR`, `machine-ctrl send circle.ngc`, the trajectory node's feed
 read back, Ctrl-C; the recorded joint states put the tool tip (forward kinematics) where the
 program ends; then the same program's text on /trajectory/program, as another robot sends it:
 refused ones name the topic and the line, the good one runs whole at its own feeds. Real
@@ -30,7 +30,7 @@ def test_send_runs_a_program_piece_by_piece_and_leaves_the_feed_as_it_was(ros_su
     program = tmp_path / 'circle.ngc'
     program.write_text(CIRCLE)
     bag = tmp_path / 'bag'
-    child = ros_supervisor.start('bringup', [EXE, 'bringup', 'trt_5axis', '--record', str(bag)])
+    child = ros_supervisor.start('bringup', [EXE, 'bringup', 'trt_5axis', '--single-process', '--record', str(bag)])
     ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
     sent = subprocess.run([EXE, 'send', str(program), '--machine', 'trt_5axis', '--timeout', '600'], env=ros_env,
                           capture_output=True, text=True, timeout=700, stdin=subprocess.DEVNULL)

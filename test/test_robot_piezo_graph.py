@@ -1,5 +1,5 @@
 """robot_piezo through the graph as a user runs it (issue [4/8], "Done when"): `machine-ctrl
-bringup robot_piezo --record DIR`, a milling path sent with `machine-ctrl send`, Ctrl-C, and
+bringup robot_piezo --single-process --record DIR`, a milling path sent with `machine-ctrl send`, Ctrl-C, and
 `machine-ctrl analyze` of the bag, which learns the machine from its config. Real nodes over
 real DDS; the coupling's effect (on against off) is measured offline
 (test/test_robot_piezo.py), where the two runs cost seconds, not minutes."""
@@ -19,7 +19,7 @@ def test_robot_piezo_mills_a_path_through_the_graph_recorded_and_analysed(ros_su
     path = tmp_path / 'face.csv'           # a 1 mm circle on the workpiece's face, from home
     toolpath.write_csv(path, toolpath.circle_xy(radius=0.5e-3, points=91))
     bag = tmp_path / 'bag'
-    child = ros_supervisor.start('bringup', [EXE, 'bringup', 'robot_piezo', '--record', str(bag)])
+    child = ros_supervisor.start('bringup', [EXE, 'bringup', 'robot_piezo', '--single-process', '--record', str(bag)])
     ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
     sent = subprocess.run([EXE, 'send', str(path), '--machine', 'robot_piezo', '--timeout', '600'], env=ros_env,
                           capture_output=True, text=True, timeout=700)

@@ -1,5 +1,5 @@
 """trajectory_node in the running lock-step graph (hw_sim, servos, dual_stage, trajectory;
-each node its own process, real DDS), driven only through its topics and services
+all in one process, a process per node for the fault test; real DDS), driven only through its topics and services
 (machine_ctrl.app.client): refused goals move nothing, a tool path runs end to end after an
 approach from where the machine stands, joint goals, home, feed hold, fault and reset; the
 goal status (ids, lifecycle, cancel; a goal sent with the real `ros2 topic pub`), the
@@ -20,7 +20,7 @@ from limit_checks import assert_within_limits
 from machine_ctrl import contract
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.app.client import MachineClient
-from machine_ctrl.ros.graph import default_graph
+from machine_ctrl.ros.graph import default_graph, single_process_argv
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.app.processes import Supervisor
 from ros_fixtures import private_context
@@ -107,10 +107,19 @@ def arc(machine, points=24, radius=1e-3):
     return p, np.tile([0.0, 0.0, 1.0], (points, 1))
 
 
+def graph_specs(micromill):
+    return default_graph(micromill, contour=None, hw_sim={'initial_position': START})
+
+
 @pytest.fixture(scope='module')
 def graph(micromill, ros_env, tmp_path_factory):
-    with Supervisor(ros_env, log_dir=tmp_path_factory.mktemp('logs'), stop_timeout=3.0) as supervisor:
-        supervisor.start_nodes(default_graph(micromill, contour=None, hw_sim={'initial_position': START}))
+    """The graph's nodes in one process (`bringup --single-process`): the nodes' behaviour is
+    the subject here, and one process steps about 3x as fast as a process per node
+    (test_determinism: both step bit for bit alike). The fault test below restarts it as a
+    process per node, to stop one servo."""
+    logs = tmp_path_factory.mktemp('logs')
+    with Supervisor(ros_env, log_dir=logs, stop_timeout=3.0) as supervisor:
+        supervisor.start('graph', single_process_argv(graph_specs(micromill), logs))
         yield supervisor
 
 
@@ -185,7 +194,8 @@ def test_invalid_goals_are_refused_with_the_reason_and_nothing_moves(micromill, 
     moved = np.abs(client.truth - before)
     # the table's noise-driven tilt jitter reaches ~20 urad peak to peak (force noise)
     assert moved[~rotary].max() < 1e-6 and moved[rotary].max() < 100e-6
-    assert set(graph.alive()) == {spec.name for spec in default_graph(micromill, contour=None)}
+    assert graph.alive() == ['graph']                           # nothing in it died
+    assert {spec.name for spec in graph_specs(micromill)} <= set(client.node.get_node_names())
 
 
 def test_path_runs_end_to_end_after_an_approach_from_where_the_machine_is(micromill, graph, client):
@@ -388,6 +398,12 @@ def test_the_graph_publishes_its_urdf_with_the_joint_names_of_the_joint_states(m
 
 
 def test_a_fault_refuses_goals_until_hw_sim_is_reset(micromill, graph, client):
+    # the graph again, a process per node (the machine starts afresh), to stop one servo
+    graph.stop('graph')
+    n = len(client.statuses)
+    graph.start_nodes(graph_specs(micromill))
+    client.wait(lambda: client.states_seen(n, ['idle']) and client.status().get('streamed_to_step', '') != ''
+                and int(client.status()['step']) > 0, 'the new graph to step', check=graph.check)
     n = len(client.statuses)
     graph.stop('servo_coarse')                       # hw_sim faults on the missing commands
     client.wait_states(n, ['fault'], check=graph.check)
@@ -397,7 +413,7 @@ def test_a_fault_refuses_goals_until_hw_sim_is_reset(micromill, graph, client):
     client.wait(lambda: int(client.status()['rejected_goals']) == refused + 1, 'refusal', check=graph.check)
     assert 'machine is faulted' in client.status()['last_rejection']
 
-    spec = next(s for s in default_graph(micromill, contour=None) if s.name == 'servo_coarse')
+    spec = next(s for s in graph_specs(micromill) if s.name == 'servo_coarse')
     graph.start(spec.name, spec.argv())
     graph.wait_for_line('servo_coarse', 'ready', timeout=60)
     # hw_sim's command timeout (5 s) runs from the reset: reset once the new servo has its

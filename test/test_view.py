@@ -136,7 +136,8 @@ class FoxgloveClient:
 def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channels(ros_supervisor, ros_env,
                                                                                   tmp_path, trt):
     bag = tmp_path / 'bag'
-    ros_supervisor.start('bringup', [EXE, 'bringup', 'trt_5axis', '--record', str(bag), '--view', '0'])
+    ros_supervisor.start('bringup', [EXE, 'bringup', 'trt_5axis', '--single-process', '--record', str(bag),
+                                     '--view', '0'])
     logs = Path(ros_supervisor.wait_for_line('bringup', 'logs in ', timeout=180).rsplit('logs in ', 1)[1].strip())
     assert 'view' in ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
     port = int(re.search(r'ws://127\.0\.0\.1:(\d+)', (logs / 'view.log').read_text()).group(1))

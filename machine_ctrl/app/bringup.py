@@ -35,7 +35,7 @@ from pathlib import Path
 
 from machine_ctrl import contract
 from machine_ctrl.model.config import MachineConfig
-from machine_ctrl.ros.graph import NodeSpec, default_graph, write_specs
+from machine_ctrl.ros.graph import NodeSpec, default_graph, single_process_argv
 from machine_ctrl.app.processes import ChildExited, Supervisor
 
 READY_TIMEOUT = 120.0          # s (wall) for every node to come up
@@ -74,14 +74,6 @@ def held_for_recorder(specs: list[NodeSpec], window: int) -> list[NodeSpec]:
     hw = {'min_subscribers': sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1, 'recorder_window': window}
     return [NodeSpec(s.name, s.module, s.cls, {**s.parameters, **hw}, s.namespace) if s.name == 'hw_sim' else s
             for s in specs]
-
-
-def single_process_argv(specs: list[NodeSpec], directory) -> list[str]:
-    """Every node of `specs` in one process: the specs go to `directory`/graph.yaml as data
-    (names, classes, typed parameter values), and that process creates the nodes with
-    them as parameter overrides."""
-    path = write_specs(specs, Path(directory) / 'graph.yaml')
-    return [sys.executable, '-m', 'machine_ctrl.ros.graph', '--specs', str(path)]
 
 
 def recorder_spec(machine: MachineConfig, output: str, graph: list[NodeSpec], namespace: str = '') -> NodeSpec:

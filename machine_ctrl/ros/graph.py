@@ -167,6 +167,14 @@ def write_specs(specs, path) -> Path:
     return path
 
 
+def single_process_argv(specs: list[NodeSpec], directory) -> list[str]:
+    """Every node of `specs` in one process: the specs go to `directory`/graph.yaml as data
+    (names, classes, typed parameter values), and that process creates the nodes with
+    them as parameter overrides."""
+    path = write_specs(specs, Path(directory) / 'graph.yaml')
+    return [sys.executable, '-m', 'machine_ctrl.ros.graph', '--specs', str(path)]
+
+
 def read_specs(path) -> list[NodeSpec]:
     data = yaml.safe_load(Path(path).read_text()) or {}
     return [NodeSpec.from_data(item) for item in data.get('nodes') or []]
