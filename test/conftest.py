@@ -1,5 +1,4 @@
 import functools
-import os
 import re
 from pathlib import Path
 
@@ -76,19 +75,6 @@ def _starts_ros(path: Path) -> bool:
 _LOCKSTEP_GRAPHS = frozenset({
     'test_ros_parameters', 'test_freeform_graph', 'test_determinism', 'test_gcode_graph', 'test_graph',
     'test_view', 'test_robot_piezo_graph', 'test_contour_node', 'test_compensation_graph', 'test_parameters'})
-
-
-def pytest_configure(config):
-    """Each pytest-xdist worker on a CPU of its own (worker i on the i-th allowed CPU), with
-    every process it starts (the graphs' nodes, the tools it runs). A graph whose processes
-    share one CPU wakes its next node without a cross-CPU wake-up: on this project's
-    2-core VMs that costs the sender ~100 us a hop, and a lock-step graph spread over both
-    CPUs used 1.85x the CPU per step of the same graph on one, and stepped 0.75x as fast
-    (bench/RESULTS.md "One CPU per graph"). A serial run (-n 0) is left as it is."""
-    worker = os.environ.get('PYTEST_XDIST_WORKER', '')
-    allowed = sorted(os.sched_getaffinity(0))
-    if worker.startswith('gw') and len(allowed) > 1:
-        os.sched_setaffinity(0, {allowed[int(worker[2:]) % len(allowed)]})
 
 
 def pytest_xdist_make_scheduler(config, log):
