@@ -9,9 +9,9 @@ used per step (utime + stime from /proc), beside the bare 3-hop rclpy ring
 
 Why: a node that publishes wakes the next node's thread; on another CPU that is a
 cross-CPU wake-up, which in a VM (this project's machines are 2-vCPU VMs) costs far more
-than on bare metal. The test suite pins each pytest-xdist worker to a CPU of its own
-(test/conftest.py) on this measurement. The probe (this process) takes the affinity of the
-row too; it reads only /clock, every 10th step.
+than on bare metal. The probe (this process) takes the affinity of the row too; it reads
+only /clock, every 10th step. Not used by the test suite (bench/RESULTS.md "One CPU per
+graph": the trajectory node's planner, niced, then starves beside its graph).
 """
 from __future__ import annotations
 
