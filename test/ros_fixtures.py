@@ -19,6 +19,7 @@ import pytest
 
 from machine_ctrl import contract
 from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+from machine_ctrl.app.stale_ports import remove_stale_ports
 
 _ROS_VARIABLES = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS',
                   'ROS_LOCALHOST_ONLY', 'AMENT_PREFIX_PATH')
@@ -37,7 +38,10 @@ def ros_env():
     """Lease a ROS domain id for this test session, put it, ROS_AUTOMATIC_DISCOVERY_RANGE=
     LOCALHOST and AMENT_PREFIX_PATH (default sys.prefix) into os.environ for the
     in-process nodes, and return the same environment as a dict for child processes.
-    os.environ is restored and the lease released at the end of the session."""
+    os.environ is restored and the lease released at the end of the session. Fast DDS port
+    files left empty (machine_ctrl.app.stale_ports) are removed first: this session's own
+    participants would wait on one forever."""
+    remove_stale_ports()
     if _rclpy_already_initialised():
         raise RuntimeError('rclpy was initialised before the ros_env fixture set ROS_DOMAIN_ID; '
                            'request ros_env (or rclpy_context) in every test that uses ROS')

@@ -262,6 +262,7 @@ def test_a_stopped_servo_faults_hw_sim_naming_its_axes_and_aborts_the_goal(micro
     held = client.truth.copy()
     graph['servo_coarse'].signal_group(signal.SIGCONT)
     client.wait(answering(client, 'servo_coarse'), 'the servo answering the held step', GUARD, graph.check)
+    assert 'its process did not run for' in graph.wait_for_line('servo_coarse', 'did not run for', GUARD)
     faulted(client, graph)
     assert np.abs(client.truth - held).max() < 1e-9   # drives off: held
     reset_and_move(client, graph)

@@ -1,9 +1,9 @@
 """A freeform cut through the running graph (issue [3/8] "Done when"): `machine-ctrl bringup
-fts_lathe --single-process --record` at the PID's 199.6 kHz, `machine-ctrl freeform` (the trajectory node's
-freeform.* parameters and /trajectory/freeform) as another program would, Ctrl-C, then the
-bag: the reference the servos got is the cut trajectory/freeform.py computes, row for row,
-W followed it, W's accelerometer was recorded for every state, and `machine-ctrl analyze`
-reads the session."""
+fts_lathe --single-process --record` at the PID's 199.6 kHz (one process: README "Quick
+start"), `machine-ctrl freeform` (the trajectory node's freeform.* parameters and
+/trajectory/freeform) as another program would, Ctrl-C, then the bag: the reference the
+servos got is the cut trajectory/freeform.py computes, row for row, W followed it, W's
+accelerometer was recorded for every state, and `machine-ctrl analyze` reads the session."""
 import json
 import math
 import signal

@@ -1,9 +1,10 @@
 """A G-code program on the running graph as a user runs it (issue [7/8], part 1): `machine-ctrl
-bringup trt_5axis --single-process --record DIR`, `machine-ctrl send circle.ngc`, the trajectory node's feed
-read back, Ctrl-C; the recorded joint states put the tool tip (forward kinematics) where the
-program ends; then the same program's text on /trajectory/program, as another robot sends it:
-refused ones name the topic and the line, the good one runs whole at its own feeds. Real
-nodes over real DDS; the pieces' geometry is test_gcode.py's."""
+bringup trt_5axis --single-process --record DIR` (one process: README "Quick start"),
+`machine-ctrl send circle.ngc`, the trajectory node's feed read back, Ctrl-C; the recorded
+joint states put the tool tip (forward kinematics) where the program ends; then the same
+program's text on /trajectory/program, as another robot sends it: refused ones name the topic
+and the line, the good one runs whole at its own feeds. Real nodes over real DDS; the pieces'
+geometry is test_gcode.py's."""
 import signal
 import subprocess
 import sys

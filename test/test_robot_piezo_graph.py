@@ -1,8 +1,9 @@
 """robot_piezo through the graph as a user runs it (issue [4/8], "Done when"): `machine-ctrl
-bringup robot_piezo --single-process --record DIR`, a milling path sent with `machine-ctrl send`, Ctrl-C, and
-`machine-ctrl analyze` of the bag, which learns the machine from its config. Real nodes over
-real DDS; the coupling's effect (on against off) is measured offline
-(test/test_robot_piezo.py), where the two runs cost seconds, not minutes."""
+bringup robot_piezo --single-process --record DIR` (one process: README "Quick start"), a
+milling path sent with `machine-ctrl send`, Ctrl-C, and `machine-ctrl analyze` of the bag,
+which learns the machine from its config. Real nodes over real DDS; the coupling's effect (on
+against off) is measured offline (test/test_robot_piezo.py), where the two runs cost seconds,
+not minutes."""
 import json
 import signal
 import subprocess

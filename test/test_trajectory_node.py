@@ -1,9 +1,9 @@
 """trajectory_node in the running lock-step graph (hw_sim, servos, dual_stage, trajectory;
-all in one process, a process per node for the fault test; real DDS), driven only through its topics and services
-(machine_ctrl.app.client): refused goals move nothing, a tool path runs end to end after an
-approach from where the machine stands, joint goals, home, feed hold, fault and reset; the
-goal status (ids, lifecycle, cancel; a goal sent with the real `ros2 topic pub`), the
-graph's readiness and its robot_description."""
+all in one process, a process per node for the fault test; real DDS), driven only through
+its topics and services (machine_ctrl.app.client): refused goals move nothing, a tool path
+runs end to end after an approach from where the machine stands, joint goals, home, feed
+hold, fault and reset; the goal status (ids, lifecycle, cancel; a goal sent with the real
+`ros2 topic pub`), the graph's readiness and its robot_description."""
 import math
 import shutil
 import subprocess

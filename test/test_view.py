@@ -1,5 +1,5 @@
-"""The live view (issue [7/8], part 3): `machine-ctrl bringup trt_5axis --record DIR --view 0`,
-a Foxglove WebSocket client (the `websockets` library speaking foxglove.sdk.v1, as the
+"""The live view (issue [7/8], part 3): `machine-ctrl bringup trt_5axis --single-process
+--record DIR --view 0` (one process: README "Quick start"), a Foxglove WebSocket client (the `websockets` library speaking foxglove.sdk.v1, as the
 Foxglove app does) lists the channels and receives the joint states (at most the newest 2
 per sample of the view's 50 Hz), the tracking errors and the 3D scene while `machine-ctrl
 move` runs; then `machine-ctrl view --bag` writes the recorded session with the same

@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Mapping, Sequence
 
+from machine_ctrl.app.stale_ports import remove_stale_ports
+
 DEFAULT_STOP_TIMEOUT = 5.0   # s to wait after SIGINT and again after SIGTERM
 KILL_TIMEOUT = 2.0           # s to wait for the group to vanish after SIGKILL
 TAIL_LINES = 200             # output lines kept per child for error reports
@@ -165,7 +167,10 @@ class Supervisor:
               extra_env: Mapping[str, str] | None = None) -> Child:
         """Start ``argv`` as child ``name`` in a new process group; returns at once (use
         :meth:`wait_for_line` to wait for readiness). A name can be reused once its
-        previous child has been stopped."""
+        previous child has been stopped. Fast DDS port files left empty are removed first
+        (machine_ctrl.app.stale_ports: a child picking one would never start)."""
+        for path in remove_stale_ports():
+            print(f'supervisor: removed {path}, a Fast DDS port left empty by a process that died', file=sys.stderr)
         with self._lock:
             old = self.children.get(name)
             if old is not None and (old.running() or not old.stopping):

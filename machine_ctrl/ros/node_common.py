@@ -209,14 +209,25 @@ def rejections(node: Node) -> Rejections:
     return Rejections(lambda text: logger.warning(text, throttle_duration_sec=1.0))
 
 
+# assumed: the responder's timer runs every 20 ms at most; 1 s between two of its runs means
+# the process did not run (stopped, starved, or blocked in a call), long enough to matter to
+# hw_sim's command_timeout (5 s by default) and far above a busy Python process's hiccups.
+STALL_GAP = 1.0            # s (wall)
+
+
 class StepResponder:
     """Answers each /joint_states step exactly once: machine_ctrl.control.stepping.StepAnswerer
     (the rules: caching, input timeout, refused skips) on the node's wall clock, answers
-    published on `publisher`."""
+    published on `publisher`. A gap of more than :data:`STALL_GAP` between two runs of its
+    timer is logged (a warning naming the gap and the step answered last): when hw_sim faults
+    on this node's missing answer, its log tells a process that did not run from one that
+    ran and heard nothing."""
 
     def __init__(self, node: Node, publisher, ready, compute, timeout: float, streaming):
         self.core = StepAnswerer(publisher.publish, ready, compute, timeout, streaming)
         self.poke = self.core.poke           # the core's, unwrapped: on the per-step path
+        self.logger = node.get_logger()
+        self._timer_at = None                # the first run has no gap: start-up is not a stall
         wall_timer(node, min(0.02, timeout / 5), self._on_timer)
 
     @property
@@ -235,4 +246,9 @@ class StepResponder:
         self.core.on_state(step, msg, time.monotonic())
 
     def _on_timer(self) -> None:
-        self.core.on_timer(time.monotonic())
+        now = time.monotonic()
+        gap, self._timer_at = now - (self._timer_at or now), now
+        if gap > STALL_GAP:
+            self.logger.warning(f'its process did not run for {gap:.1f} s (stopped, starved or blocked in a call); '
+                                f'step answered last: {self.core.answered_step}')
+        self.core.on_timer(now)

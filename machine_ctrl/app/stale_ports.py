@@ -1,0 +1,78 @@
+"""Fast DDS shared-memory ports left empty, and their removal.
+
+Fast DDS (the RMW of this project) gives each participant shared-memory ports, files
+``/dev/shm/fastrtps_port<N>`` that it creates and then sizes and fills (boost.interprocess
+``managed_open_or_create``). A process killed between the two steps leaves the file at 0
+bytes, and every later process that picks the same port opens it and waits for the size to
+be set, forever: its ``rclpy.init``/first node never returns. Some port numbers do not depend
+on the ROS domain (seen 2026-12-06: ``fastrtps_port7004``, 0 bytes, held a test worker of
+another domain for 10 min until it was killed; the creator was gone). Such a file is
+garbage: nothing can use it, and removing it lets the next participant create the port
+afresh. A process already waiting on it stays stuck; so this runs before graphs start
+(:class:`machine_ctrl.app.processes.Supervisor`, the test session).
+
+Standard library only; Linux (/proc).
+"""
+from __future__ import annotations
+
+import os
+import re
+import time
+from pathlib import Path
+
+SHM_DIR = Path('/dev/shm')
+PORT_FILE = re.compile(r'fastrtps_port\d+')
+# assumed: Fast DDS sizes a port file right after creating it (microseconds apart); one still
+# empty this long after its last change was left by a process that died in between
+STALE_AFTER = 10.0          # s
+
+
+def open_files(proc: Path = Path('/proc')) -> set[tuple[int, int]]:
+    """(device, inode) of every file open in a process this one can see."""
+    held = set()
+    for fd_dir in proc.glob('[0-9]*/fd'):
+        try:
+            links = list(fd_dir.iterdir())
+        except OSError:                   # gone meanwhile, or not ours to read
+            continue
+        for link in links:
+            try:
+                status = link.stat()
+            except OSError:
+                continue
+            held.add((status.st_dev, status.st_ino))
+    return held
+
+
+def remove_stale_ports(directory: Path = SHM_DIR, now: float | None = None) -> list[Path]:
+    """Remove the port files of `directory` that are empty, unchanged for more than
+    :data:`STALE_AFTER` s and open in no process; returns the removed paths. Files of other
+    names, with content, young or open are left alone; an error on one file skips it."""
+    now = time.time() if now is None else now
+    candidates = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return []
+    for entry in entries:
+        if not PORT_FILE.fullmatch(entry.name):
+            continue
+        try:
+            status = entry.stat()
+        except OSError:
+            continue
+        if status.st_size == 0 and now - status.st_mtime > STALE_AFTER:
+            candidates.append((Path(entry.path), (status.st_dev, status.st_ino)))
+    if not candidates:
+        return []
+    held = open_files()
+    removed = []
+    for path, key in candidates:
+        if key in held:
+            continue
+        try:
+            path.unlink()
+        except OSError:
+            continue
+        removed.append(path)
+    return removed

@@ -1,0 +1,50 @@
+"""machine_ctrl.app.stale_ports: an empty Fast DDS port file that no process holds, unchanged
+for longer than STALE_AFTER, is removed; every other file stays. Real files in a temporary
+directory, this process holding one of them open."""
+import os
+import time
+
+from machine_ctrl.app import stale_ports
+
+
+def aged(path, seconds):
+    then = time.time() - seconds
+    os.utime(path, (then, then))
+    return path
+
+
+def test_only_empty_old_unheld_port_files_are_removed(tmp_path):
+    old = stale_ports.STALE_AFTER + 5
+    stale = tmp_path / 'fastrtps_port7004'
+    stale.touch()
+    aged(stale, old)
+    files = {
+        'young': tmp_path / 'fastrtps_port7006',               # being created right now, maybe
+        'sized': tmp_path / 'fastrtps_port7008',               # a port in use
+        'other name': tmp_path / 'fastrtps_7004',              # a participant's, not a port
+        'mutex': tmp_path / 'sem.fastrtps_port7004_mutex',
+        'held': tmp_path / 'fastrtps_port7010',                # empty and old, but open
+    }
+    for path in files.values():
+        path.touch()
+    files['sized'].write_bytes(b'\0' * 64)
+    for name in ('sized', 'other name', 'mutex', 'held'):
+        aged(files[name], old)
+    with open(files['held'], 'rb'):
+        removed = stale_ports.remove_stale_ports(tmp_path)
+    assert removed == [stale]
+    assert not stale.exists()
+    assert all(path.exists() for path in files.values())
+
+
+def test_a_missing_directory_removes_nothing(tmp_path):
+    assert stale_ports.remove_stale_ports(tmp_path / 'absent') == []
+
+
+def test_open_files_sees_a_file_this_process_holds(tmp_path):
+    path = tmp_path / 'x'
+    path.touch()
+    status = path.stat()
+    with open(path, 'rb'):
+        assert (status.st_dev, status.st_ino) in stale_ports.open_files()
+    assert (status.st_dev, status.st_ino) not in stale_ports.open_files()
