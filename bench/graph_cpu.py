@@ -23,20 +23,12 @@ import sys
 import time
 
 from ros_chain import bare_chain_rate, init_context
+from view_cost import _cpu_seconds as cpu_seconds
 
 from machine_ctrl import contract
 from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.ros.graph import default_graph
-
-TICKS = os.sysconf('SC_CLK_TCK')
-
-
-def cpu_seconds(pid: int) -> float:
-    """utime + stime of process `pid` (all its threads)."""
-    fields = open(f'/proc/{pid}/stat').read().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS
-
 
 @contextlib.contextmanager
 def affinity(cpus: set[int]):
