@@ -12,12 +12,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hw_sim import compiled_loop
 from hw_sim.simulator import MachineSimulator
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.control.contour_coupling import ContourCoupling
 from machine_ctrl.control.dual_stage import DualStageCoupling, apply_offsets
 from machine_ctrl.model.reference import Reference
 from machine_ctrl.control.servo import ServoGroup
+
+PROGRESS_STEPS = 10000       # progress(k, steps) after every this many steps
 
 
 @dataclass
@@ -46,14 +49,16 @@ class RunRecord:
 def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         laws: dict[str, str] | None = None, feedforward: bool = True, steps: int | None = None,
         progress=None, initial_position=None, forces: dict[str, np.ndarray] | None = None,
-        contour_control: bool = False) -> RunRecord:
+        contour_control: bool = False, compiled: bool = True) -> RunRecord:
     """Run `reference` for `steps` steps (default its length; past its end the last
     position is held) from `initial_position` (default where the reference starts; hw_sim
     starts at its `initial_position` parameter, the machine's home by default). `forces`:
     per axis an external force (N) per step on its moving mass (MachineSimulator.set_force;
     the last value holds past the array's end). `contour_control`: the machine's cross-coupled
     contour control on from the start (machine_ctrl/control/contour_coupling.py; past the
-    reference's end its correction fades out)."""
+    reference's end its correction fades out). `compiled`: step in hw_sim/compiled_loop.py where
+    it covers the machine and the options (the same numbers, bit for bit), else (or False)
+    in the Python loop below."""
     steps = len(reference) if steps is None else steps
     start = reference.position[0] if initial_position is None else initial_position
     simulator = MachineSimulator(machine, initial_position=start)
@@ -66,14 +71,19 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         contour.add_reference(0, reference.position, reference.velocity, reference.acceleration)
         contour_index = [machine.axis_names.index(a) for a in contour.axes]
     n = len(machine.axes)
-    names = ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')
-    rows = [[] for _ in names]            # per step one tuple each; arrays at the end (cheaper per step)
-    reference_rows, measured_rows, velocity_rows, effort_rows, true_rows, command_rows = rows
-    offsets_rows = []
     forces = {axis: np.asarray(f, dtype=float).reshape(-1) for axis, f in (forces or {}).items()}
     empty = [axis for axis, f in forces.items() if not len(f)]
     if empty:
         raise ValueError(f'forces for {", ".join(empty)}: no values')
+    packed = None if contour is not None or forces or not compiled else compiled_loop.pack(simulator, servo, coupling)
+    if packed is not None:
+        rec, fault = _run_compiled(packed, simulator, reference, steps, progress)
+        return RunRecord(machine.axis_names, machine.control_period, fault=fault,
+                         saturations=packed.saturation_count, fine_axes=coupling.fine_axes, **rec)
+    names = ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')
+    rows = [[] for _ in names]            # per step one tuple each; arrays at the end (cheaper per step)
+    reference_rows, measured_rows, velocity_rows, effort_rows, true_rows, command_rows = rows
+    offsets_rows = []
     for k, (ref_pos, ref_vel, ref_acc) in enumerate(reference.rows(steps)):
         for axis, f in forces.items():
             simulator.set_force(axis, f[min(k, len(f) - 1)])
@@ -92,7 +102,7 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         command_rows.append(commands)
         offsets_rows.append(offsets)
         simulator.step(commands)
-        if progress is not None and k % 10000 == 0:
+        if progress is not None and k % PROGRESS_STEPS == 0:
             progress(k, steps)
     rec = {name: np.array(r, dtype=float).reshape(steps, n) for name, r in zip(names, rows)}
     return RunRecord(machine.axis_names, machine.control_period,
@@ -100,3 +110,36 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
                      fault=simulator.fault, saturations=coupling.saturation_count,
                      fine_axes=coupling.fine_axes,
                      contour_invalid=None if contour is None else dict(contour.invalid_steps), **rec)
+
+
+def _held_rows(reference: Reference, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Reference.rows(steps) as three arrays: past the end the last position, at rest."""
+    n = min(steps, len(reference))
+    position, velocity, acceleration = (np.zeros((steps, len(reference.axis_names))) for _ in range(3))
+    position[:n], velocity[:n], acceleration[:n] = reference.position[:n], reference.velocity[:n], \
+        reference.acceleration[:n]
+    position[n:] = reference.position[-1]
+    return position, velocity, acceleration
+
+
+def _run_compiled(packed, simulator: MachineSimulator, reference: Reference, steps: int, progress):
+    """The rows of `steps` steps by the compiled loop, and the fault the simulator would
+    name (its own messages, from the compiled loop's fault kind, step and axis)."""
+    ref_p, ref_v, ref_a = _held_rows(reference, steps)
+    n = ref_p.shape[1]
+    rec = {name: np.zeros((steps, n)) for name in ('measured', 'measured_velocity', 'effort', 'true', 'commands')}
+    rec['offsets'] = np.zeros((steps, len(packed.fine_slots)))
+    # progress after steps 0, PROGRESS_STEPS, 2 PROGRESS_STEPS, ... as the Python loop calls it
+    bounds = [0, steps] if progress is None else [0, *range(1, steps, PROGRESS_STEPS), steps]
+    for first, stop in zip(bounds, bounds[1:]):
+        packed.run(ref_p, ref_v, ref_a, first, stop, rec)
+        if progress is not None and (stop - 1) % PROGRESS_STEPS == 0:
+            progress(stop - 1, steps)
+    kind, step, axis = packed.fault
+    fault = None
+    if kind == compiled_loop.NON_FINITE:
+        fault = simulator.command_fault(tuple(rec['commands'][step].tolist()))
+    elif kind == compiled_loop.STROKE:
+        fault = simulator.stroke_fault(packed.true_position)
+    rec['reference'] = ref_p
+    return rec, fault

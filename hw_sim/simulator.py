@@ -104,14 +104,10 @@ class MachineSimulator:
     def step(self, commands) -> Measurement:
         """Apply one command per axis for one period; return the new measurement."""
         if self.fault is None:
-            if len(commands) != len(self.plants):
-                self.stop(f'{len(commands)} commands for {len(self.plants)} axes')
-            elif not all(map(math.isfinite, commands)):
-                bad = [a.name for a, u in zip(self.machine.axes, commands) if not math.isfinite(u)]
-                self.stop(f'non-finite command for {", ".join(bad)}')
+            self.fault = self.command_fault(commands)
         if self.fault is None:
             self.applied = tuple([p.step(u) for p, u in zip(self.plants, commands)])
-            self._check_strokes()
+            self.fault = self.stroke_fault(self.true_position)
         else:
             self.applied = (0.0,) * len(self.plants)
         self.step_index += 1
@@ -123,11 +119,22 @@ class MachineSimulator:
             self.measurement = Measurement(held.position, zeros, self.applied, zeros)
         return self.measurement
 
-    def _check_strokes(self) -> None:
-        for axis, plant, (lo, hi) in zip(self.machine.axes, self.plants, self._strokes):
-            if not lo <= plant.position <= hi:
-                self.stop(f'stroke violation on {axis.name}: {plant.position:.9g} {axis.unit} '
-                          f'outside [{lo:g}, {hi:g}]')
+    def command_fault(self, commands) -> str | None:
+        """Why the hardware refuses `commands` (a wrong count, a non-finite value), or None."""
+        if len(commands) != len(self.plants):
+            return f'{len(commands)} commands for {len(self.plants)} axes'
+        if not all(map(math.isfinite, commands)):
+            bad = [a.name for a, u in zip(self.machine.axes, commands) if not math.isfinite(u)]
+            return f'non-finite command for {", ".join(bad)}'
+        return None
+
+    def stroke_fault(self, positions) -> str | None:
+        """The first axis whose true position is outside its stroke, or None."""
+        for axis, position, (lo, hi) in zip(self.machine.axes, positions, self._strokes):
+            if not lo <= position <= hi:
+                return (f'stroke violation on {axis.name}: {position:.9g} {axis.unit} '
+                        f'outside [{lo:g}, {hi:g}]')
+        return None
 
 
 def true_geometry(machine: MachineConfig, kinematics: Kinematics | None = None):
