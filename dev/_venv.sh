@@ -21,9 +21,10 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   { "$VENV/bin/python" -m pip install --disable-pip-version-check -r "$ROOT/requirements.txt" &&
     "$VENV/bin/python" -m pip install --disable-pip-version-check --no-deps --no-build-isolation -e "$ROOT" &&
     if [ -n "$ROS2_TOOLS" ]; then echo "+ $ROS2_TOOLS/install $VENV" && "$ROS2_TOOLS/install" "$VENV"; fi &&
-    # the compiled redundancy resolution into numba's cache now, not in the first plans
-    # (later changes to its source recompile at their first use)
-    "$VENV/bin/python" -c 'from trajectory import resolved_rate; resolved_rate.warm()'
+    # the compiled redundancy resolution and offline loop into numba's cache now, not in the
+    # first plans and runs (later changes to their source recompile at their first use)
+    "$VENV/bin/python" -c 'from trajectory import resolved_rate; resolved_rate.warm()' &&
+    "$VENV/bin/python" -c 'from hw_sim import offline; offline.warm()'
   } > "$log" 2>&1 || { tail -n 30 "$log" >&2; echo "venv setup failed; full log: $log" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi

@@ -14,7 +14,7 @@ import numpy as np
 
 from hw_sim import compiled_loop
 from hw_sim.simulator import MachineSimulator
-from machine_ctrl.model.config import MachineConfig
+from machine_ctrl.model.config import DEFAULT_MACHINE, MachineConfig, load_machine
 from machine_ctrl.control.contour_coupling import ContourCoupling
 from machine_ctrl.control.dual_stage import DualStageCoupling, apply_offsets
 from machine_ctrl.model.reference import Reference
@@ -110,6 +110,13 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
                      fault=simulator.fault, saturations=coupling.saturation_count,
                      fine_axes=coupling.fine_axes,
                      contour_invalid=None if contour is None else dict(contour.invalid_steps), **rec)
+
+
+def warm() -> None:
+    """Load (or, the first time after a change of hw_sim/compiled_loop.py, compile) the
+    compiled loop now rather than in the first run: two steps of the default machine at home."""
+    machine = load_machine(DEFAULT_MACHINE)
+    run(machine, Reference.hold(machine.axis_names, machine.control_period, machine.home, 2))
 
 
 def _held_rows(reference: Reference, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
