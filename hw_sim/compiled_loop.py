@@ -6,22 +6,26 @@ of small methods per step on the micromill; compiled, a step is a few microsecon
 
 What it covers (:func:`pack` returns None for anything else, and the Python loop runs):
 
-* plants: :class:`~hw_sim.plant.FrictionAxis`, and the exact zero-order holds of
-  :class:`~hw_sim.plant.LinearAxis` and :class:`~hw_sim.plant.PositionServoAxis`
-  (2 or 4 states); no accelerometer;
+* plants: :class:`~hw_sim.plant.FrictionAxis` and :class:`~hw_sim.plant.LinearAxis`
+  (its exact zero-order hold, 2 or 4 states); no accelerometer;
 * sensors: :class:`~hw_sim.plant.Sensor`; the noise streams go on where the
   ``random.Random`` objects stand (hw_sim/python_random.py);
 * laws: sliding mode and P-PI (each + the LuGre friction feed-forward), lead-lag (its
   chain of biquads); feed-forward on or off for the whole run;
 * the dual-stage coupling of coarse/fine pairs (not a Cartesian one);
 * faults: a non-finite command or a stroke violation stops the machine as
-  :meth:`MachineSimulator.step` does (held, efforts zero), the laws keep stepping.
+  :meth:`MachineSimulator.step` does (held, efforts zero), the laws keep stepping. A
+  sensed position that is not finite (an axis without a stroke run away) ends the run
+  with a ValueError, where the Python loop's quantization raises too.
 
 Not covered: contour control, external forces, the other plants and laws. The objects are
 read when packed and not written back: the runner builds them for one run.
 
 Every expression below is written as in its Python twin (same operations, same order; no
-fast-math), so both round alike; the twin is named in each function's docstring.
+fast-math, and the machine code has no fused multiply-add), so both round alike; the twin
+is named in each function's docstring. "Bit for bit" holds for every finite value; a NaN
+(only in commands at and after a non-finite-command fault) may carry another sign or
+payload, as the compiler may swap the operands of + and *.
 """
 from __future__ import annotations
 
@@ -32,24 +36,27 @@ import numpy as np
 from numba import njit
 
 from hw_sim import python_random
-from hw_sim.plant import FrictionAxis, LinearAxis, PositionServoAxis, Sensor
+from hw_sim.plant import FrictionAxis, LinearAxis, Sensor
+from hw_sim.simulator import MachineSimulator
+from machine_ctrl.control.dual_stage import DualStageCoupling
 from machine_ctrl.control.lead_lag import LeadLagController
 from machine_ctrl.control.lugre import LuGreFeedforward, StribeckCurve
 from machine_ctrl.control.ppi import PPIController
+from machine_ctrl.control.servo import AxisServo, ServoGroup
 from machine_ctrl.control.sliding_mode import SlidingModeController
 
 _CACHE = True          # numba's on-disk cache (as in trajectory/resolved_rate.py)
 
 FRICTION, HELD = 0, 1                     # plant kinds
 SLIDING_MODE, FILTERS, PPI = 0, 1, 2       # law kinds
-NON_FINITE, STROKE = 1, 2                 # fault kinds
+NON_FINITE, STROKE, RUN_AWAY = 1, 2, 3     # fault kinds (RUN_AWAY: a sensed position not finite)
 MAX_SECTIONS = 8                          # biquads per law
 
 
 @njit(cache=_CACHE)
 def _quantize(value, step):
     """hw_sim.plant.quantize."""
-    return step * math.floor(value / step + 0.5) if step > 0.0 else value
+    return step * np.floor(value / step + 0.5) if step > 0.0 else value     # a float: no int64 wrap
 
 
 @njit(cache=_CACHE)
@@ -152,8 +159,9 @@ def _steps(k0, k1, ref_p, ref_v, ref_a,
            out_measured, out_velocity, out_effort, out_true, out_commands, out_offsets):
     """Steps k0 .. k1 - 1 of hw_sim.offline.run's loop. drive: command limit, resolution,
     gain, force noise; sensor_p: resolution, noise, period, last; measurement: position,
-    velocity, effort rows; status: fault kind, step, axis, saturation count. Actuator
-    stream of axis i: i; its sensor's: n + i."""
+    velocity, effort rows; status: fault kind, step, axis, saturation count; ff_on: the
+    friction feed-forward active (AxisServo._friction_active). Actuator stream of axis i: i;
+    its sensor's: n + i."""
     n = ref_p.shape[1]
     nf = pairs.shape[0]
     servo_ref = np.empty(n)
@@ -191,7 +199,7 @@ def _steps(k0, k1, ref_p, ref_v, ref_a,
                 u = _ppi(law_p[i], law_state[i], servo_ref[i], pos[i], vel[i])
             else:
                 u = _filters(sections[i], section_state[i], section_count[i], servo_ref[i] - pos[i])
-            if feedforward and ff_on[i]:
+            if ff_on[i]:
                 u += _lugre_feedforward(ff_p[i], ff_curve[i], ff_state[i], v_r)
             commands[i] = u
             out_commands[k, i] = u
@@ -221,6 +229,9 @@ def _steps(k0, k1, ref_p, ref_v, ref_a,
                     noise = sensor_p[i, 1]
                     noisy = plant_state[i, 0] + (python_random.gauss(words, index, spare, has_spare, n + i, noise)
                                                  if noise > 0.0 else 0.0)
+                    if not math.isfinite(noisy):
+                        status[0], status[1], status[2] = RUN_AWAY, k, i
+                        return
                     position = _quantize(noisy, sensor_p[i, 0])
                     measurement[1, i] = (position - sensor_p[i, 3]) / sensor_p[i, 2]
                     measurement[0, i] = position
@@ -235,8 +246,6 @@ def _steps(k0, k1, ref_p, ref_v, ref_a,
 class Packed:
     """The arrays of :func:`_steps`, read from a run's objects (:func:`pack`)."""
     arrays: dict
-    streams: list
-    fine_slots: tuple[int, ...]
 
     def run(self, ref_p, ref_v, ref_a, first: int, stop: int, out: dict) -> None:
         """Steps first .. stop - 1 into the rows of `out` (measured, velocity, effort, true, commands, offsets)."""
@@ -251,8 +260,12 @@ class Packed:
                out['measured'], out['measured_velocity'], out['effort'], out['true'], out['commands'], out['offsets'])
 
     @property
+    def fine_count(self) -> int:
+        return len(self.arrays['pairs'])
+
+    @property
     def fault(self) -> tuple[int, int, int]:
-        """(kind, step, axis): kind 0 none, NON_FINITE or STROKE."""
+        """(kind, step, axis): kind 0 none, NON_FINITE, STROKE or RUN_AWAY."""
         status = self.arrays['status']
         return int(status[0]), int(status[1]), int(status[2])
 
@@ -273,10 +286,13 @@ def pack(simulator, servo, coupling) -> Packed | None:
     """The compiled loop's arrays for one run of these objects (hw_sim.offline.run's), or None
     when any of them has no compiled twin here (module docstring)."""
     n = len(simulator.plants)
-    if (simulator.fault is not None or simulator._with_accelerometer or coupling.cartesian is not None
+    if (type(simulator) is not MachineSimulator or type(servo) is not ServoGroup
+            or type(coupling) is not DualStageCoupling or simulator.fault is not None
+            or simulator._with_accelerometer or coupling.cartesian is not None
             or len(coupling.pairs) != len(coupling.fine) or servo.feedforward_requested is not None
             or tuple(servo.axis_names) != tuple(simulator.machine.axis_names)
-            or any(type(s) is not Sensor for s in simulator.sensors)):
+            or any(type(s) is not Sensor for s in simulator.sensors)
+            or any(type(s) is not AxisServo for s in servo.servos)):
         return None
     a = {'plant_kind': np.zeros(n, np.int64), 'drive': np.zeros((n, 4)), 'plant_p': np.zeros((n, 8)),
          'curve': np.zeros((n, 8)), 'held_a': np.zeros((n, 16)), 'held_b': np.zeros((n, 4)),
@@ -293,7 +309,7 @@ def pack(simulator, servo, coupling) -> Packed | None:
                                plant.wavenumber, plant.h, plant.substeps)
             a['curve'][i] = _curve(plant.curve)
             a['plant_state'][i, :3] = plant.position, plant.velocity, plant.eps
-        elif type(plant) in (LinearAxis, PositionServoAxis):
+        elif type(plant) is LinearAxis:
             a['plant_kind'][i] = HELD
             a['plant_p'][i, 0] = len(plant._b)
             a['held_a'][i, :len(plant._a)] = plant._a
@@ -319,7 +335,7 @@ def pack(simulator, servo, coupling) -> Packed | None:
                 a['section_state'][i, j] = s.s1, s.s2
         else:
             return None
-        friction = axis_servo.friction
+        friction = axis_servo._friction_active
         if friction is not None:
             if type(friction) is not LuGreFeedforward:
                 return None
@@ -331,8 +347,8 @@ def pack(simulator, servo, coupling) -> Packed | None:
         return None
     streams = [p.rng for p in simulator.plants] + [s.rng for s in simulator.sensors]
     a['words'], a['index'], a['spare'], a['has_spare'] = python_random.pack(streams)
-    a['feedforward'] = servo.servos[0].feedforward if n else True
-    a['coupled'] = coupling.enabled
+    a['feedforward'] = bool(servo.servos[0].feedforward) if n else True
+    a['coupled'] = bool(coupling.enabled)
     a['pairs'] = np.array([(coarse, sign, fine) for (coarse, sign), fine in zip(coupling.pairs, coupling.fine)],
                           dtype=float).reshape(-1, 3)
     a['limits'] = np.array(coupling.limits, dtype=float).reshape(-1, 3)
@@ -342,4 +358,4 @@ def pack(simulator, servo, coupling) -> Packed | None:
     measured = simulator.measurement
     a['measurement'] = np.array([measured.position, measured.velocity, measured.effort], dtype=float)
     a['status'] = np.array([0, 0, 0, coupling.saturation_count], dtype=np.int64)
-    return Packed(a, streams, tuple(coupling.fine))
+    return Packed(a)

@@ -41,6 +41,7 @@ class RunRecord:
     saturations: int = 0
     fine_axes: tuple[str, ...] = field(default_factory=tuple)
     contour_invalid: dict[str, int] | None = None    # with contour control: steps per channel without a valid estimate
+    compiled: bool = False       # stepped by the compiled loop (hw_sim/compiled_loop.py), else the Python loop
 
     def column(self, array: np.ndarray, axis: str) -> np.ndarray:
         return array[:, self.axis_names.index(axis)]
@@ -79,7 +80,7 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     if packed is not None:
         rec, fault = _run_compiled(packed, simulator, reference, steps, progress)
         return RunRecord(machine.axis_names, machine.control_period, fault=fault,
-                         saturations=packed.saturation_count, fine_axes=coupling.fine_axes, **rec)
+                         saturations=packed.saturation_count, fine_axes=coupling.fine_axes, compiled=True, **rec)
     names = ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')
     rows = [[] for _ in names]            # per step one tuple each; arrays at the end (cheaper per step)
     reference_rows, measured_rows, velocity_rows, effort_rows, true_rows, command_rows = rows
@@ -119,34 +120,28 @@ def warm() -> None:
     run(machine, Reference.hold(machine.axis_names, machine.control_period, machine.home, 2))
 
 
-def _held_rows(reference: Reference, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Reference.rows(steps) as three arrays: past the end the last position, at rest."""
-    n = min(steps, len(reference))
-    position, velocity, acceleration = (np.zeros((steps, len(reference.axis_names))) for _ in range(3))
-    position[:n], velocity[:n], acceleration[:n] = reference.position[:n], reference.velocity[:n], \
-        reference.acceleration[:n]
-    position[n:] = reference.position[-1]
-    return position, velocity, acceleration
-
-
 def _run_compiled(packed, simulator: MachineSimulator, reference: Reference, steps: int, progress):
     """The rows of `steps` steps by the compiled loop, and the fault the simulator would
     name (its own messages, from the compiled loop's fault kind, step and axis)."""
-    ref_p, ref_v, ref_a = _held_rows(reference, steps)
+    ref_p, ref_v, ref_a = reference.arrays(steps)
     n = ref_p.shape[1]
     rec = {name: np.zeros((steps, n)) for name in ('measured', 'measured_velocity', 'effort', 'true', 'commands')}
-    rec['offsets'] = np.zeros((steps, len(packed.fine_slots)))
+    rec['offsets'] = np.zeros((steps, packed.fine_count))
     # progress after steps 0, PROGRESS_STEPS, 2 PROGRESS_STEPS, ... as the Python loop calls it
     bounds = [0, steps] if progress is None else [0, *range(1, steps, PROGRESS_STEPS), steps]
     for first, stop in zip(bounds, bounds[1:]):
         packed.run(ref_p, ref_v, ref_a, first, stop, rec)
         if progress is not None and (stop - 1) % PROGRESS_STEPS == 0:
             progress(stop - 1, steps)
-    kind, step, axis = packed.fault
+    kind, step, index = packed.fault
     fault = None
     if kind == compiled_loop.NON_FINITE:
         fault = simulator.command_fault(tuple(rec['commands'][step].tolist()))
     elif kind == compiled_loop.STROKE:
         fault = simulator.stroke_fault(packed.true_position)
+    elif kind == compiled_loop.RUN_AWAY:
+        axis = simulator.machine.axes[index]
+        raise ValueError(f'step {step}: the position of {axis.name} is {packed.true_position[index]} {axis.unit}, '
+                         f'not finite: the simulation cannot go on')
     rec['reference'] = ref_p
     return rec, fault

@@ -6,7 +6,11 @@ so that a compiled loop draws exactly the numbers a ``random.Random`` would, fro
 
 The simulator's noise streams are ``random.Random`` objects (hw_sim/simulator.py); the
 offline runner's compiled loop (hw_sim/compiled_loop.py) continues them here, so a run is
-the same bit for bit whichever loop steps it. test/test_python_random.py draws both.
+the same bit for bit whichever loop steps it. test/test_compiled_loop.py draws both.
+
+gauss's cos and sin of one angle are compiled into one call of glibc's ``sincos``, which
+gives the bits of its ``cos`` and ``sin`` (the ones CPython's math module calls): checked
+on 100,000 angles by the test, on this platform (x86-64 Linux, glibc).
 
 Layout of a set of streams: ``words`` (streams, 624) int64, the generator's words;
 ``index`` (streams,) int64, the next word's position; ``spare`` (streams,) float64 and

@@ -17,13 +17,17 @@ from trajectory.contours import circle
 ROWS = ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands', 'offsets')
 
 
-def assert_same_run(a, b):
+def assert_same_run(python, compiled):
+    """Every row bit for bit (so -0.0 != 0.0; NaNs equal whatever their sign and payload,
+    hw_sim/compiled_loop.py), the fault, the saturations; and each loop did run."""
+    assert not python.compiled and compiled.compiled
     for name in ROWS:
-        x, y = getattr(a, name), getattr(b, name)
+        x, y = getattr(python, name), getattr(compiled, name)
         assert x.shape == y.shape, name
-        differ = np.argwhere(x.view(np.int64) != y.view(np.int64))     # bits, so -0.0 != 0.0
+        differ = np.argwhere((x.view(np.int64) != y.view(np.int64)) & ~(np.isnan(x) & np.isnan(y)))
         assert not len(differ), f'{name}: first differing (step, column) {differ[0].tolist()}'
-    assert (a.fault, a.saturations, a.fine_axes) == (b.fault, b.saturations, b.fine_axes)
+    assert (python.fault, python.saturations, python.fine_axes) == (compiled.fault, compiled.saturations,
+                                                                    compiled.fine_axes)
 
 
 @pytest.mark.parametrize('seed', ['7:x_c:actuator', '7:z_f', 12345])
@@ -33,7 +37,7 @@ def test_streams_draw_what_random_random_draws(seed):
     twin = random.Random()
     twin.setstate(stream.getstate())
     words, index, spare, has_spare = python_random.pack([random.Random(0), stream])
-    sigmas = [1.0, 1e-8, 0.5, 3.0] * 400            # 1600 draws: more than one twist of 624 words
+    sigmas = [1.0, 1e-8, 0.5, 3.0] * 25000          # 100,000 draws: 50,000 angles' cos and sin (sincos)
     drawn = [python_random.gauss(words, index, spare, has_spare, 1, s) for s in sigmas]
     assert drawn == [twin.gauss(0.0, s) for s in sigmas]
     assert [python_random.uniform(words, index, 1) for _ in range(700)] == [twin.random() for _ in range(700)]
@@ -64,9 +68,11 @@ def test_micromill_circle_is_the_same_in_both_loops(micromill, options):
     assert_same_run(python, run(micromill, reference, steps=4500, **options))
 
 
-def test_trt_is_the_same_in_both_loops(trt):
+@pytest.mark.parametrize('options', [{'steps': 3500}, {'steps': 2000, 'feedforward': False}],
+                         ids=['held past the end', 'shorter, no feed-forward'])
+def test_trt_is_the_same_in_both_loops(trt, options):
     reference = _sine(trt, trt.axis_names[0], 1e-3, 3000)
-    assert_same_run(run(trt, reference, steps=3500, compiled=False), run(trt, reference, steps=3500))
+    assert_same_run(run(trt, reference, compiled=False, **options), run(trt, reference, **options))
 
 
 def test_a_saturating_coupling_is_the_same_in_both_loops(micromill):
@@ -80,12 +86,24 @@ def test_a_saturating_coupling_is_the_same_in_both_loops(micromill):
     assert_same_run(python, run(micromill, reference, initial_position=start))
 
 
-def test_faults_are_named_alike_and_hold_alike(micromill):
-    # a stroke violation: x_f's reference outside its stroke, the coupling off
+def test_faults_are_named_alike_and_hold_alike(micromill, trt):
+    # stroke violations: x_f's reference outside its stroke, the coupling off (a linear
+    # table); trt's x beyond its stroke (a friction axis)
     reference = _sine(micromill, 'x_f', 400e-6, 2000)
     python = run(micromill, reference, dual_stage=False, compiled=False)
     assert python.fault.startswith('stroke violation on x_f')
     assert_same_run(python, run(micromill, reference, dual_stage=False))
+    i, (low, high) = trt.axis_names.index('x'), trt.axis('x').stroke
+    steps = 3000
+    position = np.tile(np.asarray(trt.home, float), (steps, 1))
+    speed = 1.2 * (high - position[0, i]) / (steps * trt.control_period)     # past the end in 2.5 s of 3
+    position[:, i] += speed * trt.control_period * np.arange(steps)
+    velocity = np.zeros_like(position)
+    velocity[:, i] = speed
+    reference = Reference(trt.axis_names, trt.control_period, position, velocity, np.zeros_like(position))
+    python = run(trt, reference, compiled=False)
+    assert python.fault.startswith('stroke violation on x')
+    assert_same_run(python, run(trt, reference))
     # a non-finite command: a reference the sliding-mode law overflows on
     position = np.tile(np.asarray(micromill.home, float), (300, 1))
     position[100:, 0] = 1e308
@@ -109,6 +127,17 @@ def test_what_it_does_not_cover_runs_in_the_python_loop(micromill, fts_lathe, ro
         simulator = MachineSimulator(machine)
         assert compiled_loop.pack(simulator, ServoGroup(machine, machine.axis_names),
                                   DualStageCoupling(machine)) is None
-    simulator = MachineSimulator(micromill)
-    assert compiled_loop.pack(simulator, ServoGroup(micromill, micromill.axis_names),
-                              DualStageCoupling(micromill)) is not None
+    simulator, coupling = MachineSimulator(micromill), DualStageCoupling(micromill)
+    assert compiled_loop.pack(simulator, ServoGroup(micromill, micromill.axis_names), coupling) is not None
+    switching = ServoGroup(micromill, micromill.axis_names)
+    switching.set_feedforward(False)                 # a switch waiting for a rest
+    mixed = ServoGroup(micromill, micromill.axis_names)
+    mixed.servos[0].set_feedforward(False)           # one axis without feed-forward
+    for servo in (switching, mixed):
+        assert compiled_loop.pack(simulator, servo, coupling) is None
+    reference = _sine(micromill, 'x_c', 1e-4, 50)
+    assert run(micromill, reference).compiled
+    assert not run(micromill, reference, compiled=False).compiled
+    assert not run(micromill, reference, contour_control=True).compiled
+    sine = _sine(fts_lathe, 'w', 1e-7, 50)
+    assert not run(fts_lathe, sine, forces={'w': np.zeros(50)}).compiled

@@ -46,6 +46,15 @@ class Reference:
         for k in range(n, steps):
             yield self.row(k)
 
+    def arrays(self, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity and acceleration of steps 0 .. steps - 1 as arrays (steps, axes):
+        :meth:`row` for each step."""
+        n = min(steps, len(self.position))
+        position, velocity, acceleration = (np.zeros((steps, len(self.axis_names))) for _ in range(3))
+        position[:n], velocity[:n], acceleration[:n] = self.position[:n], self.velocity[:n], self.acceleration[:n]
+        position[n:] = self.position[-1]
+        return position, velocity, acceleration
+
     @classmethod
     def hold(cls, axis_names, period: float, position, steps: int) -> Reference:
         pos = np.tile(np.asarray(position, float), (steps, 1))
