@@ -304,3 +304,27 @@ def test_the_trt_contour_errors_follow_the_assumed_rotary_friction_and_hardly_th
         linear = variants[f'linear friction x {factor:g}']['ratio']
         assert all(abs(linear[k] - 1.0) < 0.01 for k in ('tip_mean_um', 'tip_max_um', 'orientation_mean_urad'))
     assert all(v['compensated_mean_deviation_um'] <= 0.05 for v in variants.values())
+
+
+def test_the_truths_coarse_search_is_the_nearest_sample_in_its_window():
+    """machine_ctrl.contour.truth.nearest_samples (compiled) against the search written with
+    numpy: every candidate's squared distance, the first least one. A random walk with a
+    stop, a window reaching past both ends, actual rows past the path's end, and ties (two
+    equal samples)."""
+    from machine_ctrl.contour.truth import nearest_samples
+    rng = np.random.default_rng(5)
+    values = np.cumsum(rng.normal(size=(3000, 3)), axis=0)
+    values[1000:1400] = values[1000]
+    values[2000] = values[1990]                       # a tie: the first is the answer
+    keep = np.concatenate(([True], (np.diff(values, axis=0) != 0.0).any(axis=1)))
+    samples, step_of = values[keep], np.cumsum(keep) - 1
+    actual = np.vstack((values, values[-50:])) + rng.normal(size=(3050, 3))
+    actual[2000] = values[1990]
+    window = 60
+    centre = step_of[np.minimum(np.arange(len(actual)), len(step_of) - 1)]
+    candidates = np.clip(centre[:, None] + np.arange(-window, window + 1), 0, len(samples) - 1)
+    distance = ((samples[candidates] - actual[:, None, :]) ** 2).sum(axis=2)
+    expected = candidates[np.arange(len(actual)), distance.argmin(axis=1)]
+    found = nearest_samples(samples, actual, step_of, window)
+    assert np.array_equal(found, expected)
+    assert found[2000] == step_of[1990] and found[0] >= 0
