@@ -7,10 +7,10 @@ Per path and process feed limit F:
 
 * ours: plan(name, machine, feed=F) - fit, redundancy resolution (Δs = 20 µm), feed
   optimization on the planner's uniform subgrid (<= 1000 nodes), septic interpolation and
-  time sampling at the control period with the local slow-down until every reference is
+  time sampling at the control period with local re-solves until every reference is
   within 1.001 x its limits by finite differences. Reported: the final sampled traversal
   time (first to last sample), the optimizer's grid-level time (FeedProfile.duration() of
-  the optimized profile, before the sampling's slow-downs), local passes, the global
+  the optimized profile, before the sampling's re-solves), local passes, the global
   fallback scale (1: none), the largest finite-difference ratio to a limit, and the planning
   time (PlanResult.planning_time: fit + resolve + feed + sampling).
 * TOPP-RA 0.6, in the same run on the same resolved path: ta.SplineInterpolator(s, [q, s])

@@ -8,7 +8,7 @@ helix geometry (R = 5 mm, pitch 1 mm, 31.43 mm per turn) stretched to 6.363 turn
 (1572 points per turn). Prints, per case and run: plan()'s planning_time (fit + resolve +
 feed + sampling), the wall time of the whole plan() call (adds the FK check of every
 sample), the resolution's share (resolve() timed alone on the same fitted path), the
-traversal time and the local slow-down passes; then the medians. No timing asserts.
+traversal time and the local re-solve passes; then the medians. No timing asserts.
 
     .venv/bin/python bench/plan_rate.py [--runs N] [--feed F]
 """

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from ruckig import InputParameter, Ruckig, Trajectory
 
-from trajectory.feedrate import FeedLimits, accelerations, jerks, optimize_feed
+from trajectory.feedrate import FeedLimits, accelerations, jerks, optimize_feed, refine_feed
 
 V, A, J = 0.15, 5.0, 100.0
 
@@ -66,3 +66,31 @@ def test_bad_input_is_refused(grid, feed, message):
     n = len(grid)
     with pytest.raises(ValueError, match=message):
         optimize_feed(grid, np.ones((n, 1)), np.zeros((n, 1)), np.zeros((n, 1)), limits(1, feed))
+
+
+def test_refine_feed_keeps_the_scaled_limits_and_holds_the_nodes_outside_its_window():
+    radius = 4e-3
+    s, (dq, ddq, dddq) = circle(radius, 1001)
+    profile = optimize_feed(s, dq, ddq, dddq, limits(2))
+    scales = np.ones((1001, 3))
+    scales[498:503, 2] = 0.9                   # the jerk limit lowered around the middle
+    refined = refine_feed(s, profile.b, dq, ddq, dddq, limits(2), scales, [498, 502], 64)
+    ds = s[1] - s[0]
+    assert (np.abs(jerks(refined.b, dq, ddq, dddq, ds)) <= J * scales[1:-1, 2:] * (1 + 1e-6)).all()
+    assert (np.abs(accelerations(refined.b, dq, ddq, ds)) <= A * (1 + 1e-6)).all()
+    assert np.all(refined.b[498:503] < profile.b[498:503])
+    # held outside the window, up to the uniform factor of the final exact-jerk check
+    outside = np.ones(1001, bool)
+    outside[[0, -1]] = outside[498 - 64:502 + 65] = False
+    held = refined.b[outside] / profile.b[outside]
+    assert 0.998 <= held.min() and np.ptp(held) <= 1e-12
+    # a window too narrow for the dip within the jerk rows (here up to 32 nodes) is
+    # infeasible: it doubles, 1 -> 64, to the same LP
+    narrow = refine_feed(s, profile.b, dq, ddq, dddq, limits(2), scales, [498, 502], 1)
+    assert np.array_equal(narrow.b, refined.b)
+
+
+def test_refine_feed_refuses_scales_outside_0_1():
+    s, (dq, ddq, dddq) = circle(4e-3, 11)
+    with pytest.raises(ValueError, match='limit scales'):
+        refine_feed(s, np.zeros(11), dq, ddq, dddq, limits(2), np.full((11, 3), 1.5), [5], 2)

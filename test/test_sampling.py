@@ -144,35 +144,31 @@ def test_the_uniform_cubic_is_the_exact_b_spline_and_scipys_within_rounding():
         mine(x, 3)
 
 
-def fake_sampling(s, need):
+def fake_sampling(s, ratios):
     from machine_ctrl.model.reference import Reference
     from trajectory.sampling import Sampling
     ref = Reference(('x',), 1e-4, np.zeros((len(s), 1)), np.zeros((len(s), 1)), np.zeros((len(s), 1)))
     return Sampling(ref, np.asarray(s, float), np.zeros(len(s)), 1.0, 1, np.zeros((1, 3)),
-                    np.asarray(need, float))
+                    np.asarray(ratios, float))
 
 
-def test_local_slowdown_dips_only_around_the_violations():
-    from trajectory.sampling import local_slowdown
+def test_limit_scales_lower_the_exceeded_limit_at_the_nodes_of_its_span_only():
+    from trajectory.sampling import limit_scales
     feed_s = np.linspace(0.0, 20e-3, 201)                # 100 µm nodes
-    feed_b = np.full(201, 0.01 ** 2)                     # 10 mm/s
     s = np.linspace(0.0, 20e-3, 4001)
-    need = np.full(4001, 0.5)
-    need[(s > 5.02e-3) & (s < 5.08e-3)] = 2.0            # between nodes 50 and 51
-    need[(s > 15.03e-3) & (s < 15.04e-3)] = 1.1          # between nodes 150 and 151
-    factor = local_slowdown(fake_sampling(s, need), feed_s, feed_b, np.full(201, 200.0))
-    assert factor[50] <= 0.99 / 2.0 + 1e-12 and factor[51] <= 0.99 / 2.0 + 1e-12
-    assert factor[150] <= 0.99 / 1.1 + 1e-12 and factor[151] <= 0.99 / 1.1 + 1e-12
-    # neighbouring dips multiply where they overlap, but only by the share still missing
-    assert factor.min() >= 0.9 * 0.99 / 2.0
-    far = (np.abs(feed_s - 5.05e-3) > 2e-3) & (np.abs(feed_s - 15.035e-3) > 2e-3)
-    assert np.all(factor[far] == 1.0)
-    # the dips' own jerk, sqrt(b) b c'' / 2 (b constant here), stays near share x j_t =
-    # 0.25 x 200 m/s³ (the second differences of the nodes see the raised cosine's c'')
-    h = feed_s[1] - feed_s[0]
-    assert 0.01 * 1e-4 * np.abs(np.diff(factor, 2)).max() / h**2 / 2 <= 1.5 * 0.25 * 200.0
-    assert np.all(local_slowdown(fake_sampling(s, np.full(4001, 0.9)), feed_s, feed_b,
-                                 np.full(201, 200.0)) == 1.0)
+    ratios = np.full((4001, 3), 0.5)
+    ratios[(s > 5.02e-3) & (s < 5.08e-3), 2] = 2.0       # jerk, between nodes 50 and 51
+    ratios[(s > 15.03e-3) & (s < 15.04e-3), 1] = 1.1     # acceleration, between nodes 150 and 151
+    ratios[(s > 10.01e-3) & (s < 10.02e-3), 0] = 0.995   # velocity just below its limit
+    scales = limit_scales(fake_sampling(s, ratios), feed_s, margin=0.99)
+    want = np.ones((201, 3))
+    want[49:53, 2] = 0.99 / 2.0                          # the B-spline span's control points
+    want[149:153, 1] = 0.99 / 1.1
+    want[99:103, 0] = 0.99 / 0.995                       # up to the margin too
+    assert np.allclose(scales, want, rtol=1e-12, atol=0)
+    assert np.all(limit_scales(fake_sampling(s, np.full((4001, 3), 0.9)), feed_s, margin=0.99) == 1.0)
+    sampling = fake_sampling(s, ratios)
+    assert sampling.need.max() == pytest.approx(2.0 ** (2 / 3))     # j ~ b^(3/2)
 
 
 def straight_line(length=1e-3, nodes=11):

@@ -30,7 +30,7 @@ from trajectory.feedrate import FeedLimits, FeedProfile, optimize_feed
 from trajectory.moves import stroke_violation
 from trajectory.redundancy import (RedundancySettings, Resolution, ResolutionFailed, initial_configuration,
                                    point_before, resolve, stroke_problems)
-from trajectory.sampling import LimitsExceeded, SepticInterpolant, Sampling, local_rule, sample, sample_within
+from trajectory.sampling import LimitsExceeded, SepticInterpolant, Sampling, resolve_rule, sample, sample_within
 from trajectory.spline import ArcLengthPath
 
 # assumed: process feed limit 10 mm/s. The thesis sets the process limit of its finishing
@@ -40,10 +40,11 @@ DEFAULT_FEED = 10e-3
 # assumed: <= 1000 feed nodes (optimize_feed takes ~2 s for 9 axes at this size; its grid
 # error is a few %, which the sampler's verification absorbs).
 MAX_FEED_NODES = 1000
-# assumed: at most 8 local slow-down passes (each lowers b around the samples over a limit,
-# sampling.local_slowdown, and samples again); what is left after them is removed by a
-# global time stretch.
-LOCAL_PASSES = 8
+# assumed: at most 6 sampling passes with local re-solves between them (each lowers the
+# exceeded limits around the samples over them and re-solves the feed LP there,
+# sampling.resolve_rule); helix, spiral and circle_xy at F = 0.01-1 m/s meet the limits
+# within 5. What is left after them is removed by a global time stretch.
+LOCAL_PASSES = 6
 
 
 class PlanStatus(StrEnum):
@@ -138,16 +139,15 @@ def feed_and_sample(interp: SepticInterpolant, fs, derivatives, limits: FeedLimi
     time sampling within `tolerance` x every limit by finite differences at `period`.
     Where the sampled references exceed a limit (the grid is coarser than some feature of
     q(s), e.g. the nullspace start-up transient, or the grid-level jerk is optimistic between
-    nodes), b is lowered there only (sampling.local_slowdown) and resampled, at most
-    `passes` times; then a global time stretch (sampling.sample) is the fallback. Returns
-    (the optimizer's FeedProfile, Sampling); Sampling.passes counts every sampling pass
-    (local ones, then the fallback's) and Sampling.feed_scale is the fallback's global
-    factor (1 without it)."""
+    nodes), that limit is lowered at the nodes there and the LP re-solved around them
+    (sampling.resolve_rule, feedrate.refine_feed), and resampled, at most `passes` times;
+    then a global time stretch (sampling.sample) is the fallback. Returns (the optimizer's
+    first FeedProfile, Sampling); Sampling.passes counts every sampling pass (local ones,
+    then the fallback's) and Sampling.feed_scale is the fallback's global factor (1 without
+    it)."""
     profile = optimize_feed(fs, *derivatives, limits)
-    with np.errstate(divide='ignore'):
-        tangential = np.min(limits.jerk / np.abs(derivatives[0]), axis=1)
     local = sample_within(interp, profile.s, profile.b, limits, period, axis_names,
-                          local_rule(profile.s, tangential), tolerance, passes)
+                          resolve_rule(profile.s, derivatives, limits), tolerance, passes)
     if local.within:
         return profile, local.sampling
     fallback = sample(interp, profile.s, local.feed_b, limits, period, axis_names, tolerance)

@@ -40,11 +40,16 @@ sdot(s) = sqrt(b(s)), b the feed profile:
 with three rest samples on either side (the machine holds before and after), are
 differenced at the control period (velocity, acceleration, jerk) by `sample_profile`.
 Where a sample exceeds its limit, the profile is slowed down and sampled again: one loop,
-:func:`sample_within`, with the slow-down rule as a parameter. :func:`local_rule`
-(:func:`local_slowdown`) lowers b around the offending samples only (the planner's first
-stage: planner.feed_and_sample); :func:`global_stretch` scales b by the exact factor of a
-time stretch (v ~ c^(1/2), a ~ c, j ~ c^(3/2)) — :func:`sample`, the fallback, which
-resamples until every axis is within `tolerance` x its limit, at most `max_passes` times.
+:func:`sample_within`, with the slow-down rule as a parameter. :func:`resolve_rule` (the
+planner's first stage: planner.feed_and_sample) lowers the exceeded limit at the feed nodes
+around the offending samples (:func:`limit_scales`) and re-solves the feed LP in a window
+around them (feedrate.refine_feed): the new dips keep the grid's jerk rows, where a dip
+multiplied into b (the slow-down this replaces) added its own jerk and, on the helix at
+F = 1 m/s with the jerk limit binding along the whole path, made new violations at every
+pass (8 passes did not converge; a global stretch by 0.86 then cost 22 %).
+:func:`global_stretch` scales b by the exact factor of a time stretch (v ~ c^(1/2), a ~ c,
+j ~ c^(3/2)) — :func:`sample`, the fallback, which resamples until every axis is within
+`tolerance` x its limit, at most `max_passes` times.
 """
 from __future__ import annotations
 
@@ -55,6 +60,7 @@ import numpy as np
 
 from machine_ctrl.model.reference import Reference
 from trajectory.blocks import BLOCK, in_blocks
+from trajectory.feedrate import FeedLimits, refine_feed
 
 # Eq. 3.40 with Δs = 1 (rows: q[n], q[n+1], q'[n], q'[n+1], q''[n], q''[n+1], q'''[n],
 # q'''[n+1]; columns: coefficients of u^7 ... u^0).
@@ -69,10 +75,16 @@ _EQ_340 = np.array([
     [210, 120, 60, 24, 6, 0, 0, 0]], dtype=float)
 _EQ_340_INV = np.linalg.inv(_EQ_340)
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(10)
-# assumed: the local slow-down (local_slowdown) aims 1 % below the limit, and its tapers may
-# add at most a quarter of the tangential jerk limit; tuned on circle_xy, helix and spiral.
-SLOWDOWN_MARGIN = 0.99
-SLOWDOWN_JERK_SHARE = 0.25
+# assumed: a re-solve (resolve_rule) aims the exceeded limit 1 % below the sampled overshoot
+# (0.5 % took one more pass on helix and spiral at F = 1 for 0.2 % less time).
+TIGHTEN_MARGIN = 0.99
+# assumed: a re-solve frees 32 feed nodes either side of a tightened one; 8 and 16 were
+# infeasible (too little room for the dip) on helix and spiral at F = 1, and doubled to 32.
+REFINE_WINDOW = 32
+# assumed: a re-solve makes at most 3 LP iterations (its jerk rows linearized about the
+# previous profile first); 8 (to the optimizer's 1e-3 convergence) cost circle_xy at F = 1
+# 9.6 s instead of 6.4 s for the same traversal time, helix and spiral within 0.2 %.
+REFINE_ITERATIONS = 3
 
 
 class SepticInterpolant:
@@ -291,21 +303,20 @@ def _inverse_smoothstep(y) -> np.ndarray:
 
 
 def _ratios(position, period, velocity, acceleration, jerk):
-    """Peak ratios (axes, 3) and, per sample, the worst limit ratio expressed as the factor
-    on b that a time stretch would need (v ~ b^1/2, a ~ b, j ~ b^3/2)."""
+    """Peak ratios (axes, 3) and, per sample (K+1, 3), the worst ratio over the axes of
+    |velocity|, |acceleration|, |jerk| by finite differences to its limit."""
     p = np.asarray(position, float)
     p = np.vstack([np.repeat(p[:1], 3, axis=0), p, np.repeat(p[-1:], 3, axis=0)])
     n = len(position)
-    need = np.zeros(n)
+    per_sample = np.zeros((n, 3))
     peaks = []
-    for k, limit, power in ((1, velocity, 2.0), (2, acceleration, 1.0), (3, jerk, 2.0 / 3.0)):
+    for k, limit in ((1, velocity), (2, acceleration), (3, jerk)):
         r = np.abs(np.diff(p, k, axis=0)) / period**k / limit
         peaks.append(np.max(r, axis=0))
-        worst = np.max(r, axis=1) ** power
         # difference j covers padded samples j..j+k, i.e. samples j-3..j+k-3
-        idx = np.clip(np.arange(len(worst)) - 3 + k // 2, 0, n - 1)
-        np.maximum.at(need, idx, worst)
-    return np.column_stack(peaks), need
+        idx = np.clip(np.arange(len(r)) - 3 + k // 2, 0, n - 1)
+        np.maximum.at(per_sample[:, k - 1], idx, np.max(r, axis=1))
+    return np.column_stack(peaks), per_sample
 
 
 @dataclass(frozen=True)
@@ -317,11 +328,17 @@ class Sampling:
     feed_scale: float            # final global factor on b (1: the profile as given)
     passes: int                  # sampling passes made (1 + rescalings)
     peak_ratios: np.ndarray      # (axes, 3) finite-difference peak |v|, |a|, |j| / limit
-    need: np.ndarray             # (K+1,) per sample: factor on b a time stretch would need
+    ratios: np.ndarray           # (K+1, 3) per sample: worst |v|, |a|, |j| / limit over the axes
 
     @property
     def duration(self) -> float:
         return (len(self.s) - 1) * self.reference.period
+
+    @property
+    def need(self) -> np.ndarray:
+        """(K+1,) per sample: the factor on b a time stretch would need (v ~ b^1/2, a ~ b,
+        j ~ b^3/2)."""
+        return np.max(self.ratios ** np.array([2.0, 1.0, 2.0 / 3.0]), axis=1)
 
 
 def _limit_arrays(limits):
@@ -353,10 +370,10 @@ def sample_profile(interpolant: SepticInterpolant, feed_s, feed_b, limits, perio
     sdot[0] = sdot[-1] = sddot[0] = sddot[-1] = 0.0
     s = d + interpolant.s[0]
     q, dq, ddq = interpolant.evaluate_orders(s, (0, 1, 2))
-    ratios, need = _ratios(q, period, *_limit_arrays(limits))
+    peaks, per_sample = _ratios(q, period, *_limit_arrays(limits))
     reference = Reference(tuple(axis_names), period, q, dq * sdot[:, None],
                           ddq * sdot[:, None] ** 2 + dq * sddot[:, None])
-    return Sampling(reference, s, sdot, scale / stretch**2, 1, ratios, need)
+    return Sampling(reference, s, sdot, scale / stretch**2, 1, peaks, per_sample)
 
 
 class LimitsExceeded(ValueError):
@@ -378,7 +395,7 @@ def sample_within(interpolant: SepticInterpolant, feed_s, feed_b, limits, period
                   slow_down, tolerance: float, max_passes: int) -> Refinement:
     """The sampling loop: :func:`sample_profile` of scale * b; while a finite-difference
     peak exceeds `tolerance` x its limit, `slow_down(result, b, scale) -> (b, scale)` (a
-    slow-down rule: :func:`global_stretch`, :func:`local_rule`) and sample again, at most
+    slow-down rule: :func:`global_stretch`, :func:`resolve_rule`) and sample again, at most
     `max_passes` samplings. The rule is applied after every pass that misses, the last one
     too."""
     b, scale = feed_b, 1.0
@@ -398,11 +415,46 @@ def global_stretch(result: Sampling, feed_b, scale: float):
     return feed_b, scale * 0.999 / float(np.max(result.need))
 
 
-def local_rule(feed_s, tangential_jerk):
-    """Slow-down rule of :func:`local_slowdown`: b lowered only around the samples that
-    exceed a limit."""
+def limit_scales(result: Sampling, feed_s, margin: float = TIGHTEN_MARGIN) -> np.ndarray:
+    """Per feed node (N, 3) factors (<= 1) on the velocity, acceleration and jerk limits that
+    bring every sample of `result` to at most `margin` x its limits: a sample at r > margin
+    times a limit asks for margin / r on that limit at every node whose control point shapes
+    the time law between the samples of its finite differences (samples k-1 .. k+2 of sample
+    k, _ratios): from node n-1 of the span [s_n, s_n+1] of sample k-1 to node m+2 of the span
+    of sample k+2 (g is a cubic B-spline, four control points per span; module docstring). A
+    node takes the smallest ask. (Asking only where a sample is over its limit leaves those
+    just below it to rise over it in the re-solve: one more pass on helix and spiral at
+    F = 1.)"""
+    feed_s = np.asarray(feed_s, float)
+    n, last = len(feed_s), len(result.s) - 1
+    scales = np.ones((n, 3))
+    near = np.flatnonzero(np.max(result.ratios, axis=1) > margin)
+
+    def span(k: np.ndarray) -> np.ndarray:          # the feed interval of samples k
+        return np.clip(np.searchsorted(feed_s, result.s[np.clip(k, 0, last)], side='right') - 1, 0, n - 2)
+    first, end = np.maximum(span(near - 1) - 1, 0), np.minimum(span(near + 2) + 2, n - 1)
+    ask = np.minimum(margin / result.ratios[near], 1.0)
+    for offset in range(int(np.max(end - first, initial=0)) + 1):
+        inside = first + offset <= end
+        np.minimum.at(scales, first[inside] + offset, ask[inside])
+    return scales
+
+
+def resolve_rule(feed_s, derivatives, limits: FeedLimits, margin: float = TIGHTEN_MARGIN,
+                 window: int = REFINE_WINDOW):
+    """Slow-down rule (:func:`sample_within`) of the windowed re-solve: each exceeded limit
+    lowered at the nodes around the offending samples (:func:`limit_scales`, the factors
+    accumulated over the passes) and b re-solved within `window` nodes of them, at most
+    REFINE_ITERATIONS LP iterations (feedrate.refine_feed; derivatives: q', q'', q''' at the
+    feed nodes feed_s)."""
+    scales = np.ones((len(feed_s), 3))
+
     def slow_down(result: Sampling, feed_b, scale: float):
-        return feed_b * local_slowdown(result, feed_s, feed_b, tangential_jerk), scale
+        tighter = limit_scales(result, feed_s, margin)
+        scales[:] = scales * tighter
+        changed = np.flatnonzero(np.min(tighter, axis=1) < 1.0)
+        return refine_feed(feed_s, feed_b, *derivatives, limits, scales, changed, window,
+                           REFINE_ITERATIONS).b, scale
     return slow_down
 
 
@@ -417,41 +469,3 @@ def sample(interpolant: SepticInterpolant, feed_s, feed_b, limits, period: float
         raise LimitsExceeded(f'sampled references exceed the limits by '
                              f'{np.max(outcome.sampling.peak_ratios):.4g}x after {max_passes} passes')
     return outcome.sampling
-
-
-def local_slowdown(result: Sampling, feed_s, feed_b, tangential_jerk,
-                   margin: float = SLOWDOWN_MARGIN, share: float = SLOWDOWN_JERK_SHARE) -> np.ndarray:
-    """Per feed node factor (<= 1) on b that slows the profile down only around the samples
-    of `result` that exceed a limit. The two nodes bracketing such a sample ask for the
-    factor margin / need (need: the sample's factor on b of a time stretch, v ~ b^1/2,
-    a ~ b, j ~ b^3/2). Deepest first, each node m not yet slowed enough gets the missing
-    dip delta as a raised cosine 1 - delta (1 + cos(pi x)) / 2, x = (s - s_m) / L_m in
-    [-1, 1], multiplied into the factor (a product of smooth dips stays smooth; a maximum
-    would have kinks, i.e. jerk spikes; where dips overlap the product may go ~10 % below
-    the deepest ask). The half-width L_m keeps the dip's own jerk below `share` x the
-    tangential jerk limit j_t (`tangential_jerk`, min_i j_max,i / |q'_i| per node): the
-    axis jerk of b'' is q' sqrt(b) b'' / 2, and (b c)'' gains 2 b' c' + b c'' from a dip c
-    with |c'| <= delta pi / (2 L), |c''| <= delta pi² / (2 L²), so L_m solves
-    sqrt(b) / 2 (|b'| delta pi / L + b delta pi² / (2 L²)) = share j_t at node m."""
-    feed_s, feed_b = np.asarray(feed_s, float), np.maximum(np.asarray(feed_b, float), 0.0)
-    n = len(feed_s)
-    bad = np.flatnonzero(result.need > 1.0)
-    interval = np.clip(np.searchsorted(feed_s, result.s[bad], side='right') - 1, 0, n - 2)
-    wanted = np.ones(n)
-    for offset in (0, 1):
-        np.minimum.at(wanted, interval + offset, margin / result.need[bad])
-    slope = np.abs(np.gradient(feed_b, feed_s))             # |b'| at the nodes
-    factor = np.ones(n)
-    for m in np.flatnonzero(wanted < 1.0)[np.argsort(wanted[wanted < 1.0], kind='stable')]:
-        if factor[m] <= wanted[m]:
-            continue
-        delta = 1.0 - wanted[m] / factor[m]
-        # |q'| sqrt(b) / 2 (2 |b'| delta pi / (2 L) + b delta pi² / (2 L²)) <= share j_t |q'|, in 1/L
-        quad, lin = feed_b[m] * delta * math.pi**2 / 2.0, slope[m] * delta * math.pi
-        const = 2.0 * share * tangential_jerk[m] / max(math.sqrt(feed_b[m]), 1e-300)
-        half = 2.0 * quad / (math.sqrt(lin * lin + 4.0 * quad * const) - lin) if quad > 0 else 0.0
-        lo, hi = np.searchsorted(feed_s, [feed_s[m] - half, feed_s[m] + half])
-        lo, hi = min(lo, m), max(hi, m + 1)
-        x = np.clip((feed_s[lo:hi] - feed_s[m]) / max(half, 1e-300), -1.0, 1.0)
-        factor[lo:hi] *= 1.0 - delta * 0.5 * (1.0 + np.cos(np.pi * x))
-    return factor
