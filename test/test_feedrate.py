@@ -94,3 +94,18 @@ def test_refine_feed_refuses_scales_outside_0_1():
     s, (dq, ddq, dddq) = circle(4e-3, 11)
     with pytest.raises(ValueError, match='limit scales'):
         refine_feed(s, np.zeros(11), dq, ddq, dddq, limits(2), np.full((11, 3), 1.5), [5], 2)
+
+
+def test_refine_feed_meets_lowered_velocity_and_acceleration_limits_and_rests_at_both_ends():
+    s, (dq, ddq, dddq) = circle(4e-3, 1001)
+    profile = optimize_feed(s, dq, ddq, dddq, limits(2))
+    scales = np.ones((1001, 3))
+    scales[200:260, 0] = 0.5                   # velocity halved over 60 nodes
+    scales[600:640, 1] = 0.6                   # acceleration to 60 %
+    refined = refine_feed(s, profile.b, dq, ddq, dddq, limits(2), scales, [*range(200, 260), *range(600, 640)], 32)
+    ds = s[1] - s[0]
+    speed = np.abs(dq) * np.sqrt(refined.b)[:, None]
+    assert (speed <= V * scales[:, :1] * (1 + 1e-9)).all() and speed[200:260].max() > 0.4 * V
+    assert (np.abs(accelerations(refined.b, dq, ddq, ds)) <= A * scales[1:-1, 1:2] * (1 + 1e-6)).all()
+    assert (np.abs(jerks(refined.b, dq, ddq, dddq, ds)) <= J * (1 + 1e-6)).all()
+    assert refined.b[0] == refined.b[-1] == 0.0 and (refined.b >= 0.0).all()

@@ -184,7 +184,7 @@ def _solve(s, dq, ddq, dddq, limits: FeedLimits, scales: np.ndarray, start: np.n
     upper = np.minimum(np.minimum(vmax * v_scale ** 2, limits.feed ** 2),
                        _rest_envelope(s, dq, limits.jerk) * j_scale ** (2.0 / 3.0))
     upper[0] = upper[-1] = 0.0
-    free = free.copy()
+    free = free | (start > upper)               # a node over its (new) bound cannot be held
     free[0] = free[-1] = False                  # at rest: b = 0
     held = np.where(free, 0.0, np.minimum(start, upper))
     cols = np.flatnonzero(free)
@@ -214,10 +214,12 @@ def _solve(s, dq, ddq, dddq, limits: FeedLimits, scales: np.ndarray, start: np.n
         offset = a_all @ held                   # the held nodes' share of every row
         a_free = a_all[:, cols].tocsr()
         used = np.diff(a_free.indptr) > 0       # rows with a free node
+        if np.any(np.abs(offset[~used]) > limit[~used] * (1.0 + 1e-9)):
+            raise _Infeasible('feed optimization failed: held nodes alone exceed a limit')
         result = milp(-np.ones(len(cols)), bounds=Bounds(np.zeros(len(cols)), upper[cols]),
                       constraints=LinearConstraint(a_free[used], (-limit - offset)[used],
                                                    (limit - offset)[used]))
-        if result.status == 2:
+        if result.status in (2, 4):            # infeasible (4: or unbounded, which 0 <= b <= upper is not)
             raise _Infeasible(f'feed optimization failed: {result.message}')
         if result.status != 0:
             raise ValueError(f'feed optimization failed: {result.message}')

@@ -446,15 +446,18 @@ def resolve_rule(feed_s, derivatives, limits: FeedLimits, margin: float = TIGHTE
     lowered at the nodes around the offending samples (:func:`limit_scales`, the factors
     accumulated over the passes) and b re-solved within `window` nodes of them, at most
     REFINE_ITERATIONS LP iterations (feedrate.refine_feed; derivatives: q', q'', q''' at the
-    feed nodes feed_s)."""
+    feed nodes feed_s). Should the LP fail, that pass is a :func:`global_stretch`."""
     scales = np.ones((len(feed_s), 3))
 
     def slow_down(result: Sampling, feed_b, scale: float):
         tighter = limit_scales(result, feed_s, margin)
         scales[:] = scales * tighter
         changed = np.flatnonzero(np.min(tighter, axis=1) < 1.0)
-        return refine_feed(feed_s, feed_b, *derivatives, limits, scales, changed, window,
-                           REFINE_ITERATIONS).b, scale
+        try:
+            return refine_feed(feed_s, feed_b, *derivatives, limits, scales, changed, window,
+                               REFINE_ITERATIONS).b, scale
+        except ValueError:                      # the LP failed: this pass stretches globally
+            return global_stretch(result, feed_b, scale)
     return slow_down
 
 
