@@ -115,11 +115,11 @@ def closest_points(values, slopes, period, actual, window, normalize=False):
     values, slopes = values[keep], slopes[keep]       # a stop is one point of the path, not many
     window = window + int(np.count_nonzero(~keep))     # ... so the window keeps its reach in steps
     step_of = np.cumsum(keep) - 1                      # sample index of each step
-    n, m = len(values), len(actual)
-    nearest = nearest_samples(values, np.ascontiguousarray(actual, float), step_of, window)
-    if n == 1:
-        return np.zeros(m), np.repeat(values[:1], m, axis=0)
-    s = golden_section(values, slopes, period, np.ascontiguousarray(actual, float), nearest, normalize)
+    if len(values) == 1:
+        return np.zeros(len(actual)), np.repeat(values[:1], len(actual), axis=0)
+    actual = np.ascontiguousarray(actual, float)
+    nearest = nearest_samples(values, actual, step_of, window)
+    s = golden_section(values, slopes, period, actual, nearest, normalize)
     return s, _path(values, slopes, period, s, normalize)
 
 
