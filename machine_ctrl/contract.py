@@ -65,6 +65,12 @@ LIVELINESS_LEASE = 6.0     # s
 # /diagnostics) is heard from it for this long after the report (machine_ctrl.diagnostics.
 # PeerLiveliness: a reader starved by its own node's long callback reports false losses)
 LOSS_CONFIRM = 1.5         # s
+# assumed: 0.5 s, 10 periods of the watcher's 0.05 s check and half the peers' /diagnostics
+# period. A check later than this after the one before means the watching node did not run
+# meanwhile (a long callback, a starved or blocked process: in a single-process graph the
+# peer stalls with it), so the peer's messages may still be queued or unsent: the
+# confirmation starts over (PeerLiveliness; a CI run saw a healthy hw_sim taken for lost)
+LOSS_CHECK_GAP = 0.5       # s
 # assumed: above the 2.5 s recorder freeze that test_recorder_graph.py must survive holding
 # (a freeze longer than this releases hw_sim's hold: the machine goes on, the bag may lose)
 RECORDER_LIVELINESS_LEASE = 5.0     # s

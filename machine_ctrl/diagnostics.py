@@ -34,15 +34,19 @@ class PeerLiveliness:
     (wall) since — a reader starved by its own node's long callback reports false losses, so
     one of the peer's messages (its 1 Hz /diagnostics) arriving after the report cancels it.
     Feed it :meth:`alive`, :meth:`heard` and :meth:`losing` (on each loss report and from a
-    timer while lost); :meth:`losing` says True once, when the loss is confirmed."""
+    timer while lost, more often than every `gap` s); :meth:`losing` says True once, when
+    the loss is confirmed. A call more than `gap` s after the one before starts the
+    confirmation over: the watching node itself did not run meanwhile, and the peer's
+    messages may be waiting behind it (or, in one process, the peer did not run either)."""
 
-    def __init__(self, confirm: float):
-        self.confirm = confirm
+    def __init__(self, confirm: float, gap: float):
+        self.confirm, self.gap = confirm, gap
         self.lost = False                    # confirmed, and not back yet
         self._since: float | None = None     # reported lost at (not confirmed yet)
+        self._checked: float | None = None   # the last losing() call while reported lost
 
     def alive(self) -> None:
-        self.lost, self._since = False, None
+        self.lost, self._since, self._checked = False, None, None
 
     def heard(self, now: float) -> None:
         if self._since is not None and now > self._since:
@@ -51,10 +55,12 @@ class PeerLiveliness:
     def losing(self, now: float) -> bool:
         if self.lost:
             return False
-        if self._since is None:
+        stalled = self._checked is not None and now - self._checked > self.gap
+        self._checked = now
+        if self._since is None or stalled:
             self._since = now
             return False
         if now - self._since < self.confirm:
             return False
-        self._since, self.lost = None, True
+        self._since, self._checked, self.lost = None, None, True
         return True

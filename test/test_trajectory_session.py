@@ -1,6 +1,7 @@
 """The trajectory session (trajectory/session.py) without ROS: states, refusals with their
 reasons, goal bookkeeping, feed hold / resume / stop, faults, and what is handed to the
 node to publish, in order."""
+import functools
 import math
 
 import numpy as np
@@ -458,16 +459,25 @@ def test_a_stall_of_the_node_aborts_its_goal_and_nothing_of_it_goes_on(micromill
     assert session.state == State.IDLE
 
 
+CHECK = 0.05      # s, the trajectory node's timer that confirms a loss (check_planning)
+
+
+def checked(report, start: float, end: float) -> None:
+    """`report(now)` at the node's cadence from `start` up to `end` (both included)."""
+    for k in range(round((end - start) / CHECK) + 1):
+        report(start + k * CHECK)
+
+
 def test_hw_sim_lost_is_a_fault_once_confirmed_and_clears_when_it_is_back_and_healthy(micromill, out):
     session = session_of(micromill, out, start_step=0)
     assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
     session.tick(2000)
-    session.machine_alive(False, now=5.0)        # the lease ran out ...
-    session.machine_heard(now=5.5)                # ... but hw_sim's status came after: a false loss
-    session.machine_alive(False, now=7.0)
+    lost = functools.partial(session.machine_alive, False)
+    checked(lost, 5.0, 5.2)                       # the lease ran out ...
+    session.machine_heard(now=5.22)               # ... but hw_sim's status came after: a false loss
+    checked(lost, 5.25, 5.25 + contract.LOSS_CONFIRM - CHECK)
     assert session.state == State.RUNNING
-    session.machine_alive(False, now=8.0)         # lost, and silent for 1.5 s: confirmed
-    session.machine_alive(False, now=9.6)
+    lost(now=5.25 + contract.LOSS_CONFIRM)        # lost, and silent for LOSS_CONFIRM: confirmed
     reason = f'hw_sim lost: no sign of life within its {contract.LIVELINESS_LEASE:g} s liveliness lease (killed, stopped or hung)'
     assert session.state == State.FAULT and session.fault == reason
     assert out.goal_changes[-1][1:] == ('aborted', f'machine faulted: {reason}')
@@ -480,6 +490,33 @@ def test_hw_sim_lost_is_a_fault_once_confirmed_and_clears_when_it_is_back_and_he
     assert session.state == State.IDLE and session.fault == ''
 
 
+def test_a_loss_is_not_confirmed_across_a_stall_of_the_watching_node(micromill, out):
+    """A CI run of a single-process graph: hw_sim's lease ran out, then the process did not
+    run for ~2 s (neither this node's checks nor hw_sim's 1 Hz status); the first check after
+    the stall came before hw_sim's status and confirmed a false loss. A check later than
+    contract.LOSS_CHECK_GAP after the one before starts the confirmation over."""
+    session = session_of(micromill, out, start_step=0)
+    assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
+    session.tick(2000)
+    lost = functools.partial(session.machine_alive, False)
+    checked(lost, 5.0, 5.2)
+    stall = contract.LOSS_CONFIRM + 0.5
+    assert stall > contract.LOSS_CHECK_GAP
+    lost(now=5.2 + stall)                         # 2.2 s after the report, the first check after the stall
+    assert session.state == State.RUNNING
+    session.machine_heard(now=5.2 + stall + 0.3)  # hw_sim's status, queued behind it
+    checked(lost, 5.2 + stall + 0.35, 5.2 + stall + 0.35 + contract.LOSS_CONFIRM - CHECK)
+    assert session.state == State.RUNNING         # heard: no loss
+    session.machine_alive(True)                   # and its lease asserted again
+    # a real loss, the node checking on time after a stall: confirmed LOSS_CONFIRM after the stall
+    session.tick(2100)
+    lost(now=20.0)
+    checked(lost, 21.0, 21.0 + contract.LOSS_CONFIRM - CHECK)
+    assert session.state == State.RUNNING
+    lost(now=21.0 + contract.LOSS_CONFIRM)
+    assert session.state == State.FAULT and session.fault.startswith('hw_sim lost')
+
+
 def test_the_compensation_node_lost_aborts_the_goal_and_refuses_goals_until_it_is_back(micromill, out):
     """README "Faults": with compensation in the chain, its loss (confirmed as hw_sim's) means
     the reference no longer reaches the servos: the goal is aborted naming it, nothing of the
@@ -487,11 +524,12 @@ def test_the_compensation_node_lost_aborts_the_goal_and_refuses_goals_until_it_i
     session = session_of(micromill, out, start_step=0)
     assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
     session.tick(2000)
-    session.chain_alive('compensation', False, now=3.0)
-    session.chain_heard(now=3.2)                  # its status came after the report: a false loss
-    session.chain_alive('compensation', False, now=5.0)
+    lost = functools.partial(session.chain_alive, 'compensation', False)
+    checked(lost, 3.0, 3.15)
+    session.chain_heard(now=3.17)                 # its status came after the report: a false loss
+    checked(lost, 3.25, 3.25 + contract.LOSS_CONFIRM - CHECK)
     assert session.state == State.RUNNING and session.status_values()['reference_lost'] == ''
-    session.chain_alive('compensation', False, now=6.6)     # 1.6 s silent since the report: confirmed
+    lost(now=3.25 + contract.LOSS_CONFIRM)        # silent for LOSS_CONFIRM since 3.25: confirmed
     reason = (f'compensation lost: no sign of life within its {contract.LIVELINESS_LEASE:g} s liveliness lease '
               '(killed, stopped or hung); '
               'the reference does not reach the servos')

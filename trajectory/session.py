@@ -244,9 +244,9 @@ class Session:
         self.program: Program | None = None  # the motion under way, as parts
         self.held: tuple[int, float] | None = None   # a cut hold: (part, planned time) to resume
         self.stopping = False                # a stop or cancel: the goal ends canceled
-        # assumed: 1.5 s = 1.5 x the peers' 1 Hz /diagnostics (PeerLiveliness)
-        self.hw_sim = PeerLiveliness(confirm=contract.LOSS_CONFIRM)     # hw_sim's liveliness
-        self.chain = PeerLiveliness(confirm=contract.LOSS_CONFIRM)      # the node between this one and the servos
+        # contract.LOSS_CONFIRM, LOSS_CHECK_GAP say why (PeerLiveliness)
+        self.hw_sim = PeerLiveliness(contract.LOSS_CONFIRM, contract.LOSS_CHECK_GAP)   # hw_sim's liveliness
+        self.chain = PeerLiveliness(contract.LOSS_CONFIRM, contract.LOSS_CHECK_GAP)    # the node between this one and the servos
         self.chain_lost = ''                 # why the reference does not reach the servos
         self._watched_at: float | None = None  # wall time of the last watch (own stall)
         self._await_fault_step = False       # a fault without hw_sim's fault step yet
