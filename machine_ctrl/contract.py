@@ -26,6 +26,7 @@ nanoseconds, so step <-> stamp is exact both ways (:class:`StepClock`).
 from __future__ import annotations
 
 import re
+import signal
 from dataclasses import dataclass
 
 from machine_ctrl.model.errors import InvalidMessage
@@ -75,6 +76,12 @@ LOSS_CHECK_GAP = 0.5       # s
 # (a freeze longer than this releases hw_sim's hold: the machine goes on, the bag may lose)
 RECORDER_LIVELINESS_LEASE = 5.0     # s
 
+
+# A node process prints every thread's Python stack on stderr when it gets this signal
+# (faulthandler, from C: also while its main thread is blocked in a call, when no Python
+# handler can run); a supervisor sends it before SIGKILL (machine_ctrl.app.processes), so a
+# process that did not stop leaves where it hung in its log.
+STACKS_SIGNAL = signal.SIGUSR1
 
 # Per-step traffic must never be dropped silently: reliable, and deep enough for bursts.
 STEP_QOS = Qos(depth=200)

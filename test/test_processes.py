@@ -18,6 +18,12 @@ IGNORES_SIGINT = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_
                   'print("ready"); time.sleep(60)')
 IGNORES_SIGINT_AND_SIGTERM = ('import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); '
                               'signal.signal(signal.SIGTERM, signal.SIG_IGN); print("ready"); time.sleep(60)')
+# A node process (machine_ctrl.ros.node_common.init: its stop signals and its stacks report)
+# whose main thread hangs in a call, so that no stop signal ends it (as a recorder once did).
+HANGS_IN_A_CALL = ('import threading; from machine_ctrl.ros.node_common import init; init([]); '
+                   'print("ready", flush=True)\n'
+                   'def hung_in_a_call():\n    threading.Event().wait()\n'
+                   'hung_in_a_call()')
 # Starts a grandchild that survives SIGINT and SIGTERM, reports its pid, then behaves
 # like a node (stays) or, with argv[1] == 'leave', exits and leaves the grandchild behind.
 SPAWNER = f'''
@@ -92,6 +98,16 @@ def test_a_child_ignoring_sigint_gets_sigterm_then_sigkill(sup):
     codes = sup.stop_all(timeout=3.0)     # per step; the child that ignores both takes 2 x 3 s
     assert codes == {'no_int_no_term': -signal.SIGKILL, 'no_int': -signal.SIGTERM}
     assert sup.alive() == []
+
+
+def test_a_node_that_does_not_stop_leaves_its_stacks_in_its_log_before_sigkill(sup):
+    """contract.STACKS_SIGNAL goes only to processes that catch it (the test above: the
+    others are killed by SIGKILL, not by it)."""
+    sup.start('hung', py(HANGS_IN_A_CALL))
+    sup.wait_for_line('hung', 'ready', timeout=60)
+    assert sup.stop('hung', timeout=1.0) == -signal.SIGKILL
+    log = (sup.log_dir / 'hung.log').read_text()
+    assert 'most recent call first' in log and 'in hung_in_a_call' in log, log
 
 
 def test_stop_all_leaves_no_grandchild(sup):

@@ -4,14 +4,14 @@ Why a supervisor of our own: there is no ``launch`` package in this environment,
 graph tests must never leave a node running after a failure, because a stray node in the
 same ROS domain would answer the next test's messages. So every child runs in its own
 process group, and stopping it means escalating on the whole group (SIGINT, wait,
-SIGTERM, wait, SIGKILL) until no live process of the group is left, grandchildren
-included.
+SIGTERM, wait, contract.STACKS_SIGNAL — a node that did not stop prints where it hangs —
+SIGKILL) until no live process of the group is left, grandchildren included.
 
 Also here, because the supervisor's children need it and it needs no ROS import: a
 machine-wide lease of a ROS domain id (:func:`reserve_ros_domain`) and the environment
 that confines a graph to it (:func:`isolated_ros_env`).
 
-Standard library only; POSIX (process groups, flock). Group membership is read from
+Standard library and the contract only; POSIX (process groups, flock). Group membership is read from
 /proc on Linux, so zombies (which never get reaped when PID 1 does not reap orphans, as
 in some containers) do not count as alive.
 """
@@ -32,10 +32,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Mapping, Sequence
 
+from machine_ctrl import contract
 from machine_ctrl.app.stale_ports import remove_stale_ports
 
 DEFAULT_STOP_TIMEOUT = 5.0   # s to wait after SIGINT and again after SIGTERM
 KILL_TIMEOUT = 2.0           # s to wait for the group to vanish after SIGKILL
+# assumed: 1 s for a node that did not stop to write its stacks (contract.STACKS_SIGNAL:
+# faulthandler writes a few KB from its signal handler at once) before SIGKILL
+STACKS_WAIT = 1.0            # s
 TAIL_LINES = 200             # output lines kept per child for error reports
 _POLL = 0.02                 # s between checks while waiting
 
@@ -268,7 +272,8 @@ class Supervisor:
         wait = self.stop_timeout if timeout is None else timeout
         for child in children:
             child.stopping = True
-        _escalate(children, [(signal.SIGINT, wait), (signal.SIGTERM, wait), (signal.SIGKILL, KILL_TIMEOUT)])
+        _escalate(children, [(signal.SIGINT, wait), (signal.SIGTERM, wait), (contract.STACKS_SIGNAL, STACKS_WAIT),
+                             (signal.SIGKILL, KILL_TIMEOUT)])
         for child in children:
             try:        # its group is gone, so this reaps at once
                 child.process.wait(KILL_TIMEOUT)
@@ -280,20 +285,41 @@ class Supervisor:
 
 def _escalate(children: list[Child], steps: list[tuple[int, float]]) -> None:
     """Send each signal to the groups still alive and wait for them to vanish, until none
-    is left. A group that survives SIGKILL (a process in uninterruptible sleep) is
+    is left; contract.STACKS_SIGNAL only to the processes that catch it (the step skipped
+    when none does). A group that survives SIGKILL (a process in uninterruptible sleep) is
     reported on stderr rather than waited for forever."""
     pending = [child for child in children if child.group_alive()]
     for sig, wait in steps:
         if not pending:
             break
-        for child in pending:
-            child.signal_group(sig)
+        if sig == contract.STACKS_SIGNAL:       # only to those that report their stacks
+            if not [child for child in pending if _signal_catchers(child.pid, sig)]:
+                continue
+        else:
+            for child in pending:
+                child.signal_group(sig)
         deadline = time.monotonic() + wait
         while pending and time.monotonic() < deadline:
             time.sleep(_POLL)
             pending = [child for child in pending if child.group_alive()]
     for child in pending:
         print(f'supervisor: process group {child.pid} ({child.name}) survived SIGKILL', file=sys.stderr)
+
+
+def _signal_catchers(pgid: int, sig: int) -> bool:
+    """Send `sig` to the live processes of group `pgid` that catch it (/proc/<pid>/status
+    SigCgt), not to the others, whose default action it would be to end; whether any got it."""
+    sent = False
+    for pid in _live_group_members(pgid) if os.path.isdir('/proc/self') else ():
+        try:
+            with open(f'/proc/{pid}/status') as status:
+                caught = next(int(line.split()[1], 16) for line in status if line.startswith('SigCgt:'))
+            if caught >> (sig - 1) & 1:
+                os.kill(pid, sig)
+                sent = True
+        except (OSError, StopIteration, ValueError):     # gone meanwhile
+            pass
+    return sent
 
 
 def _join_reader(child: Child, timeout: float = 1.0) -> None:

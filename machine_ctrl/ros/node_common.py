@@ -66,7 +66,13 @@ def init(args=None, **kwargs) -> None:
     kept, and spin() then shuts down at once."""
     for sig in STOP_SIGNALS:
         signal.signal(sig, lambda signum, _frame: _early_signals.append(signum))
+    report_stacks_on_signal()
     rclpy.init(args=sys.argv if args is None else args, signal_handler_options=SignalHandlerOptions.NO, **kwargs)
+
+
+def report_stacks_on_signal() -> None:
+    """Every thread's stack on stderr at contract.STACKS_SIGNAL, the process going on."""
+    faulthandler.register(contract.STACKS_SIGNAL, all_threads=True)
 
 
 def spin(nodes, executor=None) -> None:

@@ -65,7 +65,7 @@ from machine_ctrl.recording.bag import BagError, qos_profile
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.recording.msgdefs import DefinitionNotFound
-from machine_ctrl.ros.node_common import DefaultExecutor, qos, wall_timer
+from machine_ctrl.ros.node_common import DefaultExecutor, qos, report_stacks_on_signal, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters
 
 DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
@@ -312,6 +312,7 @@ def run(node: RecorderNode) -> int:
 
 
 def main(args=None) -> int:
+    report_stacks_on_signal()
     rclpy.init(args=sys.argv if args is None else args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         try:
