@@ -37,7 +37,10 @@ class PeerLiveliness:
     timer while lost, more often than every `gap` s); :meth:`losing` says True once, when
     the loss is confirmed. A call more than `gap` s after the one before starts the
     confirmation over: the watching node itself did not run meanwhile, and the peer's
-    messages may be waiting behind it (or, in one process, the peer did not run either)."""
+    messages may be waiting behind it (or, in one process, the peer did not run either). A
+    watcher whose checks all come more than `gap` s apart confirms nothing until it runs
+    regularly again (a stall of its own is its own check's to report: the trajectory node's
+    `trajectory stalled` while a goal runs)."""
 
     def __init__(self, confirm: float, gap: float):
         self.confirm, self.gap = confirm, gap

@@ -293,7 +293,8 @@ def _escalate(children: list[Child], steps: list[tuple[int, float]]) -> None:
         if not pending:
             break
         if sig == contract.STACKS_SIGNAL:       # only to those that report their stacks
-            if not [child for child in pending if _signal_catchers(child.pid, sig)]:
+            sent = [_signal_catchers(child.pid, sig) for child in pending]
+            if not any(sent):
                 continue
         else:
             for child in pending:

@@ -187,7 +187,10 @@ def watch_liveliness(node: Node, msg_type, topic: str, spec, on_change, on_messa
     is alive while it exists: Fast DDS 2.14 reports such a writer not alive one lease after
     its last message although its liveliness is automatic (eProsima/Fast-DDS#6306; tested in
     test_liveliness.py), so a loss is not passed on while a writer of `topic` is in this
-    process. Its process cannot be lost without this one."""
+    process: its process cannot be lost without this one. Nor is it passed on later when
+    that writer is destroyed after such a report (Fast DDS has nothing more to report: in
+    the graphs here nodes are destroyed only at shutdown), nor while a local writer exists
+    beside a remote one that is lost (not "no writer alive")."""
     from rclpy.event_handler import SubscriptionEventCallbacks
 
     def changed(info) -> None:
@@ -207,7 +210,8 @@ GUID_PREFIX = 12     # bytes of an endpoint's gid that name its DDS participant 
 
 def writer_in_process(node: Node, topic: str) -> bool:
     """Whether a writer of `topic` (fully qualified) is in `node`'s own DDS participant (its
-    process): the graph's endpoints of this node give the participant's GUID prefix."""
+    process): the graph's endpoints of this node (by its name: node names are unique in a
+    graph) give the participant's GUID prefix."""
     me = (node.get_name(), node.get_namespace())
     own = {bytes(info.endpoint_gid[:GUID_PREFIX])
            for name, _types in node.get_publisher_names_and_types_by_node(*me)

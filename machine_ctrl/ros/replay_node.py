@@ -28,6 +28,7 @@ from machine_ctrl.recording import replay
 from machine_ctrl.recording.bag import Bag
 from machine_ctrl.recording.recorder import namespace_of
 from machine_ctrl import parameters
+from machine_ctrl.ros.node_common import report_stacks_on_signal
 from machine_ctrl.ros.node_parameters import declare_parameters
 from machine_ctrl.ros.messages import message_class
 
@@ -140,6 +141,7 @@ class ReplayNode(Node):
 
 def main(args=None, overrides=()) -> int:
     """`replay_node` (ROS arguments from argv) and `machine-ctrl replay` (parameter overrides)."""
+    report_stacks_on_signal()
     rclpy.init(args=sys.argv if args is None else args)
     try:
         try:
