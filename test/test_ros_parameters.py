@@ -12,6 +12,7 @@ happened. Every wait is on a condition (a printed line, a status showing a value
 timeouts only bound a wait that would otherwise hang."""
 import importlib.util
 import shutil
+import signal
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -22,6 +23,7 @@ import yaml
 
 from machine_ctrl import parameters
 from machine_ctrl.app.processes import Supervisor
+from machine_ctrl.app.stale_ports import PORT_FILE, SHM_DIR
 from machine_ctrl.model.config import load_machine
 from ros_fixtures import without_fastdds_log
 
@@ -34,7 +36,36 @@ READY = 120          # s: a node process up (imports, Pinocchio) on a loaded mac
 
 
 def ros2(env, *args, timeout=WAIT + 30) -> subprocess.CompletedProcess:
-    return subprocess.run([str(ROS2), *args], env=env, capture_output=True, text=True, timeout=timeout)
+    """`ros2 ARGS`, as a user runs it. One that has not ended after `timeout` s gets SIGABRT,
+    so that Python's faulthandler (PYTHONFAULTHANDLER) prints where it hangs, and the test
+    fails with that and the empty Fast DDS port files of the moment (machine_ctrl.app.
+    stale_ports): `ros2 param set` waits for its answer without a limit, and a loaded run
+    saw one print nothing for 90 s."""
+    process = subprocess.Popen([str(ROS2), *args], env={**env, 'PYTHONFAULTHANDLER': '1'}, text=True,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        out, err = process.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.send_signal(signal.SIGABRT)
+        try:
+            out, err = process.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            out, err = process.communicate()
+        raise AssertionError(f'ros2 {" ".join(args)}: not ended within {timeout} s; empty port files '
+                             f'{empty_port_files()}; its output and stacks:\n{(out + err)[-4000:]}') from None
+    return subprocess.CompletedProcess(process.args, process.returncode, out, err)
+
+
+def empty_port_files() -> list[str]:
+    found = []
+    for path in SHM_DIR.glob('fastrtps_port*'):
+        try:
+            if PORT_FILE.fullmatch(path.name) and path.stat().st_size == 0:
+                found.append(path.name)
+        except OSError:
+            continue
+    return found
 
 
 def param_set(env, node, name, value) -> str:

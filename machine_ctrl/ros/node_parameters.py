@@ -111,12 +111,15 @@ class _Declared:
         return SetParametersResult(successful=True)
 
     def after_set(self, params) -> None:
-        """Every accepted value first, then the hooks (a hook may read several values: gains
-        of one axis set together)."""
+        """Every accepted value first (each change logged: what a controller's operator and
+        a failure's reader want to know), then the hooks (a hook may read several values:
+        gains of one axis set together)."""
         ours = [param.name for param in params if param.name in self.tables and param.name in self.values]
         for param in params:
             if param.name in ours:
-                self.values[param.name] = _plain(param.value)
+                before, self.values[param.name] = self.values[param.name], _plain(param.value)
+                if before != self.values[param.name]:
+                    self.node.get_logger().info(f'parameter {param.name}: {before!r} -> {self.values[param.name]!r}')
         for name in ours:
             hook = self.on_change.get(name)
             if hook is not None:
