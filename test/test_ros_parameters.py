@@ -23,7 +23,7 @@ import yaml
 
 from machine_ctrl import parameters
 from machine_ctrl.app.processes import Supervisor
-from machine_ctrl.app.stale_ports import PORT_FILE, SHM_DIR
+from machine_ctrl.app.stale_ports import PORT_FILE, SHM_DIR, remove_stale_ports
 from machine_ctrl.model.config import load_machine
 from ros_fixtures import without_fastdds_log
 
@@ -40,7 +40,10 @@ def ros2(env, *args, timeout=WAIT + 30) -> subprocess.CompletedProcess:
     so that Python's faulthandler (PYTHONFAULTHANDLER) prints where it hangs, and the test
     fails with that and the empty Fast DDS port files of the moment (machine_ctrl.app.
     stale_ports): `ros2 param set` waits for its answer without a limit, and a loaded run
-    saw one print nothing for 90 s."""
+    saw one print nothing for 90 s. Empty port files left by killed processes are removed
+    first, as a Supervisor does before it starts a node: a participant that opens one waits
+    forever (machine_ctrl.app.stale_ports; the suite kills many nodes)."""
+    remove_stale_ports()
     process = subprocess.Popen([str(ROS2), *args], env={**env, 'PYTHONFAULTHANDLER': '1'}, text=True,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
