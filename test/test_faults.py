@@ -95,6 +95,7 @@ def graph_client(machine, graph, node_specs, ros_env, name):
             c.wait(lambda: c.status().get('state') == 'idle' and c.truth is not None
                    and c.trajectory_alive and all(n in c.diagnostics for n in node_specs),
                    'the graph running', GUARD, graph.check)
+            c.wait_listening(GUARD, graph.check, c.command_publishers)   # no command before the match
             yield c
         finally:
             c.close()

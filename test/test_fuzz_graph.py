@@ -199,6 +199,7 @@ def client(micromill, graph, ros_env):
             for topic, publisher in c.rogue.items():    # every reader matched: none misses a message
                 c.wait(lambda: publisher.get_subscription_count() >= max(READERS[topic], node.count_subscribers(topic)),
                        f'the readers of {topic}', 60, graph.check)
+            c.wait_listening(60, graph.check, c.command_publishers)   # no command before the match
             yield c
         finally:
             c.close()

@@ -45,9 +45,7 @@ def test_send_runs_a_program_piece_by_piece_and_leaves_the_feed_as_it_was(ros_su
         assert client.get_parameters('trajectory', ['feed']) == {'feed': 0.01}      # the node's own, back
         publisher = client.node.create_publisher(String, contract.PROGRAM.name, ros_io.qos(contract.PROGRAM.qos))
         topic = '/' + contract.PROGRAM.name
-        client.wait(lambda: any(info.node_name == 'trajectory'
-                                for info in client.node.get_subscriptions_info_by_topic(topic)),
-                    'the trajectory node reading the program topic')
+        client.wait(lambda: client.listens(publisher), 'the trajectory node reading the program topic')
         # a goal's /diagnostics entry is published once per change, on a volatile topic: the
         # client must hear the trajectory node there (its 1 Hz status) before the first program,
         # or on a loaded machine the first entry can go out before the two are matched

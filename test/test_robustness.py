@@ -103,6 +103,8 @@ def client(micromill, graph, ros_env):
                    graph.check)
             # the table settles on the compensated hold position first (a few um): start from there
             c.wait(lambda: int(c.diag('hw_sim', 'step')) > 3000, 'the machine settled', 120, graph.check)
+            # the first command (path, goal, feed override) is not published before the match
+            c.wait_listening(120, graph.check, c.command_publishers)
             yield c
         finally:
             c.close()

@@ -39,7 +39,8 @@ class Client(MachineClient):
         from sensor_msgs.msg import JointState
         from trajectory_msgs.msg import JointTrajectory
 
-        self.rows = {}                     # step -> reference position (last message wins)
+        self.rows = {}                     # step -> reference position, as the servos hold them
+        self.end = 0                       # first step after the newest chunk
         self.diagnostics = {}
         self.truth = None
         self.lock = threading.Lock()
@@ -52,10 +53,17 @@ class Client(MachineClient):
         super().__init__(node, machine)
 
     def on_reference(self, msg):
+        """As a servo's buffer (machine_ctrl.model.reference.ReferenceBuffer): a chunk replaces
+        every row from its first step on. (A re-stream after a stop can end before the stream it
+        replaces did: the rows after it are no longer the reference, and a loaded run that kept
+        them saw a jump of 326x the velocity limit there.)"""
         first, positions, _, _ = ros_io.parse_chunk(self.clock, msg, self.machine.axis_names)
         with self.lock:
+            for step in range(first, self.end):
+                self.rows.pop(step, None)
             for i, p in enumerate(positions):
                 self.rows[first + i] = p
+            self.end = first + len(positions)
 
     def on_diagnostics(self, msg):
         for status in msg.status:
@@ -138,6 +146,7 @@ def client(micromill, graph, ros_env):
             # goal entries go out once per change on the volatile /diagnostics: heard the node
             # there first, so that the first goal's entries are not published before the match
             c.wait(lambda: 'trajectory' in c.diagnostics_heard, "the trajectory node's /diagnostics", 60, graph.check)
+            c.wait_listening(60, graph.check, c.command_publishers)   # no command before the match
             yield c
         finally:
             c.close()

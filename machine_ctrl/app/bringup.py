@@ -244,16 +244,6 @@ def client_node(name: str, domain_id: int | None = None, namespace: str = ''):
     return context, rclpy.create_node(name, namespace=namespace or None, context=context)
 
 
-def listening(client, publisher) -> bool:
-    """Whether the trajectory node of the client's namespace subscribes `publisher`'s
-    topic and every subscriber of the topic is matched with it (a message published now
-    reaches the trajectory node)."""
-    infos = client.node.get_subscriptions_info_by_topic(publisher.topic_name)
-    namespace = client.node.get_namespace()
-    return (any(info.node_name == 'trajectory' and info.node_namespace == namespace for info in infos)
-            and publisher.get_subscription_count() >= len(infos))
-
-
 class StateReporter:
     """Prints each new /trajectory/status state (with motion, progress, fault, refusal)."""
 

@@ -148,6 +148,28 @@ class MachineClient:
         except Timeout:
             raise Timeout(NOT_READY.format(timeout=timeout)) from None
 
+    def listens(self, publisher) -> bool:
+        """Whether the trajectory node of this client's namespace subscribes `publisher`'s
+        topic and every subscriber of the topic is matched with it (a message published now
+        reaches the trajectory node)."""
+        infos = self.node.get_subscriptions_info_by_topic(publisher.topic_name)
+        namespace = self.node.get_namespace()
+        return (any(info.node_name == 'trajectory' and info.node_namespace == namespace for info in infos)
+                and publisher.get_subscription_count() >= len(infos))
+
+    @property
+    def command_publishers(self) -> tuple:
+        """The trajectory node's command topics this client publishes: path, joint goal, feed override."""
+        return self.pub_path, self.pub_goal, self.pub_override
+
+    def wait_listening(self, timeout: float = READY_TIMEOUT, check=None, publishers=None) -> None:
+        """Wait until the trajectory node listens to `publishers` (default: this client's tool
+        path and joint goal) and its status has come: the command topics are volatile, so a
+        command published before the match is lost (a loaded run lost a test's first path so)."""
+        publishers = (self.pub_path, self.pub_goal) if publishers is None else publishers
+        self.wait(lambda: self.statuses and all(self.listens(p) for p in publishers),
+                  'the trajectory node (is the graph up? machine-ctrl bringup)', timeout, check)
+
     def states_seen(self, after: int, states) -> bool:
         """The statuses after the first `after` went through `states` in this order."""
         wanted = list(states)

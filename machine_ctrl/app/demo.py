@@ -88,7 +88,7 @@ def run(args) -> int:
 
 def run_graph(machine, path, out: Path, model: Path, clock: Clock) -> int:
     """Bring up, send the path, follow it, stop; the exit status."""
-    from machine_ctrl.app.bringup import Bringup, Stopped, listening, monitor, signals_ignored
+    from machine_ctrl.app.bringup import Bringup, Stopped, monitor, signals_ignored
     from machine_ctrl.app.client import Timeout
     from machine_ctrl.app.goals import follow_goal
     from machine_ctrl.app.processes import ChildExited, isolated_ros_env, reserve_ros_domain
@@ -105,7 +105,7 @@ def run_graph(machine, path, out: Path, model: Path, clock: Clock) -> int:
                     print(f'all nodes ready after {waited:.1f} s', flush=True)
                     clock.lap('bringup')
                     print(f'sending the helix ({len(path)} points) on {contract.PATH.name}', flush=True)
-                    client.wait(lambda: listening(client, client.pub_path), 'the path subscriber', 30)
+                    client.wait_listening(30)
                     status = follow_goal(client, lambda stamp: client.send_path(path, stamp=stamp), 3600.0)
                     clock.lap('motion')
                 except (ChildExited, Timeout) as exc:

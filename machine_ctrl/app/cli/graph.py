@@ -147,15 +147,12 @@ def _with_graph(command: str, machine, timeout: float, namespace: str, run) -> i
     from machine_ctrl.app.client import READY_TIMEOUT, Timeout
     if not (math.isfinite(timeout) and timeout > 0):
         return error(command, ValueError(f'--timeout must be > 0 s, got {timeout}'))
-    from machine_ctrl.app.bringup import client_session, listening
+    from machine_ctrl.app.bringup import client_session
     with client_session(machine, 'machine_ctrl_cli', namespace=namespace) as client:
         started = time.monotonic()
         try:
             client.wait_ready(min(timeout, READY_TIMEOUT))
-            left = max(min(timeout, READY_TIMEOUT) - (time.monotonic() - started), 1.0)
-            client.wait(lambda: client.statuses and listening(client, client.pub_path)
-                        and listening(client, client.pub_goal),
-                        'the trajectory node (is the graph up? machine-ctrl bringup)', left)
+            client.wait_listening(max(min(timeout, READY_TIMEOUT) - (time.monotonic() - started), 1.0))
         except Timeout as exc:
             return error(command, exc)
         return run(client)
