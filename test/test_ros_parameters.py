@@ -23,7 +23,7 @@ import yaml
 
 from machine_ctrl import parameters
 from machine_ctrl.app.processes import Supervisor
-from machine_ctrl.app.stale_ports import PORT_FILE, SHM_DIR, remove_stale_ports
+from machine_ctrl.app.stale_ports import empty_ports, remove_stale_ports
 from machine_ctrl.model.config import load_machine
 from ros_fixtures import without_fastdds_log
 
@@ -55,20 +55,10 @@ def ros2(env, *args, timeout=WAIT + 30) -> subprocess.CompletedProcess:
         except subprocess.TimeoutExpired:
             process.kill()
             out, err = process.communicate()
-        raise AssertionError(f'ros2 {" ".join(args)}: not ended within {timeout} s; empty port files '
-                             f'{empty_port_files()}; its output and stacks:\n{(out + err)[-4000:]}') from None
+        empty = [path.name for path, _ in empty_ports()]
+        raise AssertionError(f'ros2 {" ".join(args)}: not ended within {timeout} s; empty port files {empty}; '
+                             f'its output and stacks:\n{(out + err)[-4000:]}') from None
     return subprocess.CompletedProcess(process.args, process.returncode, out, err)
-
-
-def empty_port_files() -> list[str]:
-    found = []
-    for path in SHM_DIR.glob('fastrtps_port*'):
-        try:
-            if PORT_FILE.fullmatch(path.name) and path.stat().st_size == 0:
-                found.append(path.name)
-        except OSError:
-            continue
-    return found
 
 
 def param_set(env, node, name, value) -> str:

@@ -44,16 +44,14 @@ def open_files(proc: Path = Path('/proc')) -> set[tuple[int, int]]:
     return held
 
 
-def remove_stale_ports(directory: Path = SHM_DIR, now: float | None = None) -> list[Path]:
-    """Remove the port files of `directory` that are empty, unchanged for more than
-    :data:`STALE_AFTER` s and open in no process; returns the removed paths. Files of other
-    names, with content, young or open are left alone; an error on one file skips it."""
-    now = time.time() if now is None else now
-    candidates = []
+def empty_ports(directory: Path = SHM_DIR) -> list[tuple[Path, os.stat_result]]:
+    """The port files of `directory` that are empty, with their status (an error on one
+    file, or on the directory, skips it)."""
     try:
         entries = list(os.scandir(directory))
     except OSError:
         return []
+    found = []
     for entry in entries:
         if not PORT_FILE.fullmatch(entry.name):
             continue
@@ -61,8 +59,18 @@ def remove_stale_ports(directory: Path = SHM_DIR, now: float | None = None) -> l
             status = entry.stat()
         except OSError:
             continue
-        if status.st_size == 0 and now - status.st_mtime > STALE_AFTER:
-            candidates.append((Path(entry.path), (status.st_dev, status.st_ino)))
+        if status.st_size == 0:
+            found.append((Path(entry.path), status))
+    return found
+
+
+def remove_stale_ports(directory: Path = SHM_DIR, now: float | None = None) -> list[Path]:
+    """Remove the port files of `directory` that are empty, unchanged for more than
+    :data:`STALE_AFTER` s and open in no process; returns the removed paths. Files of other
+    names, with content, young or open are left alone; an error on one file skips it."""
+    now = time.time() if now is None else now
+    candidates = [(path, (status.st_dev, status.st_ino)) for path, status in empty_ports(directory)
+                  if now - status.st_mtime > STALE_AFTER]
     if not candidates:
         return []
     held = open_files()
