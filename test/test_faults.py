@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from machine_ctrl import contract
-from machine_ctrl.app.client import MachineClient
+from machine_ctrl.app.client import MachineClient, Timeout
 from machine_ctrl.app.processes import Supervisor
 from machine_ctrl.parameters import HW_SIM
 from machine_ctrl.ros.graph import default_graph
@@ -51,6 +51,16 @@ class Client(MachineClient):
 
     def on_truth(self, msg):
         self.truth = np.array(msg.position)
+
+    def wait(self, predicate, what: str, timeout: float = 120.0, check=None) -> None:
+        """MachineClient.wait; a timeout also tells what hw_sim and the step nodes said last on
+        /diagnostics (the held step, the step answered, what each waits for, the fault)."""
+        try:
+            super().wait(predicate, what, timeout, check)
+        except Timeout as exc:
+            said = {name: {key: self.diag(name, key) for key in ('step', 'answered_step', 'waiting_for', 'fault')
+                           if self.diag(name, key)} for name in ('hw_sim', *STEP_NODES)}
+            raise Timeout(f'{exc}; diagnostics {said}') from None
 
     def diag(self, node, key, default=''):
         return self.diagnostics.get(node, {}).get(key, default)
@@ -278,6 +288,7 @@ def test_a_killed_dual_stage_faults_hw_sim_naming_the_fine_axes_restart_and_rese
     assert state == 'aborted' and f'machine faulted: missing command for {fine} ' in reason, reason
     client.wait(lambda: 'dual_stage/offsets (none for step' in client.diag('servo_fine', 'waiting_for'),
                 'servo_fine naming the offsets it lacks', GUARD, graph.check)
+    assert client.diag('servo_fine', 'waiting_for').endswith(' matched)')      # the writers its reader has
     restart(graph, micromill, 'dual_stage')
     client.wait(answering(client, 'servo_fine'), 'servo_fine answering with the new offsets', GUARD, graph.check)
     reset_and_move(client, graph, 'x_f')

@@ -71,7 +71,7 @@ class DualStageNode(StepNode):
     def publish_diagnostics(self) -> None:
         problems = self.buffer.underruns or self.rejections.count or self.coupling.saturation_count
         step = self.responder.answered_step
-        values = {'dual_stage': self.coupling.enabled, 'answered_step': step,
+        values = {'dual_stage': self.coupling.enabled, 'answered_step': step, 'waiting_for': self.waiting_for(),
                   'fine_stroke_saturations': self.coupling.saturation_count,
                   'reference_underruns': self.buffer.underruns, 'rejected_messages': self.rejections.count,
                   'last_rejection': self.rejections.last}

@@ -44,7 +44,7 @@ from machine_ctrl.control.dual_stage import apply_offsets
 from machine_ctrl.ros.node_common import main_for, subscribe_joint_states, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, gain_parameters, machine_parameter
 from machine_ctrl.control.servo import ServoGroup
-from machine_ctrl.ros.step_node import StepNode
+from machine_ctrl.ros.step_node import StepNode, matched
 
 
 class ServoNode(StepNode):
@@ -90,10 +90,11 @@ class ServoNode(StepNode):
         self.start_stepping(self.machine, self.machine.axis_names if self.contour else self.axes, self.pub,
                             self.ready, self.compute, self.streaming)
         if self.wait_for_offsets:
-            subscribe_joint_states(self, contract.DUAL_STAGE_OFFSETS.name, self.on_offsets,
-                                   lambda reason: self.rejections.add('offsets', reason))
+            self.offsets.reader = subscribe_joint_states(self, contract.DUAL_STAGE_OFFSETS.name, self.on_offsets,
+                                                         lambda reason: self.rejections.add('offsets', reason))
         if self.accelerometer_axes:
-            self.create_subscription(Imu, contract.ACCELEROMETERS.name, self.on_acceleration, ros_io.STEP_QOS)
+            self.accelerations.reader = self.create_subscription(Imu, contract.ACCELEROMETERS.name,
+                                                                 self.on_acceleration, ros_io.STEP_QOS)
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: axes {" ".join(self.axes)}')
 
@@ -226,14 +227,12 @@ class ServoNode(StepNode):
         commands = self.servo.step(ref_pos, ref_vel, ref_acc, position, velocity, acceleration)
         return self.encoder.encode(msg.sec, msg.nanosec, effort=commands)
 
-    def waiting_for(self) -> str:
-        if not self.responder.waiting:
-            return ''
-        missing = [] if self.buffer.started else [f'{contract.REFERENCE.name} (never received)']
+    def missing_inputs(self) -> list[str]:
+        missing = []
         for waited, stream in ((self.wait_for_offsets, self.offsets), (bool(self.accelerometer_axes), self.accelerations)):
             if waited:
                 missing += stream.waiting_text(self.responder.answered_step, self.input_timeout)
-        return ', '.join(missing) or 'inputs of the current step'
+        return missing
 
     def publish_diagnostics(self) -> None:
         problems = self.buffer.underruns or self.offsets.missing or self.accelerations.missing or self.rejections.count
@@ -272,10 +271,12 @@ class ServoNode(StepNode):
 class StepInput:
     """A per-step input stream besides the state (the offsets of the dual-stage node, the
     accelerometer readings): values by step until their step is computed, whether it has ever
-    delivered, and the steps left unanswered for want of it."""
+    delivered, and the steps left unanswered for want of it; what it waits for says how many
+    writers its reader (`reader`, the node's subscription) is matched with."""
 
     def __init__(self, topic: str):
         self.topic = topic
+        self.reader = None                 # the node's subscription, once made
         self.pending: dict[int, object] = {}
         self.started = False
         self.missing = 0                   # steps left unanswered for want of this input
@@ -305,9 +306,10 @@ class StepInput:
 
     def waiting_text(self, answered_step: int, timeout: float) -> list[str]:
         if not self.started:
-            return [f'{self.topic} (never received)']
+            return [f'{self.topic} (never received; {matched(self.reader)})']
         if self.lost_step is not None and self.lost_step >= answered_step:
-            return [f'{self.topic} (none for step {self.lost_step} within {timeout:g} s: not answered)']
+            return [f'{self.topic} (none for step {self.lost_step} within {timeout:g} s: not answered; '
+                    f'{matched(self.reader)})']
         return []
 
 

@@ -31,8 +31,23 @@ class StepNode(Node):
         self.responder = StepResponder(self, publisher, ready, compute, self.input_timeout, streaming)
         subscribe_joint_states(self, contract.JOINT_STATES.name, self.on_state,
                                lambda reason: self.rejections.add('state', reason))
-        subscribe_reference(self, contract.REFERENCE.name, self.clock, self.reference_axes, self.on_reference,
-                            lambda reason: self.rejections.add('reference', reason))
+        self.reference_reader = subscribe_reference(
+            self, contract.REFERENCE.name, self.clock, self.reference_axes, self.on_reference,
+            lambda reason: self.rejections.add('reference', reason))
+
+    def waiting_for(self) -> str:
+        """What the node waits for before it answers the newest state, for /diagnostics: ''
+        when it is not waiting; the reference stream if it never delivered, with the writers its
+        reader is matched with (:func:`matched`); `missing_inputs()` of a subclass."""
+        if not self.responder.waiting:
+            return ''
+        missing = [] if self.buffer.started else [
+            f'{contract.REFERENCE.name} (never received; {matched(self.reference_reader)})']
+        return ', '.join(missing + self.missing_inputs()) or 'inputs of the current step'
+
+    def missing_inputs(self) -> list[str]:
+        """The per-step inputs besides the state and the reference that are missing."""
+        return []
 
     def make_buffer(self, axes) -> ReferenceBuffer:
         self.buffer = ReferenceBuffer(axes)
@@ -56,3 +71,13 @@ class StepNode(Node):
         except ros_io.InvalidMessage as exc:
             self.rejections.add('state', str(exc))
             return None
+
+
+def matched(reader) -> str:
+    """How many writers a subscription is matched with, as text: none means the writing node
+    is gone or not yet discovered; one that sends nothing through a match is a writer that does
+    not run or a transport that does not deliver (a loaded run once saw a restarted
+    dual_stage's offsets never reach servo_fine). A killed node's writer stays matched until
+    its DDS participant's lease runs out."""
+    count = reader.get_publisher_count()
+    return f'{count} writer{"" if count == 1 else "s"} matched'
