@@ -77,6 +77,15 @@ def test_rclpy_and_rosbags_decode_what_it_encodes():
             f['position'], f['velocity'], f['effort']]
 
 
+def test_a_clock_is_the_bytes_rclpy_makes_of_it():
+    from builtin_interfaces.msg import Time
+    from rosgraph_msgs.msg import Clock
+    from machine_ctrl.recording.cdr import encode_time
+    for sec, nanosec in ((0, 0), (1, 999_999_999), (-2 ** 31, 2 ** 32 - 1), (2 ** 31 - 1, 123)):
+        assert encode_time(sec, nanosec) == serialize_message(Clock(clock=Time(sec=sec, nanosec=nanosec)))
+        assert deserialize_message(encode_time(sec, nanosec), Time) == Time(sec=sec, nanosec=nanosec)
+
+
 def test_a_decoder_reused_on_one_publishers_messages_decodes_each_as_a_fresh_one():
     """The kept layouts (one unpack per message like the one before) against a fresh decoder
     (field by field) and rclpy: the same names, arrays empty or full at random, so messages
