@@ -32,6 +32,9 @@ class LockStep:
     def __post_init__(self):
         self._index = {name: i for i, name in enumerate(self.axis_names)}
         self._commands: dict[int, float] = {}
+        # the axis indices of name lists found valid (unique, known): each servo sends the
+        # same names every step, so they are checked once per list, not per message
+        self._valid: dict[tuple[str, ...], tuple[int, ...]] = {}
 
     def offer(self, step: int, names, values) -> str | None:
         """Take the commands of one message; returns the refusal reason, or None."""
@@ -43,16 +46,30 @@ class LockStep:
             reason = f'command for step {step} while at step {self.step}'
         elif len(names) != len(values):
             reason = f'{len(names)} names but {len(values)} commands'
-        elif len(set(names)) != len(names):
-            reason = 'duplicate axis names'
         else:
-            unknown = [n for n in names if n not in self._index]
-            if unknown:
-                reason = f'unknown axes {", ".join(unknown)}'
+            names = tuple(names)
+            indices = self._valid.get(names)
+            if indices is None:
+                reason = self._names_problem(names)
+                indices = self._valid.get(names)
         if reason is not None:
             return self.stats.refuse(reason)
-        for name, value in zip(names, values):
-            self._commands[self._index[name]] = float(value)
+        self._commands.update(zip(indices, map(float, values)))
+        return None
+
+    KNOWN_NAME_LISTS = 16      # valid name lists kept (one per servo node; more only from odd publishers)
+
+    def _names_problem(self, names: tuple[str, ...]) -> str | None:
+        """Why a command's axis names are refused (duplicates, unknown axes), or None, the
+        list then kept as valid."""
+        if len(set(names)) != len(names):
+            return 'duplicate axis names'
+        unknown = [n for n in names if n not in self._index]
+        if unknown:
+            return f'unknown axes {", ".join(unknown)}'
+        if len(self._valid) >= self.KNOWN_NAME_LISTS:
+            self._valid.clear()
+        self._valid[names] = tuple(self._index[n] for n in names)
         return None
 
     @property

@@ -154,6 +154,27 @@ def test_switched_off_it_fades_out_then_costs_nothing_and_switched_on_fades_in_f
         (gains.proportional * (1 - decay) + gains.integral * micromill.control_period) * eps, rel=1e-5)
 
 
+def test_off_and_faded_out_its_steps_equal_those_that_ask_quiet_every_step(micromill):
+    """Once off and faded out the coupling no longer asks `quiet` (numpy) at each step: its
+    channels cannot change until it is switched on. On, off (fading, then OFF for a while),
+    on again and off again, every step equals a twin's that is made to ask every step."""
+    reference = line(micromill)
+    kept, twin = coupling_on(micromill, reference), coupling_on(micromill, reference)
+    switches = {1000: False, 5000: True, 5100: False, 5200: True}        # ~3500 steps to fade out
+    statuses = set()
+    for k in range(900, 5300):
+        for coupling in (kept, twin):
+            if k in switches:
+                coupling.set_enabled(switches[k])
+        twin._idle = False
+        q = displaced(micromill, reference, k, y_f=0.2e-6)
+        a, b = kept.step(k, q), twin.step(k, q)
+        assert (a.corrections, a.status, a.reason) == (b.corrections, b.status, b.reason)
+        assert (kept.reference.first, kept.trajectory.first) == (twin.reference.first, twin.trajectory.first)
+        statuses.add(a.status)
+    assert statuses == set(CouplingStatus) and kept.enabled
+
+
 @pytest.mark.parametrize('change, reason', [
     (dict(axes=('x_f', 'y_f')), 'axes: fixed while running'),
     (dict(estimator='basic'), 'estimator: fixed while running'),

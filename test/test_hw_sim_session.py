@@ -364,6 +364,22 @@ def test_lockstep_takes_the_commands_in_axis_order():
     assert ls.take() == [1.0, 2.0, 3.0] and ls.step == 1 and ls.missing == ['a', 'b', 'c']
 
 
+
+def test_lockstep_checks_every_new_name_list_whatever_it_took_before():
+    """Valid name lists are kept (checked once per list): a bad list is refused between good
+    ones, a list and its reordering are each taken in their own order, ints taken as floats."""
+    ls = LockStep(('a', 'b', 'c'))
+    for _ in range(2):
+        assert ls.offer(ls.step, ('a', 'b'), (1.0, 2.0)) is None
+        assert ls.offer(ls.step, ['a', 'a'], [1.0, 2.0]) == 'duplicate axis names'
+        assert ls.offer(ls.step, ('b', 'a'), (5.0, 4)) is None
+        assert ls.offer(ls.step, ('b', 'z'), (5.0, 4.0)) == 'unknown axes z'
+        assert ls.offer(ls.step, ('c',), (3.0,)) is None
+        assert ls.offer(ls.step, ('a', 'b', 'c'), (1.0,)) == '3 names but 1 commands'
+        taken = ls.take()
+        assert taken == [4.0, 5.0, 3.0] and all(type(v) is float for v in taken)
+    assert ls.stats.refused == 6 and ls.step == 2
+
 # -- paced ---------------------------------------------------------------------------------
 
 def test_paced_mode_steps_on_each_tick_and_holds_what_is_missing(make, micromill):

@@ -99,3 +99,62 @@ def test_halving_the_friction_substep_changes_the_motion_by_under_1_percent(micr
     travel = np.ptp(paths[1])
     assert travel > 1e-3
     assert np.abs(paths[0] - paths[1]).max() < 0.01 * travel
+
+
+# -- the per-step paths written out: the same bits as the helpers they stand for ------------------
+
+def step_by_helpers(plant, u: float) -> float:
+    """A plant's step as composed of its helpers (apply, disturbance, friction_scale, the
+    Stribeck curve, bristle_rate, _propagate): what FrictionAxis.step and LinearAxis.step
+    write out for speed."""
+    from machine_ctrl.control.lugre import bristle_rate
+    applied = plant.apply(u)
+    if not isinstance(plant, FrictionAxis):
+        plant._state = plant._propagate(applied + plant.disturbance())
+        return applied
+    force = plant.gain * (applied + plant.disturbance())
+    h, m, b, s0, s1 = plant.h, plant.mass, plant.viscous, plant.sigma0, plant.sigma1
+    scale = plant.friction_scale(plant.position)
+    x, v, eps = plant.position, plant.velocity, plant.eps
+    for _ in range(plant.substeps):
+        g = scale * plant.curve(v)
+        rate = bristle_rate(v, eps, s0, g)
+        v += h * (force - s0 * eps - s1 * rate - b * v) / m
+        x += h * v
+        decay = s0 * abs(v) / g
+        if decay > 0.0:
+            target = v / decay
+            eps = target + (eps - target) * math.exp(-decay * h)
+    plant.position, plant.velocity, plant.eps = x, v, eps
+    return applied
+
+
+def state_bits(plant) -> list[str]:
+    values = [plant.position, plant.velocity] + ([plant.eps] if isinstance(plant, FrictionAxis) else list(plant._state))
+    return [float(v).hex() for v in values]
+
+
+@pytest.mark.parametrize('name', ['x_c', 'z_c', 'x_f', 'z_f', 'c_f'])
+def test_a_step_equals_its_helpers_composed_bit_for_bit(micromill, name):
+    """Friction (x_c, z_c) and held linear axes (x_f rigid, z_f and c_f with their mode), with
+    their force noise, over commands inside, at and beyond the limit, reversing; and the
+    sensor's measure against quantize()."""
+    axis = micromill.axis(name)
+    make = FrictionAxis if axis.plant.friction is not None else LinearAxis
+    args = (axis, 1e-4, 2, random.Random(3)) if make is FrictionAxis else (axis, 1e-4, random.Random(3))
+    plant = make(*args, position=0.001)
+    twin = make(*args[:-1], random.Random(3), position=0.001)
+    limit = axis.drive.command_limit
+    rng = random.Random(4)
+    for k in range(3000):
+        u = rng.choice([rng.uniform(-limit, limit) * 0.2, limit * 1.5, -limit * 1.5, 0.0, math.sin(k / 50.0) * limit])
+        assert plant.step(u).hex() == step_by_helpers(twin, u).hex()
+        assert state_bits(plant) == state_bits(twin)
+    sensor = Sensor(1e-8, 3e-8, 1e-4, random.Random(5))
+    twin_rng, last = random.Random(5), quantize(0.0, 1e-8)
+    for k in range(3000):
+        sensed = math.sin(k / 30.0) * 1e-5
+        position, velocity = sensor.measure(sensed)
+        expected = quantize(sensed + twin_rng.gauss(0.0, 3e-8), 1e-8)
+        assert (position.hex(), velocity.hex()) == (expected.hex(), ((expected - last) / 1e-4).hex())
+        last = expected

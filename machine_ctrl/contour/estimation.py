@@ -157,8 +157,8 @@ class ToolTrajectory:
                                   self.rows[position, index - 1] if index else None)
 
     def drop_before(self, step: int) -> None:
-        if step > self.first:
-            cut = min(step, self.end) - self.first
+        cut = min(step, self.end) - self.first
+        if cut > 0:                     # nothing to drop (empty, or the step not past the first row): untouched
             self.rows, self.first = self.rows[:, cut:], self.first + cut
             for geometry in self.geometry:
                 geometry.drop(cut)

@@ -112,7 +112,8 @@ class AxisRows:
 
     def drop_before(self, step: int) -> None:
         cut = min(max(step - self.first, 0), self.rows.shape[1])
-        self.rows, self.first = self.rows[:, cut:], self.first + cut
+        if cut:
+            self.rows, self.first = self.rows[:, cut:], self.first + cut
 
 
 class _Channel:
@@ -230,6 +231,7 @@ class ContourCoupling:
             self._estimators()
             self._synced = False        # tool rows are made while on only
         self.enabled = on
+        self._idle = False
 
     def retune_problem(self, config: ContourControlConfig) -> str | None:
         """Why `config` cannot replace the one in use between two steps, or None: only the gains
@@ -260,7 +262,8 @@ class ContourCoupling:
     def reset(self) -> None:
         self.channels = {name: _Channel() for name in CHANNELS}
         self.invalid_steps = {name: 0 for name in CHANNELS}
-        self.last = CouplingStep((0.0,) * len(self.axes), CouplingStatus.OFF)     # the last step's output
+        self.last = self._off = CouplingStep((0.0,) * len(self.axes), CouplingStatus.OFF)  # the last step's output
+        self._idle = False              # off and faded out, seen at a step: nothing changes until switched on
         self._estimators()
         self._synced = False            # tool rows are made while on only
         self._converted = 0             # tool rows agree with the axis rows up to this step
@@ -279,9 +282,12 @@ class ContourCoupling:
         """The corrections of control step `step` from the measured positions `q` of every axis
         (machine order); steps in order while on."""
         self.reference.drop_before(step - self.history)
-        if not self.enabled and self.quiet:
+        # off and faded out: the channels do not change until switched on (set_enabled, reset),
+        # so `quiet` (numpy on the channels' vectors, ~5 us) is asked once, not every step
+        if not self.enabled and (self._idle or self.quiet):
+            self._idle = True
             self.trajectory.drop_before(step)
-            self.last = CouplingStep((0.0,) * len(self.axes), CouplingStatus.OFF)
+            self.last = self._off
             return self.last
         if self.enabled:
             self._tool_rows(step)

@@ -27,7 +27,7 @@ declared ``parameters``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -35,8 +35,7 @@ from machine_ctrl.control.law import Parameter
 from machine_ctrl.model.config import MachineConfig
 
 
-@dataclass(frozen=True)
-class CouplingResult:
+class CouplingResult(NamedTuple):     # a NamedTuple: one is made per step (cheaper than a frozen dataclass)
     offsets: tuple[float, ...]       # added to each fine axis's reference, MachineConfig.fine_axes order
     saturated: tuple[bool, ...]
 

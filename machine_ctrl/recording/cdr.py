@@ -1,6 +1,6 @@
 """The CDR wire format of the lock-step graph's traffic: sensor_msgs/JointState every step
-(/joint_states, /servo_commands, /dual_stage/offsets) and trajectory_msgs/JointTrajectory
-reference chunks (/reference).
+(/joint_states, /servo_commands, /dual_stage/offsets), trajectory_msgs/JointTrajectory
+reference chunks (/reference) and hw_sim's /clock (rosgraph_msgs/Clock, sent only).
 
 Why not rclpy's messages: rclpy builds a Python object for every message and every
 trajectory point. Taking a 9-joint JointState costs about 14 us that way and building and
@@ -90,6 +90,15 @@ def stamp_ns(data: bytes) -> int:
     return contract.join_ns(sec, nanosec)
 
 
+_TIME = struct.Struct('<4siI')
+
+
+def encode_time(sec: int, nanosec: int) -> bytes:
+    """A message that is one builtin_interfaces/Time: rosgraph_msgs/Clock (hw_sim's /clock),
+    builtin_interfaces/Time itself."""
+    return _TIME.pack(LITTLE_ENDIAN, sec, nanosec)
+
+
 def read_string(data: bytes, offset: int, order: str) -> tuple[bytes, int]:
     """The CDR string at `offset` (before alignment) without its NUL, and the offset after it."""
     offset += _pad(offset, 4)
@@ -166,61 +175,127 @@ def _string(text: str) -> bytes:
 
 
 class JointStateDecoder:
-    """Decodes the JointStates of one subscription."""
+    """Decodes the JointStates of one subscription.
+
+    After the names (NamesReader) the arrays: per byte order, offset after the names and
+    message length, the layout of the last message seen there is kept as one struct.Struct
+    (counts, padding and values), so a message like the one before — every per-step state
+    and command — is one unpack and a check of its three counts (a 9-joint state in 1.7 us instead of 2.9 us
+    field by field); a count that differs (or a new length) takes the field-by-field path,
+    which checks everything and keeps the new layout."""
+    KNOWN = 8                                       # layouts kept (publishers on a topic)
 
     def __init__(self):
         self._names = NamesReader()
+        self._layouts: dict[tuple[str, int, int], _ArraysLayout] = {}
 
     def decode(self, data: bytes) -> JointStateData:
         order = byte_order(data, 'sensor_msgs/JointState')
         try:
             sec, nanosec, frame_id, names, offset = self._names.read(data, order)
-            arrays = []
-            for field in _STATE_FIELDS:
-                offset += _pad(offset, 4)
-                (count,) = struct.unpack_from(order + 'I', data, offset)
-                offset += 4
-                if count == 0:
-                    arrays.append(())
-                    continue
-                offset += _pad(offset, 8)
-                if offset + 8 * count > len(data):
-                    raise InvalidMessage(f'{count} {field} values do not fit the message')
-                arrays.append(struct.unpack_from(f'{order}{count}d', data, offset))
-                offset += 8 * count
+            layout = self._layouts.get((order, offset, len(data)))
+            if layout is not None:
+                values = layout.struct.unpack_from(data, offset)
+                (i0, c0), (i1, c1), (i2, c2) = layout.counts
+                if values[i0] == c0 and values[i1] == c1 and values[i2] == c2:
+                    p, v, e = layout.slices
+                    return JointStateData(sec, nanosec, frame_id, names, values[p], values[v], values[e])
+            arrays, counts = self._arrays(data, order, offset)
         except struct.error:
             raise InvalidMessage('message ends early') from None
+        if len(self._layouts) >= self.KNOWN:
+            self._layouts.clear()
+        self._layouts[order, offset, len(data)] = _ArraysLayout.of(order, offset, counts)
         return JointStateData(sec, nanosec, frame_id, names, *arrays)
+
+    @staticmethod
+    def _arrays(data: bytes, order: str, offset: int) -> tuple[list[tuple[float, ...]], list[int]]:
+        """The three arrays from `offset` (right after the names), every length checked."""
+        arrays, counts = [], []
+        for field in _STATE_FIELDS:
+            offset += _pad(offset, 4)
+            (count,) = struct.unpack_from(order + 'I', data, offset)
+            offset += 4
+            counts.append(count)
+            if count == 0:
+                arrays.append(())
+                continue
+            offset += _pad(offset, 8)
+            if offset + 8 * count > len(data):
+                raise InvalidMessage(f'{count} {field} values do not fit the message')
+            arrays.append(struct.unpack_from(f'{order}{count}d', data, offset))
+            offset += 8 * count
+        return arrays, counts
+
+
+class _ArraysLayout(NamedTuple):
+    """The three arrays of a JointState from a given offset: one Struct reading the counts
+    (with the padding skipped) and the values, where in its result each count is, the count
+    expected there, and the slice of each array."""
+    struct: struct.Struct
+    counts: tuple[tuple[int, int], ...]
+    slices: tuple[slice, ...]
+
+    @classmethod
+    def of(cls, order: str, offset: int, counts) -> _ArraysLayout:
+        fmt, counts_at, slices, item = [order], [], [], 0
+        for count in counts:
+            pad = _pad(offset, 4)
+            fmt.append(f'{pad}xI')
+            offset += pad + 4
+            counts_at.append((item, count))
+            item += 1
+            if count:
+                pad = _pad(offset, 8)
+                fmt.append(f'{pad}x{count}d')
+                offset += pad + 8 * count
+            slices.append(slice(item, item + count))
+            item += count
+        return cls(struct.Struct(''.join(fmt)), tuple(counts_at), tuple(slices))
 
 
 class JointStateEncoder:
     """Encodes the JointStates of one publisher: fixed joint names and frame id, a stamp
-    and up to three arrays per message (each empty or one value per joint)."""
+    and up to three arrays per message (each empty or one value per joint). The whole
+    message of each combination of empty and full arrays is one struct.Struct (header,
+    stamp, names, counts, zero padding and values): one pack per message (a 9-joint state in
+    0.8 us instead of 2.2 us part by part)."""
 
     def __init__(self, names, frame_id: str = ''):
         self.names = tuple(names)
         self._names_block = _names_block(self.names, frame_id)
         self._names_end = _HEADER + 8 + len(self._names_block)
-        self._stamp = struct.Struct('<iI')
-        self._values = struct.Struct(f'<{len(self.names)}d')
+        self._packers: dict[tuple[int, int, int], struct.Struct] = {}
 
     def encode(self, sec: int, nanosec: int, position=(), velocity=(), effort=()) -> bytes:
-        parts = [LITTLE_ENDIAN, self._stamp.pack(sec, nanosec), self._names_block]
-        offset = self._names_end
-        for values in (position, velocity, effort):
-            count = len(values)
+        if isinstance(position, np.ndarray):
+            position = position.astype('<f8', copy=False).tolist()
+        if isinstance(velocity, np.ndarray):
+            velocity = velocity.astype('<f8', copy=False).tolist()
+        if isinstance(effort, np.ndarray):
+            effort = effort.astype('<f8', copy=False).tolist()
+        counts = (len(position), len(velocity), len(effort))
+        packer = self._packers.get(counts)
+        if packer is None:
+            packer = self._packers[counts] = self._packer(counts)
+        return packer.pack(LITTLE_ENDIAN, sec, nanosec, self._names_block, counts[0], *position,
+                           counts[1], *velocity, counts[2], *effort)
+
+    def _packer(self, counts) -> struct.Struct:
+        """The Struct of a message with arrays of these lengths (ValueError unless each is
+        0 or one per joint): header, stamp, names, then per array its count and values."""
+        fmt, offset = [f'<4siI{len(self._names_block)}s'], self._names_end
+        for count in counts:
             if count and count != len(self.names):
                 raise ValueError(f'{count} values for {len(self.names)} joints')
             pad = _pad(offset, 4)
-            parts.append(bytes(pad) + struct.pack('<I', count))
+            fmt.append(f'{pad}xI')
             offset += pad + 4
             if count:
                 pad = _pad(offset, 8)
-                raw = (values.astype('<f8', copy=False).tobytes() if isinstance(values, np.ndarray)
-                       else self._values.pack(*values))
-                parts.append(bytes(pad) + raw)
+                fmt.append(f'{pad}x{count}d')
                 offset += pad + 8 * count
-        return b''.join(parts)
+        return struct.Struct(''.join(fmt))
 
 
 # -- reference chunks -------------------------------------------------------------------------

@@ -65,7 +65,7 @@ from hw_sim.simulator import MachineSimulator, true_geometry
 from machine_ctrl import contract, parameters
 from machine_ctrl.model.numeric import all_finite
 from machine_ctrl.ros import messages as ros_io
-from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
+from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder, encode_time
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.ros.node_common import main_for, qos, subscribe_joint_states, wall_timer, watch_liveliness
@@ -211,7 +211,7 @@ class HwSimNode(Node):
             self.pub_ready.publish(Bool(data=True))
             self.get_logger().info(f'graph ready at step {step}')
         if self.session.clock_due(step):
-            self.pub_clock.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
+            self.pub_clock.publish(encode_time(sec, nanosec))      # bytes: no rclpy message to build
         if self.session.truth_due(step):
             if self.pub_true.get_subscription_count():
                 self.pub_true.publish(self.encoder.encode(sec, nanosec, self.sim.true_position, self.sim.true_velocity))

@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import Imu, JointState
 
@@ -65,10 +66,12 @@ class ServoNode(StepNode):
         self.contour = None             # the cross-coupled contour control, if this node holds its axes
         self._contour_late_since = None  # wall time the contour block was first missing (None: here)
         self.contour_short = 0          # steps estimated without their whole reference block
+        self.machine_axes = self.machine.axis_names     # kept: a property that builds the tuple each call
         if contour_axes(self.machine, self.axes):
             self.contour = ContourCoupling(self.machine, enabled=values.contour_control)
             self.contour_slots = coupled_slots(self.contour, self.axes)
-            self.own_columns = [self.machine.axis_names.index(a) for a in self.axes]
+            self.contour_ref_slots = [slot for slot, _ in self.contour_slots]
+            self.own_columns = [self.machine_axes.index(a) for a in self.axes]
         self.declare_gains()
         fine = set(self.machine.fine_axes)
         self.fine_slots = [i for i, a in enumerate(self.axes) if a in fine]
@@ -87,7 +90,7 @@ class ServoNode(StepNode):
         self.pub = self.create_publisher(JointState, contract.SERVO_COMMANDS.name, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
-        self.start_stepping(self.machine, self.machine.axis_names if self.contour else self.axes, self.pub,
+        self.start_stepping(self.machine, self.machine_axes if self.contour else self.axes, self.pub,
                             self.ready, self.compute, self.streaming)
         if self.wait_for_offsets:
             self.offsets.reader = subscribe_joint_states(self, contract.DUAL_STAGE_OFFSETS.name, self.on_offsets,
@@ -137,10 +140,10 @@ class ServoNode(StepNode):
         """With the contour control: every axis's rows, the node's own to the buffer."""
         if self.contour is None:
             return super().on_reference(first_step, positions, velocities, accelerations)
-        self.contour.add_reference(first_step, positions, velocities, accelerations)
-        own = self.own_columns
-        super().on_reference(first_step, *([[row[i] for i in own] for row in rows]
-                                           for rows in (positions, velocities, accelerations)))
+        rows = np.array([positions, velocities, accelerations], float)     # (3, steps, every axis)
+        self.contour.add_reference(first_step, *rows)
+        # the node's own columns picked in numpy (a list per row and field took ~0.4 ms a chunk)
+        super().on_reference(first_step, *rows[:, :, self.own_columns].tolist())
 
     def on_offsets(self, msg: JointStateData) -> None:
         try:
@@ -193,7 +196,7 @@ class ServoNode(StepNode):
     def compute(self, step: int, msg: JointStateData) -> bytes | None:
         measured = self.positions(msg, self.axes, velocities=True)
         # every axis for the contour control, read before any input of the step is taken
-        q = None if self.contour is None else self.positions(msg, self.machine.axis_names)
+        q = None if self.contour is None else self.positions(msg, self.machine_axes)
         if measured is None or (self.contour is not None and q is None):
             return None
         position, velocity = measured
@@ -217,8 +220,7 @@ class ServoNode(StepNode):
             if not self.contour.has_rows_for(step):
                 self.contour_short += 1          # estimated from fewer rows than its block
             corrections = self.contour.step(step, q).corrections
-            ref_pos = apply_offsets(ref_pos, [slot for slot, _ in self.contour_slots],
-                                    [corrections[k] for _, k in self.contour_slots])
+            ref_pos = apply_offsets(ref_pos, self.contour_ref_slots, [corrections[k] for _, k in self.contour_slots])
         acceleration = None
         if readings is not None:
             acceleration = [0.0] * len(self.axes)
