@@ -29,7 +29,7 @@ import random
 import numpy as np
 
 from hw_sim.piezo_stage import PiezoAxis, PiezoAxisModel
-from machine_ctrl.control.lugre import StribeckCurve
+from machine_ctrl.control.lugre import StribeckCurve, bristle_rate
 from machine_ctrl.model import modal
 from machine_ctrl.model.config import AxisConfig
 
@@ -77,31 +77,20 @@ class FrictionAxis(_Actuator):
         return 1.0 + self.variation * math.sin(self.wavenumber * x)
 
     def step(self, u: float) -> float:
-        # apply(), disturbance(), friction_scale(), self.curve(v) and bristle_rate() written out:
-        # the same operations in the same order (the same bits, test_plant.py), without ~10
-        # calls per step of each friction axis
-        limit, resolution = self.limit, self.resolution
-        value = min(limit, max(-limit, u))
-        applied = resolution * math.floor(value / resolution + 0.5) if resolution > 0.0 else value
-        noise = self.rng.gauss(0.0, self.force_noise) / self.gain if self.force_noise > 0.0 else 0.0
-        force = self.gain * (applied + noise)
+        applied = self.apply(u)
+        force = self.gain * (applied + self.disturbance())
         h, m, b, s0, s1 = self.h, self.mass, self.viscous, self.sigma0, self.sigma1
+        scale = self.friction_scale(self.position)      # varies on a cm scale: once per period
         x, v, eps = self.position, self.velocity, self.eps
-        scale = 1.0 + self.variation * math.sin(self.wavenumber * x)     # varies on a cm scale: once per period
-        curve = self.curve
-        static, coulomb, omega1, omega2 = curve.static, curve.coulomb, curve.omega1, curve.omega2
-        exp = math.exp
         for _ in range(self.substeps):
-            i = 0 if v >= 0.0 else 1
-            speed = abs(v)
-            g = scale * (static[i] * exp(-speed / omega1[i]) + coulomb[i] * (1.0 - exp(-speed / omega2[i])))
-            rate = v - s0 * abs(v) * eps / g
+            g = scale * self.curve(v)
+            rate = bristle_rate(v, eps, s0, g)
             v += h * (force - s0 * eps - s1 * rate - b * v) / m
             x += h * v
             decay = s0 * abs(v) / g
             if decay > 0.0:                              # exact for frozen v: eps -> g sgn(v)/s0
                 target = v / decay
-                eps = target + (eps - target) * exp(-decay * h)
+                eps = target + (eps - target) * math.exp(-decay * h)
         self.position, self.velocity, self.eps = x, v, eps
         return applied
 
@@ -124,10 +113,6 @@ class _HeldAxis(_Actuator):
         return self._state[0]
 
     @property
-    def sensed(self) -> float:
-        return self._state[0]                # the position (one property, not two: read every step)
-
-    @property
     def velocity(self) -> float:
         return self._state[1]
 
@@ -145,12 +130,8 @@ class _HeldAxis(_Actuator):
                 a[12] * x + a[13] * v + a[14] * w + a[15] * dw + b[3] * u)
 
     def step(self, u: float) -> float:
-        # apply() and disturbance() written out (the same operations; the same bits, test_plant.py)
-        limit, resolution = self.limit, self.resolution
-        value = min(limit, max(-limit, u))
-        applied = resolution * math.floor(value / resolution + 0.5) if resolution > 0.0 else value
-        noise = self.rng.gauss(0.0, self.force_noise) / self.gain if self.force_noise > 0.0 else 0.0
-        self._state = self._propagate(applied + noise)
+        applied = self.apply(u)
+        self._state = self._propagate(applied + self.disturbance())
         return applied
 
 
@@ -226,8 +207,7 @@ class Sensor:
 
     def measure(self, sensed: float) -> tuple[float, float]:
         noisy = sensed + (self.rng.gauss(0.0, self.noise) if self.noise > 0.0 else 0.0)
-        resolution = self.resolution             # quantize() written out: read every step
-        position = resolution * math.floor(noisy / resolution + 0.5) if resolution > 0.0 else noisy
+        position = quantize(noisy, self.resolution)
         velocity = (position - self.last) / self.period
         self.last = position
         return position, velocity
