@@ -115,19 +115,3 @@ def test_bilinear_is_tustins_substitution_worked_by_hand():
     assert bilinear((1e-15, 0.0), (1.0, 1.0), fs)[0][0] > 0.0
     with pytest.raises(ValueError, match='vanishes at s = 2 fs'):
         bilinear((1.0,), (1.0, -k), fs)
-
-
-def test_a_cascade_of_sections_is_each_sections_step_in_turn_bit_for_bit():
-    """filters.cascade (the lead-lag's per-step path) against Biquad.step section by section:
-    the micromill's z_f law (lead-lag, integrator, two notches) on 20,000 random errors."""
-    from machine_ctrl.control.filters import cascade
-    gains = LeadLagGains(8.14e5, 131.0, 5.57e-5, 157.1, (NotchConfig(2582.0, 0.08, 0.02),
-                                                         NotchConfig(2421.0, 0.05, 0.2)))
-    cascaded, stepped = LeadLagController(gains, 1e-4), LeadLagController(gains, 1e-4)
-    rng = np.random.default_rng(11)
-    for error in rng.normal(0.0, 1e-6, 20_000).tolist():
-        y = error
-        for section in stepped.sections:
-            y = section.step(y)
-        assert cascade(cascaded.sections, error).hex() == y.hex()
-    assert [(s.s1, s.s2) for s in cascaded.sections] == [(s.s1, s.s2) for s in stepped.sections]

@@ -34,18 +34,6 @@ class Biquad:
         return y
 
 
-def cascade(sections, x: float) -> float:
-    """`x` through `sections` in series (Biquad.step of each in turn, its body written out
-    here: the same operations in the same order, so the same bits, without a method call per
-    section — a lead-lag law steps 3-5 sections per axis and control period)."""
-    for s in sections:
-        y = s.b0 * x + s.s1
-        s.s1 = s.b1 * x - s.a1 * y + s.s2
-        s.s2 = s.b2 * x - s.a2 * y
-        x = y
-    return x
-
-
 def tustin(num, den, period: float, prewarp: float | None = None) -> Biquad:
     """Bilinear transform of num(s)/den(s) (order <= 2), pre-warped at `prewarp` rad/s."""
     fs = 1.0 / period

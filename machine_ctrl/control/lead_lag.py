@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-from machine_ctrl.control.filters import cascade, tustin
+from machine_ctrl.control.filters import tustin
 from machine_ctrl.control.law import Parameter, gains_change_problem, retune_checked
 from machine_ctrl.model.config import AxisConfig, LeadLagGains
 
@@ -67,4 +67,7 @@ class LeadLagController:
             section.reset()
 
     def step(self, x_r: float, v_r: float, a_r: float, x: float, v: float, acc: float = 0.0) -> float:
-        return cascade(self.sections, x_r - x)
+        y = x_r - x
+        for section in self.sections:
+            y = section.step(y)
+        return y
