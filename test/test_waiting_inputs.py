@@ -31,8 +31,9 @@ def test_step_nodes_say_which_input_they_wait_for_and_how_many_writers_it_has(mi
             expected = {'dual_stage': 'reference (never received; 0 writers matched)',
                         'servo_fine': 'reference (never received; 0 writers matched), '
                                       'dual_stage/offsets (never received; 1 writer matched)'}
-            client.wait(lambda: all(client.diag(n, 'waiting_for') == text for n, text in expected.items()),
-                        f'the step nodes saying {expected}', GUARD, graph.check)
+            client.wait(lambda: all(client.diag(n, 'waiting_for') == text for n, text in expected.items())
+                        and client.diag('hw_sim', 'step') != '',           # each node's own 1 Hz report
+                        f'the step nodes saying {expected}, and hw_sim its step', GUARD, graph.check)
             assert client.diag('hw_sim', 'step') == '0'          # lock-step: held at the first state, unanswered
         finally:
             client.close()
