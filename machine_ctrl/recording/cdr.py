@@ -238,20 +238,27 @@ class _ArraysLayout(NamedTuple):
 
     @classmethod
     def of(cls, order: str, offset: int, counts) -> _ArraysLayout:
-        fmt, counts_at, slices, item = [order], [], [], 0
+        counts_at, slices, item = [], [], 0
         for count in counts:
-            pad = _pad(offset, 4)
-            fmt.append(f'{pad}xI')
-            offset += pad + 4
             counts_at.append((item, count))
-            item += 1
-            if count:
-                pad = _pad(offset, 8)
-                fmt.append(f'{pad}x{count}d')
-                offset += pad + 8 * count
-            slices.append(slice(item, item + count))
-            item += count
-        return cls(struct.Struct(''.join(fmt)), tuple(counts_at), tuple(slices))
+            slices.append(slice(item + 1, item + 1 + count))
+            item += 1 + count
+        return cls(struct.Struct(order + _arrays_format(offset, counts)), tuple(counts_at), tuple(slices))
+
+
+def _arrays_format(offset: int, counts) -> str:
+    """The struct format of a JointState's three arrays from `offset` (right after the names):
+    per array its padding and count, then (if any) its padding and values."""
+    fmt = []
+    for count in counts:
+        pad = _pad(offset, 4)
+        fmt.append(f'{pad}xI')
+        offset += pad + 4
+        if count:
+            pad = _pad(offset, 8)
+            fmt.append(f'{pad}x{count}d')
+            offset += pad + 8 * count
+    return ''.join(fmt)
 
 
 class JointStateEncoder:
@@ -284,18 +291,10 @@ class JointStateEncoder:
     def _packer(self, counts) -> struct.Struct:
         """The Struct of a message with arrays of these lengths (ValueError unless each is
         0 or one per joint): header, stamp, names, then per array its count and values."""
-        fmt, offset = [f'<4siI{len(self._names_block)}s'], self._names_end
         for count in counts:
             if count and count != len(self.names):
                 raise ValueError(f'{count} values for {len(self.names)} joints')
-            pad = _pad(offset, 4)
-            fmt.append(f'{pad}xI')
-            offset += pad + 4
-            if count:
-                pad = _pad(offset, 8)
-                fmt.append(f'{pad}x{count}d')
-                offset += pad + 8 * count
-        return struct.Struct(''.join(fmt))
+        return struct.Struct(f'<4siI{len(self._names_block)}s' + _arrays_format(self._names_end, counts))
 
 
 # -- reference chunks -------------------------------------------------------------------------
