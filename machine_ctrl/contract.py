@@ -58,10 +58,21 @@ class Qos:
 # meanwhile, so its liveliness is not asserted either: 1.2-2.4 s measured on loaded runs after
 # a recorder's or a `ros2 topic echo`'s SIGKILL (issue [6/8]). With the former 2 s lease
 # such a stall read as a lost node. Liveliness is asserted from Fast DDS's own threads (not
-# Python), so a busy node is not taken for a lost one; a SIGKILL or SIGSTOP is reported
-# between 2/3 of the lease and the lease, a SIGCONT at once (test/test_faults.py checks the
-# behaviour, not the time). hw_sim's command_timeout (5 s) is chosen the same way.
+# Python), so a busy node is not taken for a lost one. A SIGKILL or SIGSTOP is reported a
+# lease after the last assertion the reader got: a data message of the writer, or the
+# participant's automatic assertion, sent every 2/3 of the lease (rmw_fastrtps 8.4 qos.cpp
+# sets announcement_period = 2/3 lease; Fast DDS 2.14 WLP.cpp asserts at the shortest
+# one) — so between a third of the lease and the lease after the stop for a writer that
+# sends nothing meanwhile (a latched status); a SIGCONT is reported at once
+# (test/test_faults.py checks the behaviour, not the time). hw_sim's command_timeout (5 s)
+# is chosen the same way.
 LIVELINESS_LEASE = 6.0     # s
+# assumed: half the lease, the smallest gap a busy Python process is not expected to show.
+# The trajectory node's own stall longer than this aborts its goal (trajectory.session.
+# Session.watch): a client following the goal may have been told the node is lost from a
+# third of the lease on (above), and after the lease it certainly has, so the node must not
+# go on as if nothing happened. Its `stall_limit` parameter (at most the lease) sets it.
+STALL_LIMIT = LIVELINESS_LEASE / 2     # s
 # assumed: 1.5 s, a peer's loss reported by its lease is confirmed when nothing (its 1 Hz
 # /diagnostics) is heard from it for this long after the report (machine_ctrl.diagnostics.
 # PeerLiveliness: a reader starved by its own node's long callback reports false losses)

@@ -352,7 +352,8 @@ def test_a_stopped_hw_sim_aborts_the_goal_naming_it_and_faults_itself_when_conti
     faulted(client, graph)
     graph['hw_sim'].signal_group(signal.SIGCONT)
     # stopped longer than command_timeout (5 s), hw_sim faults itself; a shorter stall (the
-    # lease, 6 s, may run out after 2/3 of it) does not, and the trajectory node goes idle
+    # lease, 6 s, may run out from a third of it on: contract.LIVELINESS_LEASE) does not, and
+    # the trajectory node goes idle
     client.wait(lambda: client.diag('hw_sim', 'fault').startswith('hw_sim stalled: its process did not run for')
                 or client.status().get('state') == 'idle', 'hw_sim back', GUARD, graph.check)
     if client.status().get('state') == 'fault':     # the stall is printed to 0.1 s: 5.04 s reads '5.0'

@@ -24,8 +24,9 @@ import pytest
 STEPS = 20_000          # 2.0 s at the micromill's 10 kHz
 WINDOW = 100            # hw_sim's recorder_window, steps (README: the recommended value)
 PAUSE_AT = 5_000        # step at which the recorder process is stopped ...
-# ... for this long (s, wall), below 2/3 of the recorder's liveliness lease (5 s: hw_sim
-# would take it for lost and stop holding). hw_sim keeps its default command_timeout (5 s):
+# ... for this long (s, wall), well below the recorder's liveliness lease (5 s, counted from
+# its last progress message, sent every few ms up to the stop: hw_sim would take it for lost
+# and stop holding). hw_sim keeps its default command_timeout (5 s):
 # a stopped reader can block the process that publishes to it for seconds inside Fast DDS
 # (README "Faults"), and this graph runs in the test's process, so a 2 s command_timeout
 # read such a block as hw_sim's own stall (a loaded run: "hw_sim stalled ... 2.1 s"). That a

@@ -522,3 +522,18 @@ def test_the_planner_runs_below_the_nodes_priority(trajectory_node):
     from trajectory.session import PLANNER_NICENESS
     ours = os.getpriority(os.PRIO_PROCESS, 0)
     assert os.getpriority(os.PRIO_PROCESS, trajectory_node.planner_pid) == min(ours + PLANNER_NICENESS, 19)
+
+
+def test_stall_limit_is_live_and_refused_beyond_the_lease(trajectory_node):
+    """`stall_limit` (contract.STALL_LIMIT): a set reaches the session's stall check at once;
+    0 and more than the liveliness lease are refused with the reason, the value kept."""
+    from rclpy.parameter import Parameter
+
+    from machine_ctrl import contract
+    assert trajectory_node.session.stall_limit == contract.STALL_LIMIT == 3.0
+    assert trajectory_node.set_parameters([Parameter('stall_limit', value=5.5)])[0].successful
+    assert trajectory_node.session.stall_limit == 5.5
+    for bad in (0.0, contract.LIVELINESS_LEASE + 0.5, float('nan')):
+        result = trajectory_node.set_parameters([Parameter('stall_limit', value=bad)])[0]
+        assert not result.successful and 'stall_limit' in result.reason, (bad, result.reason)
+    assert trajectory_node.session.stall_limit == trajectory_node.get_parameter('stall_limit').value == 5.5

@@ -459,6 +459,23 @@ def test_a_stall_of_the_node_aborts_its_goal_and_nothing_of_it_goes_on(micromill
     assert session.state == State.IDLE
 
 
+def test_the_stall_limit_is_the_sessions_own(micromill, out):
+    """The trajectory node's `stall_limit` parameter: a gap of 4 s aborts nothing under a
+    5 s limit; after a change to 2 s (live), a gap of 2.5 s aborts the goal."""
+    session = Session(micromill, out, CHUNK, LOOKAHEAD, stall_limit=5.0)
+    out.session = session
+    session.start_streaming(HERE, 0)
+    session.watch(now=10.0, step=0)
+    assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
+    session.tick(2000)
+    session.watch(now=14.0, step=2000)
+    assert session.state == State.RUNNING and out.goal_changes[-1][1] == 'executing'
+    session.stall_limit = 2.0
+    session.watch(now=16.5, step=2000)
+    assert out.goal_changes[-1][1:] == ('aborted', 'trajectory stalled: its process did not run for 2.5 s '
+                                        '(stopped or starved)')
+
+
 CHECK = 0.05      # s, the trajectory node's timer that confirms a loss (check_planning)
 
 

@@ -226,8 +226,10 @@ class Session:
     """One machine's trajectory session (module docstring). `chunk_steps`: rows per chunk
     handed to Outputs.rows; `lookahead`: rows kept streamed ahead of the newest step."""
 
-    def __init__(self, machine: MachineConfig, outputs: Outputs, chunk_steps: int, lookahead: int):
+    def __init__(self, machine: MachineConfig, outputs: Outputs, chunk_steps: int, lookahead: int,
+                 stall_limit: float = contract.STALL_LIMIT):
         self.machine = machine
+        self.stall_limit = stall_limit       # s, wall: a longer gap of this node aborts its goal (watch)
         self.out = outputs
         self.chunk_steps = chunk_steps
         self.lookahead = lookahead
@@ -554,18 +556,17 @@ class Session:
         return f'feed {value:g} from step {begin}'
 
     # -- faults ----------------------------------------------------------------------------
-    def watch(self, now: float, step: int | None = None, limit: float = contract.LIVELINESS_LEASE / 2) -> None:
-        """This node's own stall: more than `limit` s (wall, `now`) since the last call — the
-        node calls this from its timers (every 0.05 s) and before each /clock `step` — means
-        its process did not run (SIGSTOP, starved), and its clients may have been told it is
-        lost (the liveliness lease of the goal status runs out between 2/3 of the lease and
-        the lease after its last assertion; half the lease: assumed, the smallest gap a busy
-        Python process is not expected to show). The goal under way is aborted with that reason, nothing of it
-        goes on: a motion the servos still have rows of is stopped as by :meth:`stop`; one
-        they ran out of (they hold the last row at rest) is held at the next row."""
+    def watch(self, now: float, step: int | None = None) -> None:
+        """This node's own stall: more than `stall_limit` s (wall, `now`) since the last call —
+        the node calls this from its timers (every 0.05 s) and before each /clock `step` —
+        means its process did not run (SIGSTOP, starved), and its clients may have been told
+        it is lost (contract.STALL_LIMIT says when). The goal under way is aborted with that
+        reason, nothing of it goes on: a motion the servos still have rows of is stopped as by
+        :meth:`stop`; one they ran out of (they hold the last row at rest) is held at the next
+        row."""
         gap = 0.0 if self._watched_at is None else now - self._watched_at
         self._watched_at = now
-        if gap <= limit or self.state not in (State.RUNNING, State.HOLDING, State.PLANNING):
+        if gap <= self.stall_limit or self.state not in (State.RUNNING, State.HOLDING, State.PLANNING):
             return
         reason = f'trajectory stalled: its process did not run for {gap:.1f} s (stopped or starved)'
         self.out.warn(reason)

@@ -72,7 +72,9 @@ ERROR) the motion is dropped and the reference at the fault step is held; after 
 reset the state returns to idle. hw_sim's loss (the liveliness lease of its latched `ready`
 runs out: killed, stopped, hung) is a fault too: the goal aborted naming hw_sim, the motion
 stopped (trajectory/session.py). `/trajectory/goal_status` is offered with a liveliness
-lease, so a client learns within it that this node is gone (README "Faults").
+lease, so a client learns within it that this node is gone (README "Faults"); its own
+process not run for longer than `stall_limit` (live, at most the lease) aborts the goal
+under way (contract.STALL_LIMIT).
 """
 from __future__ import annotations
 
@@ -137,15 +139,17 @@ class TrajectoryNode(Node):
         super().__init__(name, **kwargs)
         use_sim_time(self)
         self.machine = machine_parameter(self)
-        # feed is live: a new value applies from the next tool path planned
+        # feed is live: a new value applies from the next tool path planned; stall_limit from
+        # the next check
         freeform_names = [p.name for p in parameters.TRAJECTORY.parameters if p.name.startswith('freeform.')]
-        values = declare_parameters(self, parameters.TRAJECTORY, on_change={'feed': lambda v: setattr(self, 'feed', v),
-                                                                           **{n: lambda _v: None for n in freeform_names}})
+        values = declare_parameters(self, parameters.TRAJECTORY, on_change={
+            'feed': lambda v: setattr(self, 'feed', v), 'stall_limit': lambda v: setattr(self.session, 'stall_limit', v),
+            **{n: lambda _v: None for n in freeform_names}})
         self.parameter_values = values             # kept current: the freeform.* ones are read at the call
         self.feed, self.chunk_steps, self.lookahead = values.feed, values.chunk_steps, values.lookahead_steps
         output_topic = values.output_topic
         self.clock = ros_io.StepClock.of(self.machine)
-        self.session = Session(self.machine, NodeOutputs(self), self.chunk_steps, self.lookahead)
+        self.session = Session(self.machine, NodeOutputs(self), self.chunk_steps, self.lookahead, values.stall_limit)
         # Planning takes seconds of CPU; in a process of its own (spawned once, now) it
         # cannot hold up the streaming, as a thread would through the GIL.
         self.start_planner()
