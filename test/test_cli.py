@@ -74,8 +74,8 @@ def test_fk_on_the_trt_machine_exit_0_when_all_lines_are_good():
 
 DOCUMENTED_COMMANDS = ['info', 'fk', 'experiment', 'plan', 'record', 'replay', 'analyze',
                        'bringup', 'send', 'move', 'freeform', 'demo', 'view', 'fit-errors', 'identify']
-EXPERIMENTS = ['circle', 'square', 'frf', 'contour', 'midrange', 'piezo-milling', 'deflection', 'fts-budget',
-               'fts-freeform', 'fts-h2', 'fts-accel', 'fts-flexure', 'fts-identify', 'geometric']
+EXPERIMENTS = ['circle', 'square', 'frf', 'contour', 'midrange', 'piezo-milling', 'deflection', 'feed-force',
+               'fts-budget', 'fts-freeform', 'fts-h2', 'fts-accel', 'fts-flexure', 'fts-identify', 'geometric']
 
 
 def _subcommands(parser):

@@ -2,10 +2,11 @@
 runner, machine_ctrl.experiments and compensation/), one subcommand each; progress on stderr.
 
 * ``midrange [--json] [--plots DIR]`` (Sörnmo Table 3.1), ``piezo-milling [--json] [--plots DIR]`` (Sörnmo
-  Tables 2.1/2.2), ``deflection [--json] [--plots DIR]`` (Sörnmo Table 4.1), ``fts-budget [--json]
+  Tables 2.1/2.2), ``deflection [--json] [--plots DIR]`` (Sörnmo Table 4.1), ``feed-force [--json]
+  [--plots DIR]`` (Sörnmo Ch. 5), ``fts-budget [--json]
   [--plots DIR]`` (Ding section 5.7), ``fts-freeform [--json] [--plots DIR]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
   [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / piezo_milling / deflection /
-  fts_budget / fts_freeform / fts_identify, seed | ours | ratio.
+  feed_force / fts_budget / fts_freeform / fts_identify, seed | ours | ratio.
 * ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR] [--steps N]``: thesis section 6.3 /
   Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}, "measured":
   {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "encoder_count_um": ...,
@@ -65,6 +66,9 @@ SEED_TABLES = (
     ('deflection', 'deflection', 'reproduce',
      "Sörnmo Ch. 4, Table 4.1: the robot's deflection in face milling compensated by force or position feedback",
      'write deflection_table_4_1.png: the position errors, the force and the corrections (Figs. 4.6-4.7)'),
+    ('feed-force', 'feed_force', 'reproduce',
+     "Sörnmo Ch. 5: adaptive feed-rate force control in robotic milling (Figs. 5.4, 5.6, 5.7), adaptive vs D_f fixed",
+     'write feed_force.png: the force of both controllers, D_f with its estimate and the feed'),
     ('fts-budget', 'fts_budget', 'reproduce',
      "Ding section 5.7: the fast tool servo's error budget (following vs real positioning error)",
      'write the PSD/CAS and bandwidth-sweep PNGs (the spectra are not in --json)'),
