@@ -70,8 +70,12 @@ LIVELINESS_LEASE = 6.0     # s
 # assumed: half the lease, the smallest gap a busy Python process is not expected to show.
 # The trajectory node's own stall longer than this aborts its goal (trajectory.session.
 # Session.watch): a client following the goal may have been told the node is lost from a
-# third of the lease on (above), and after the lease it certainly has, so the node must not
-# go on as if nothing happened. Its `stall_limit` parameter (at most the lease) sets it.
+# third of the lease on (above), and once the lease has passed every client's reader has run
+# out of it (its report may come a little later: 1.3-1.5 s measured with a 1 s lease, README
+# "Faults"), so the node must not go on as if nothing happened. A stall between a third of
+# the lease and this limit may have been reported while the goal goes on: accepted, a lower
+# limit would take a busy process for a stopped one. Its `stall_limit` parameter (at most the
+# lease) sets it.
 STALL_LIMIT = LIVELINESS_LEASE / 2     # s
 # assumed: 1.5 s, a peer's loss reported by its lease is confirmed when nothing (its 1 Hz
 # /diagnostics) is heard from it for this long after the report (machine_ctrl.diagnostics.

@@ -374,7 +374,7 @@ TRAJECTORY = NodeParameters('trajectory_node', (
     # contract.STALL_LIMIT: the default and why the lease bounds it
     ParameterSpec('stall_limit', DOUBLE, contract.STALL_LIMIT, 's', 'wall time its own process may not run while a '
                   'goal is under way: a longer gap aborts the goal (trajectory stalled); at most the liveliness '
-                  f'lease ({contract.LIVELINESS_LEASE:g} s), after which every client has taken the node for lost; '
+                  f'lease ({contract.LIVELINESS_LEASE:g} s), after which every client\'s reader has run out of it; '
                   'live: from its next check', low=0.0, low_open=True, high=contract.LIVELINESS_LEASE, live=True),
     # the freeform cut that contract.FREEFORM starts (trajectory/freeform.py; Ding Ch. 8): read at the call
     ParameterSpec('freeform.surface', STRING, 'sinusoidal_grid', description='surface: sinusoidal_grid (Ding '

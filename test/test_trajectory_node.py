@@ -537,3 +537,15 @@ def test_stall_limit_is_live_and_refused_beyond_the_lease(trajectory_node):
         result = trajectory_node.set_parameters([Parameter('stall_limit', value=bad)])[0]
         assert not result.successful and 'stall_limit' in result.reason, (bad, result.reason)
     assert trajectory_node.session.stall_limit == trajectory_node.get_parameter('stall_limit').value == 5.5
+
+
+def test_stall_limit_at_start_up_is_the_sessions(micromill, rclpy_context):
+    from rclpy.parameter import Parameter
+
+    from machine_ctrl.ros.trajectory_node import TrajectoryNode
+    node = TrajectoryNode(context=rclpy_context, parameter_overrides=[
+        Parameter('machine', value=str(micromill.yaml_path)), Parameter('stall_limit', value=4.5)])
+    try:
+        assert node.session.stall_limit == 4.5
+    finally:
+        node.destroy_node()

@@ -437,18 +437,20 @@ def test_a_path_is_held_on_the_path_and_its_approach_by_a_stop(micromill, out):
 
 
 def test_a_stall_of_the_node_aborts_its_goal_and_nothing_of_it_goes_on(micromill, out):
-    """README "Faults": the node's process did not run for more than half the liveliness
-    lease (clients may have taken it for lost): the goal is aborted and its motion stopped."""
+    """README "Faults": the node's process did not run for more than its stall limit (by
+    default contract.STALL_LIMIT, half the liveliness lease: clients may have taken it for
+    lost): the goal is aborted and its motion stopped."""
     session = session_of(micromill, out, start_step=0)
     session.watch(now=10.0, step=0)
     assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
     session.tick(2000)
     session.watch(now=10.05, step=2000)
     assert session.state == State.RUNNING
-    session.watch(now=10.05 + 0.45 * contract.LIVELINESS_LEASE, step=2000)     # below half the lease: no stall
+    assert session.stall_limit == contract.STALL_LIMIT
+    session.watch(now=10.05 + 0.9 * contract.STALL_LIMIT, step=2000)     # below the limit: no stall
     assert session.state == State.RUNNING
-    stood = 0.6 * contract.LIVELINESS_LEASE
-    session.watch(now=10.05 + 0.45 * contract.LIVELINESS_LEASE + stood, step=2000)
+    stood = 1.2 * contract.STALL_LIMIT
+    session.watch(now=10.05 + 0.9 * contract.STALL_LIMIT + stood, step=2000)
     assert out.goal_changes[-1][1] == 'aborted'
     assert out.goal_changes[-1][2] == f'trajectory stalled: its process did not run for {stood:.1f} s (stopped or starved)'
     run_until_idle(session)

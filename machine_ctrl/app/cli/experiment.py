@@ -6,7 +6,8 @@ runner, machine_ctrl.experiments and compensation/), one subcommand each; progre
   [--plots DIR]`` (Sörnmo Ch. 5), ``fts-budget [--json]
   [--plots DIR]`` (Ding section 5.7), ``fts-freeform [--json] [--plots DIR]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
   [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / piezo_milling / deflection /
-  feed_force / fts_budget / fts_freeform / fts_identify, seed | ours | ratio.
+  feed_force / fts_budget / fts_freeform / fts_identify, seed | ours | ratio (feed-force: the seed
+  prints no table, its figures' statements beside our measurements).
 * ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR] [--steps N]``: thesis section 6.3 /
   Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}, "measured":
   {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "encoder_count_um": ...,
