@@ -128,10 +128,12 @@ def test_a_belief_file_changes_the_controllers_values_and_not_the_plant(micromil
 
 @pytest.mark.parametrize('text, message', [
     ('axes:\n  x_c:\n    plant: {mass: 30.0}\n',
-     r'belief\.yaml: axes\.x_c\.plant: a belief file sets only drive\.mass, drive\.damping, control \(the plant is '
-     r'the truth hw_sim simulates\)'),
+     r'belief\.yaml: axes\.x_c\.plant: a belief file sets only drive\.mass, drive\.damping, drive\.modes, '
+     r'drive\.real_pole, control \(the plant is the truth hw_sim simulates\)'),
     ('axes:\n  x_c:\n    drive: {force_constant: 50.0}\n',
-     r"axes\.x_c\.drive: force_constant: a belief file sets only the drive's mass and damping"),
+     r"axes\.x_c\.drive: force_constant: a belief file sets only a linear_motor drive's mass and damping"),
+    ('axes:\n  x_c:\n    drive: {modes: [{omega: 100.0, zeta: 0.1}]}\n',
+     r"axes\.x_c\.drive: modes: a belief file sets only a linear_motor drive's mass and damping"),
     ('axes:\n  q:\n    drive: {mass: 1.0}\n', r'belief\.yaml: axes\.q: unknown axis'),
     ('control_period: 1.0e-3\naxes: {}\n', r'belief\.yaml: <top>: unknown key\(s\): control_period'),
     ('axes:\n  x_c:\n    drive: {mass: -1.0}\n',
@@ -163,8 +165,39 @@ def test_a_belief_file_changes_only_the_axis_it_names_where_the_yaml_shares_a_se
     assert changed.axis('j1').control.position_command.velocity_lead == 2 * lead
     assert changed.axis('j2').control == machine.axis('j2').control
     belief.write_text('axes:\n  px:\n    drive: {mass: 1.0}\n')
-    with pytest.raises(ConfigError, match=r"axes\.px\.drive: a piezo drive's mass and damping are its simulated plant"):
+    with pytest.raises(ConfigError, match=r"axes\.px\.drive: mass: a belief file sets only a piezo drive's modes and "
+                                          r'real_pole'):
         load_machine('robot_piezo', belief=[belief])
+    belief.write_text('axes:\n  j2:\n    drive: {mass: 1.0}\n')
+    with pytest.raises(ConfigError, match=r'axes\.j2\.drive: a position_servo drive has no model of its own apart '
+                                          r'from its simulated plant'):
+        load_machine('robot_piezo', belief=[belief])
+
+
+def test_a_piezo_drives_model_is_the_controllers_and_a_belief_file_replaces_it(tmp_path):
+    """robot_piezo: drive.modes (identified) is what the LQG designs from, plant.modes the
+    truth; a belief file's modes replace the drive's of its axis only, the plant untouched;
+    a piezo drive without a model, or a model on another drive, is refused."""
+    machine = load_machine('robot_piezo')
+    px = machine.axis('px')
+    assert px.drive.modes != px.plant.modes and len(px.drive.modes) == len(px.plant.modes) == 2
+    belief = tmp_path / 'belief.yaml'
+    belief.write_text('axes:\n  px:\n    drive:\n      modes: [{omega: 250.0, zeta: 0.02}]\n      real_pole: 90.0\n')
+    changed = load_machine('robot_piezo', belief=[belief])
+    assert [(m.omega, m.zeta) for m in changed.axis('px').drive.modes] == [(250.0, 0.02)]
+    assert changed.axis('px').drive.real_pole == 90.0 and changed.axis('px').plant == px.plant
+    assert changed.axis('py') == machine.axis('py')            # the drives share a YAML anchor
+    for old, new, message in (
+            ('      modes: [{omega: 251.403, zeta: 0.02958}, {omega: 362.949, zeta: 0.04772}]   # 40.01, 57.77 Hz\n', '',
+             r'axes\.px\.drive: .*a piezo drive needs modes \(at least one: omega, zeta\): the controllers\' model'),
+            ('      type: position_servo\n', '      type: position_servo\n      real_pole: 3.0\n',
+             r"axes\.j1\.drive: modes and real_pole: only for piezo drives")):
+        text = (MACHINES / 'robot_piezo.yaml').read_text()
+        assert old in text, old
+        (tmp_path / 'robot_piezo.yaml').write_text(text.replace(old, new, 1))
+        (tmp_path / 'robot_piezo.urdf').write_text((MACHINES / 'robot_piezo.urdf').read_text())
+        with pytest.raises(ConfigError, match=message):
+            load_machine(tmp_path / 'robot_piezo.yaml')
 
 
 @pytest.mark.parametrize('case', sorted(BAD_CONFIGS))

@@ -112,3 +112,22 @@ def test_bad_data_is_refused_with_the_reason(edit, reason):
     assert 'order 2.5 must be an integer' in identify(u, y, period, order=2.5).reason
     assert 'block rows must be an integer >= 2, got 1' in identify(u, y, period, block_rows=1).reason
     assert 'largest order searched must be an integer >= 1' in identify(u, y, period, max_order=0).reason
+
+
+def test_the_modal_form_gives_back_the_modes_a_model_was_made_of_and_refuses_what_it_cannot_hold():
+    """A model held at 1 kHz from known modes (40 Hz, zeta 0.03; 58 Hz, zeta 0.05) and a 20 Hz
+    real pole: its modal form is those to 1e-9; two real poles, or a pole outside the unit
+    circle, have none (the reason says which)."""
+    from machine_ctrl.identification.subspace import StateSpaceModel, modal_form
+    from machine_ctrl.model import modal
+    modes = [(2 * math.pi * 40.0, 0.03), (2 * math.pi * 58.0, 0.05)]
+    a, b, c = modal.state_space(modes, 2 * math.pi * 20.0)
+    phi, gamma = modal.held(a, b, 1e-3)
+    form = modal_form(StateSpaceModel(phi, gamma[:, None], c[None, :], np.zeros((1, 1)), 1e-3))
+    assert form.reason == ''
+    np.testing.assert_allclose(np.array(form.modes), np.array(modes), rtol=1e-9)
+    assert form.real_pole == pytest.approx(2 * math.pi * 20.0, rel=1e-9)
+    two = StateSpaceModel(np.diag([0.9, 0.8]), np.ones((2, 1)), np.ones((1, 2)), np.zeros((1, 1)), 1e-3)
+    assert modal_form(two).reason.startswith('2 real poles')
+    unstable = StateSpaceModel(np.array([[1.01]]), np.ones((1, 1)), np.ones((1, 1)), np.zeros((1, 1)), 1e-3)
+    assert modal_form(unstable).reason.startswith('a pole on or outside the unit circle')

@@ -220,7 +220,9 @@ def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe,
     """[8/8] part 3: `machine-ctrl identify` on fts_lathe's W runs Ding's stepped sine and
     grey-box fit (each parameter within 5 % of what hw_sim simulates, the [3/8] tolerance), on
     robot_piezo's px Sörnmo's chirp and N4SID (the first eigenfrequency within 5 % of the
-    plant's lowest mode); neither writes a belief file (their laws take no identified values)."""
+    plant's lowest mode). The piezo stage's `--out` is a belief file of its model (drive.modes,
+    what its LQG designs from: each mode within 1 % / 10 % of the plant's frequency / damping);
+    the flexure stage writes none (its PID takes no identified values)."""
     from machine_ctrl.app import cli
     from machine_ctrl.experiments.identify import identify_axis
     flexure = identify_axis(fts_lathe, 'w')
@@ -231,9 +233,16 @@ def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe,
     assert piezo['status'] == 'ok' and piezo['method'] == 'subspace', piezo['reason']
     (_, seed_order, _, order), _, (_, _, true_hz, found_hz) = piezo['rows']
     assert order == seed_order == 4 and found_hz == pytest.approx(true_hz, rel=0.05)
-    assert cli.main(['identify', 'px', '--machine', 'robot_piezo', '--out', str(tmp_path / 'px.yaml')]) == 2
-    assert "--out: px (subspace): its law takes no identified values" in capsys.readouterr().err
-    assert not (tmp_path / 'px.yaml').exists()
+    assert cli.main(['identify', 'w', '--machine', 'fts_lathe', '--out', str(tmp_path / 'w.yaml')]) == 2
+    assert "--out: w (frf_grey_box): its law takes no identified values" in capsys.readouterr().err
+    assert not (tmp_path / 'w.yaml').exists()
+    assert cli.main(['identify', 'px', '--machine', 'robot_piezo', '--out', str(tmp_path / 'px.yaml')]) == 0
+    believed = load_machine('robot_piezo', belief=[tmp_path / 'px.yaml']).axis('px')
+    assert believed.plant == robot_piezo.axis('px').plant
+    assert [(m.omega, m.zeta) for m in believed.drive.modes] == [
+        (pytest.approx(m['omega'], rel=1e-5), pytest.approx(m['zeta'], rel=1e-3)) for m in piezo['model']['modes']]
+    for found, true in zip(believed.drive.modes, robot_piezo.axis('px').plant.modes, strict=True):
+        assert found.omega == pytest.approx(true.omega, rel=0.01) and found.zeta == pytest.approx(true.zeta, rel=0.1)
 
 
 def test_an_axis_without_a_force_drive_and_friction_is_refused_and_the_command_says_why(micromill, capsys):

@@ -96,8 +96,25 @@ def test_the_lqg_law_holds_each_piezo_axis_on_its_plant(robot_piezo):
         out = np.array(out) / 20e-6
         assert abs(out[-2000:] - 1.0).max() < 0.02, name        # the last 0.2 s within 2 % of the step
         assert out.max() < 1.5, name                            # its modes damped
-    with pytest.raises(ValueError, match='axis j1: the lqg law needs a piezo drive with plant.modes'):
+    with pytest.raises(ValueError, match=r'axis j1: the lqg law needs a piezo drive with drive\.modes'):
         LqgLaw.from_axis(robot_piezo.axis('px').control.lqg, robot_piezo.axis('j1'), period)
+
+
+def test_the_lqg_designs_from_the_drives_model_not_from_the_plant(robot_piezo):
+    """The law's model has the poles of drive.modes held at the control period, z = exp(s T)
+    for s = -zeta w +- j w sqrt(1 - zeta^2) (and pz's real pole), which differ from the
+    plant's: the controller meets a model error, as one designed from an identified model does."""
+    period = robot_piezo.control_period
+
+    def poles(modes, real_pole):
+        s = [complex(-m.zeta * m.omega, sign * m.omega * math.sqrt(1 - m.zeta ** 2)) for m in modes for sign in (1, -1)]
+        return np.sort_complex(np.exp(np.array(s + ([-real_pole] if real_pole else [])) * period))
+    for name in ('px', 'py', 'pz'):
+        axis = robot_piezo.axis(name)
+        law = LqgLaw.from_axis(axis.control.lqg, axis, period)
+        found = np.sort_complex(np.linalg.eigvals(law.controller.design.phi).astype(complex))
+        np.testing.assert_allclose(found, poles(axis.drive.modes, axis.drive.real_pole), rtol=0, atol=1e-9)
+        assert np.abs(found - poles(axis.plant.modes, axis.plant.real_pole)).max() > 1e-6, name
 
 
 def test_the_cartesian_coupling_cancels_the_tool_deviation_of_the_robots_errors(robot_piezo, kin):

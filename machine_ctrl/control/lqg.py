@@ -169,10 +169,11 @@ class LqgController:
 
 class LqgLaw:
     """The LQG behind the control-law interface (machine_ctrl/control/law.py) for a piezo axis:
-    designed at the control period from the axis's plant model (plant.modes, the machine
-    config's stand-in for the identified model of section 2.3, which the thesis does not print)
-    in its balanced realization (identification/subspace.py), with Q = state_weight I and
-    R = control_weight (Eq. 2.5); the Kalman filter's noise: an input disturbance of
+    designed at the control period from the controllers' model of the axis (drive.modes and
+    drive.real_pole: the identified model of section 2.3 in modal form, ``machine-ctrl
+    identify AXIS --out``; hw_sim simulates plant.modes, the truth) in its balanced
+    realization (identification/subspace.py), with Q = state_weight I and R = control_weight
+    (Eq. 2.5); the Kalman filter's noise: an input disturbance of
     `process_noise` per period and the sensor's noise plus its quantization; the
     reference notch at `notch_frequency` (section 2.5). Nothing is live: a new design is a new law."""
 
@@ -186,10 +187,10 @@ class LqgLaw:
 
     @classmethod
     def from_axis(cls, gains: LqgGains, axis: AxisConfig, period: float) -> LqgLaw:
-        plant = axis.plant
-        if axis.drive.type != 'piezo' or plant is None or not plant.modes:
-            raise ValueError(f'axis {axis.name}: the lqg law needs a piezo drive with plant.modes (its model)')
-        a, b, c = modal.state_space([(m.omega, m.zeta) for m in plant.modes], plant.real_pole)
+        plant, drive = axis.plant, axis.drive
+        if drive.type != 'piezo' or plant is None or not drive.modes:
+            raise ValueError(f'axis {axis.name}: the lqg law needs a piezo drive with drive.modes (its model)')
+        a, b, c = modal.state_space([(m.omega, m.zeta) for m in drive.modes], drive.real_pole)
         phi, gamma = modal.held(a, b, period)
         n = len(gamma)
         measurement = plant.sensor_noise ** 2 + axis.sensor_resolution ** 2 / 12.0     # noise + quantization

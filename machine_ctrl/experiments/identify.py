@@ -319,8 +319,9 @@ def identify_axis(machine: MachineConfig, axis: str, workers: int | None = None)
     and the grey-box fit of Ding section 5.5 (:mod:`fts_identify`), a piezo stage by a chirp
     and N4SID (Sörnmo section 2.3, :mod:`piezo_milling`), any other drive as a feed drive
     (:func:`identify`). The result's 'method' names which; the other two give 'rows' of
-    (parameter, seed, true, identified) and no belief file (their laws take no identified
-    values: the PID none, the LQG the plant's modes, README "Truth and belief")."""
+    (parameter, seed, true, identified); a piezo stage's 'model' is the identified model in
+    the config's modal form, the belief file of its LQG (:func:`yaml_fragment`); a flexure
+    stage's PID takes no identified values (README "Truth and belief")."""
     method = method_of(machine, axis)
     if method == 'frf_grey_box':
         return _flexure_frf(machine, axis)
@@ -359,6 +360,7 @@ def _piezo_subspace(machine: MachineConfig, axis: str) -> dict:
     from hw_sim.piezo_stage import PiezoAxisModel
     from machine_ctrl.experiments import piezo_milling as pm
     from machine_ctrl.identification.subspace import identify as n4sid
+    from machine_ctrl.identification.subspace import modal_form
     config = machine.axis(axis)
     model = PiezoAxisModel.from_axis(config)
     rng = np.random.default_rng([machine.simulation.seed, *axis.encode()])
@@ -373,6 +375,11 @@ def _piezo_subspace(machine: MachineConfig, axis: str) -> dict:
                       ('VAF (%)', seed.get('vaf'), None, found.vaf),
                       ('first eigenfrequency (Hz)', None, min(f for f, _ in model.modes),
                        pm.first_eigenfrequency(found.model))]
+    form = modal_form(found.model)
+    if form.reason:
+        return {**result, 'status': 'refused', 'reason': f'the identified model has no modal form: {form.reason}'}
+    result['model'] = {'modes': [{'omega': w, 'zeta': z} for w, z in form.modes], 'real_pole': form.real_pole,
+                       'order': found.model.order, 'vaf': found.vaf}
     return {**result, 'status': 'ok', 'reason': ''}
 
 
@@ -394,6 +401,37 @@ def true_values(machine: MachineConfig, axis: str) -> dict:
 
 
 def yaml_fragment(machine: MachineConfig, result: dict) -> str:
+    """The belief file of an identified axis (:func:`identify_axis`): a feed drive's
+    (:func:`feed_drive_fragment`) or a piezo stage's model (:func:`piezo_fragment`).
+    ValueError for a method that gives none."""
+    method = result.get('method', 'feed_drive')      # identify()'s own result names none
+    if method == 'feed_drive':
+        return feed_drive_fragment(machine, result)
+    if method == 'subspace':
+        return piezo_fragment(machine, result)
+    raise ValueError(f'{result.get("axis")} ({method}): its law takes no identified values, so there is no belief '
+                     'file to write')
+
+
+def piezo_fragment(machine: MachineConfig, result: dict) -> str:
+    """A piezo stage's identified model as the drive's modes and real pole (the controllers'
+    model its LQG designs from; plant.modes, hw_sim's truth, is not touched)."""
+    axis, model = result['axis'], result['model']
+    lines = [f'# machine-ctrl identify {axis} --machine {machine.name}: offline on hw_sim (simulation.seed '
+             f'{machine.simulation.seed}); N4SID of order {model["order"]}, VAF {model["vaf"]:.3f} %, in modal form '
+             '(static gain 1, zeros dropped)',
+             'axes:',
+             f'  {axis}:',
+             '    drive:',
+             '      modes:']
+    lines += [f'        - {{omega: {m["omega"]:.6g}, zeta: {m["zeta"]:.4g}}}    # {m["omega"] / (2 * math.pi):.3f} Hz'
+              for m in model['modes']]
+    if model['real_pole']:
+        lines.append(f'      real_pole: {model["real_pole"]:.6g}    # rad/s, {model["real_pole"] / (2 * math.pi):.3f} Hz')
+    return '\n'.join(lines) + '\n'
+
+
+def feed_drive_fragment(machine: MachineConfig, result: dict) -> str:
     """The identified values as a fragment of the machine YAML (to merge by hand, or to give to
     the tools that take one), each with its 95 % interval or fit residual in a comment. They are
     the controllers' belief: the drive's mass and damping, and the LuGre feed-forward's curve

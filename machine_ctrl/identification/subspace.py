@@ -134,6 +134,33 @@ def resampled(model: StateSpaceModel, noise: NoiseCovariance, period: float
 
 
 @dataclass(frozen=True)
+class ModalForm:
+    """An identified model read as a machine config's piezo model (model/modal.py): its
+    continuous poles as lightly damped pairs (omega rad/s, zeta, ascending) and at most one
+    real pole (rad/s, 0: none); the static gain taken as 1 and the zeros dropped, which is
+    what that form holds. `reason` says why a model has no such form ('' when it has)."""
+    modes: tuple[tuple[float, float], ...] = ()
+    real_pole: float = 0.0
+    reason: str = ''
+
+
+def modal_form(model: StateSpaceModel) -> ModalForm:
+    """The model's :class:`ModalForm`: s = ln(z) / T of each pole."""
+    poles = model.poles().astype(complex)
+    if np.any(np.abs(poles) >= 1.0) or np.any(np.abs(poles) == 0.0):
+        return ModalForm(reason='a pole on or outside the unit circle, or at the origin: no continuous pole')
+    s = np.log(poles) / model.period
+    pairs = sorted((float(abs(p)), float(-p.real / abs(p))) for p in s if p.imag > 1e-9)
+    real = [float(-p.real) for p in s if abs(p.imag) <= 1e-9]
+    if len(real) > 1:
+        return ModalForm(reason=f'{len(real)} real poles ({", ".join(f"{r:.4g}" for r in sorted(real))} rad/s): '
+                                'the modal form holds one')
+    if any(zeta >= 1.0 or zeta <= 0.0 for _, zeta in pairs):
+        return ModalForm(reason='a pole pair that is not lightly damped (zeta outside (0, 1))')
+    return ModalForm(tuple(pairs), real[0] if real else 0.0)
+
+
+@dataclass(frozen=True)
 class Identification:
     status: Status
     reason: str

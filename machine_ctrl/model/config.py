@@ -36,7 +36,8 @@ DRIVE_TYPES = {
     'position_servo': 'm or rad (the position reference of a drive whose own controller closes the loop, '
                       'plant.servo: an industrial robot\'s joint)',
     'piezo': 'm (the reference of the inner loop around a piezo-actuator, scaled to the stage\'s displacement: '
-             'plant.modes from reference to position, unit static gain)',
+             'modes from reference to position, unit static gain; drive.modes the controllers\' model, plant.modes '
+             'the truth)',
 }
 # drive types whose plant is given by its own closed loop: no mass, no damping of their own
 CLOSED_LOOP_DRIVES = ('position_servo', 'piezo')
@@ -62,6 +63,10 @@ class DriveConfig:
     force_constant: float = _positive(default=1.0)      # N/A (linear_motor), else 1
     amplifier_gain: float = _positive(default=1.0)      # A/V (linear_motor), else 1
     command_resolution: float = _nonnegative(default=0.0)  # quantization step of u, 0 = none
+    # piezo drives: the controllers' model of the axis (its law designs from it), as plant.modes
+    # and plant.real_pole, which are the truth hw_sim simulates (README "Truth and belief")
+    modes: tuple[ModeConfig, ...] = ()
+    real_pole: float = _nonnegative(default=0.0)        # rad/s (0: none)
 
     @property
     def gain(self) -> float:
@@ -254,8 +259,8 @@ class PositionCommandGains:
 class LqgGains:
     """Sörnmo section 2.4 (machine_ctrl/control/lqg.py): LQ state feedback with the integral
     state (2.9), l_r for unit static gain, the Kalman filter with the disturbance state (2.8),
-    the reference notch, designed from the axis's plant model (plant.modes) in its balanced
-    realization at the control period."""
+    the reference notch, designed from the controllers' model of the axis (drive.modes) in its
+    balanced realization at the control period."""
     state_weight: float = _positive()        # Q = state_weight I, Eq. (2.5)
     control_weight: float = _positive()      # R, Eq. (2.5)
     process_noise: float = _positive()       # the model's input disturbance, std per period, command unit
@@ -556,7 +561,10 @@ def _axis(s: _Section, name: str, joint: urdf.Joint) -> AxisConfig:
     return axis
 
 
-BELIEF_KEYS = ('drive.mass', 'drive.damping', 'control')     # what a belief file may set, per axis
+# what a belief file may set, per axis: a rigid-body drive's mass and damping, a piezo drive's
+# model, the numbers of the axis's law
+BELIEF_KEYS = ('drive.mass', 'drive.damping', 'drive.modes', 'drive.real_pole', 'control')
+BELIEF_DRIVE_KEYS = {**{drive: ('mass', 'damping') for drive in RIGID_BODY_DRIVES}, 'piezo': ('modes', 'real_pole')}
 
 
 def _read_yaml(path: Path):
@@ -570,8 +578,9 @@ def _merge_belief(raw: dict, machine: MachineConfig, path: Path) -> None:
     """Merge the belief file `path` (``machine-ctrl identify --out``'s fragment) into the
     machine's `raw` mapping (of `machine`, already checked alone): per axis, a rigid-body
     drive's mass and damping, and the numbers of the axis's own law's section and of its
-    lugre_feedforward. Anything else is refused: the plant above all (the truth hw_sim
-    simulates), another law, a control section the axis does not have."""
+    lugre_feedforward; a piezo drive's model (modes, real_pole). Anything else is refused: the
+    plant above all (the truth hw_sim simulates), another law, a control section the axis does
+    not have."""
     belief = _read_yaml(path)
     top = _Section({} if belief is None else belief, path, '')
     axes = top.section('axes')
@@ -584,12 +593,14 @@ def _merge_belief(raw: dict, machine: MachineConfig, path: Path) -> None:
         for key in map(str, section.data):
             if key == 'drive':
                 drive = section.section('drive')
-                extra = sorted(set(map(str, drive.data)) - {'mass', 'damping'})
+                allowed = BELIEF_DRIVE_KEYS.get(axis.drive.type)
+                if allowed is None:
+                    drive.fail(f'a {axis.drive.type} drive has no model of its own apart from its simulated plant; a '
+                               f'belief file sets the drive only of {", ".join(BELIEF_DRIVE_KEYS)} drives')
+                extra = sorted(set(map(str, drive.data)) - set(allowed))
                 if extra:
-                    drive.fail(f'{", ".join(extra)}: a belief file sets only the drive\'s mass and damping')
-                if axis.drive.type not in RIGID_BODY_DRIVES:
-                    drive.fail(f'a {axis.drive.type} drive\'s mass and damping are its simulated plant too; a '
-                               f'belief file sets them only for {", ".join(RIGID_BODY_DRIVES)} drives')
+                    drive.fail(f'{", ".join(extra)}: a belief file sets only a {axis.drive.type} drive\'s '
+                               f'{" and ".join(allowed)}')
                 target['drive'].update(drive.data)
             elif key == 'control':
                 control = section.section('control')
@@ -697,6 +708,19 @@ def _drive_problem(drive: DriveConfig) -> str:
         return f'a {drive.type} drive has no force_constant or amplifier_gain (its command is a position)'
     if not closed and (drive.mass is None or drive.damping is None):
         return f'a {drive.type} drive needs mass and damping'
+    if drive.type != 'piezo' and (drive.modes or drive.real_pole):
+        return 'modes and real_pole: only for piezo drives (the controllers\' model of the stage)'
+    if drive.type == 'piezo' and not drive.modes:
+        return ('a piezo drive needs modes (at least one: omega, zeta): the controllers\' model of the stage, '
+                'plant.modes being the truth')
+    return _modes_problem(drive.modes)
+
+
+def _modes_problem(modes) -> str:
+    overdamped = [f'{m.omega:g} rad/s' for m in modes if m.zeta >= 1.0]
+    if overdamped:
+        return (f'modes: zeta must be below 1 (a lightly damped pole pair; an overdamped one is two real poles): '
+                f'{", ".join(overdamped)}')
     return ''
 
 
@@ -727,11 +751,7 @@ def _plant_problem(axis: AxisConfig, period: float) -> str:
             return 'a position_servo drive needs servo (its closed loop: omega, zeta)'
         if drive.type == 'piezo' and not plant.modes:
             return 'a piezo drive needs modes (at least one: omega, zeta)'
-        overdamped = [f'{m.omega:g} rad/s' for m in plant.modes if m.zeta >= 1.0]
-        if overdamped:
-            return (f'modes: zeta must be below 1 (a lightly damped pole pair; an overdamped one is two real poles): '
-                    f'{", ".join(overdamped)}')
-        return ''
+        return _modes_problem(plant.modes)
     if drive.type == 'voice_coil':
         missing = [k for k in ('flexure', 'current_loop') if getattr(plant, k) is None]
         if missing:
