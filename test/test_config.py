@@ -191,7 +191,11 @@ def test_a_piezo_drives_model_is_the_controllers_and_a_belief_file_replaces_it(t
             ('      modes: [{omega: 251.403, zeta: 0.02958}, {omega: 362.949, zeta: 0.04772}]   # 40.01, 57.77 Hz\n', '',
              r'axes\.px\.drive: .*a piezo drive needs modes \(at least one: omega, zeta\): the controllers\' model'),
             ('      type: position_servo\n', '      type: position_servo\n      real_pole: 3.0\n',
-             r"axes\.j1\.drive: modes and real_pole: only for piezo drives")):
+             r"axes\.j1\.drive: modes and real_pole: only for piezo drives"),
+            ('      modes: [{omega: 295.325, zeta: 0.04056}]   # 47.00 Hz, identified (identify py --out)\n', '',
+             r'axes\.py\.drive: .*a piezo drive needs modes'),          # py does not inherit px's model
+            ('      modes: [{omega: 295.325, zeta: 0.04056}]', '      modes: [{omega: 295.325, zeta: 1.5}]',
+             r'axes\.py\.drive: modes: zeta must be below 1')):
         text = (MACHINES / 'robot_piezo.yaml').read_text()
         assert old in text, old
         (tmp_path / 'robot_piezo.yaml').write_text(text.replace(old, new, 1))

@@ -11,9 +11,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from machine_ctrl import contract
 from machine_ctrl.app.bringup import client_session
+from machine_ctrl.app.client import Timeout
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.recording.bag import Bag
 from test_gcode import CIRCLE
@@ -64,7 +66,13 @@ def test_send_runs_a_program_piece_by_piece_and_leaves_the_feed_as_it_was(ros_su
                     ended.update(client.goal_entries[new[0]])
                     return True
                 return False
-            client.wait(finished, 'the program goal ending', timeout=600)
+            try:
+                client.wait(finished, 'the program goal ending', timeout=600)
+            except Timeout as exc:          # what the client had heard (run100 timed out with no word)
+                new = {g: (client.goal_states[g], client.goal_entries.get(g)) for g in client.goal_states
+                       if g not in known}
+                pytest.fail(f'{exc}; new goals (states, /diagnostics entry): {new}; /diagnostics heard from: '
+                            f'{sorted(client.diagnostics_heard)}')
             return ended['status'], ended['reason']
 
         assert run(CIRCLE.replace('G1 X1', 'G1 X1 Q3')) == (

@@ -131,3 +131,7 @@ def test_the_modal_form_gives_back_the_modes_a_model_was_made_of_and_refuses_wha
     assert modal_form(two).reason.startswith('2 real poles')
     unstable = StateSpaceModel(np.array([[1.01]]), np.ones((1, 1)), np.ones((1, 1)), np.zeros((1, 1)), 1e-3)
     assert modal_form(unstable).reason.startswith('a pole on or outside the unit circle')
+    negative = StateSpaceModel(np.diag([-0.5, 0.9]), np.ones((2, 1)), np.ones((1, 2)), np.zeros((1, 1)), 1e-3)
+    assert modal_form(negative).reason == 'a real pole at z < 0: no continuous pole samples to it'
+    real = StateSpaceModel(np.array([[0.9]]), np.ones((1, 1)), np.ones((1, 1)), np.zeros((1, 1)), 1e-3)
+    assert modal_form(real).reason == 'no pole pair: the modal form needs at least one mode'

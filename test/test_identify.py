@@ -224,7 +224,7 @@ def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe,
     what its LQG designs from: each mode within 1 % / 10 % of the plant's frequency / damping);
     the flexure stage writes none (its PID takes no identified values)."""
     from machine_ctrl.app import cli
-    from machine_ctrl.experiments.identify import identify_axis
+    from machine_ctrl.experiments.identify import identify_axis, yaml_fragment
     flexure = identify_axis(fts_lathe, 'w')
     assert flexure['status'] == 'ok' and flexure['method'] == 'frf_grey_box', flexure['reason']
     for name, _, true, value in flexure['rows']:
@@ -237,12 +237,18 @@ def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe,
     assert "--out: w (frf_grey_box): its law takes no identified values" in capsys.readouterr().err
     assert not (tmp_path / 'w.yaml').exists()
     assert cli.main(['identify', 'px', '--machine', 'robot_piezo', '--out', str(tmp_path / 'px.yaml')]) == 0
-    believed = load_machine('robot_piezo', belief=[tmp_path / 'px.yaml']).axis('px')
-    assert believed.plant == robot_piezo.axis('px').plant
+    other = tmp_path / 'other.yaml'        # a model the written file must replace, modes and real pole
+    other.write_text('axes:\n  px:\n    drive:\n      modes: [{omega: 200.0, zeta: 0.2}]\n      real_pole: 50.0\n')
+    believed = load_machine('robot_piezo', belief=[other, tmp_path / 'px.yaml']).axis('px')
+    assert believed.plant == robot_piezo.axis('px').plant and believed.drive.real_pole == 0.0
     assert [(m.omega, m.zeta) for m in believed.drive.modes] == [
         (pytest.approx(m['omega'], rel=1e-5), pytest.approx(m['zeta'], rel=1e-3)) for m in piezo['model']['modes']]
     for found, true in zip(believed.drive.modes, robot_piezo.axis('px').plant.modes, strict=True):
         assert found.omega == pytest.approx(true.omega, rel=0.01) and found.zeta == pytest.approx(true.zeta, rel=0.1)
+    assert believed == robot_piezo.axis('px')        # the shipped config holds exactly these (README)
+    z = identify_axis(robot_piezo, 'pz')           # with its real pole, through the library's fragment
+    (tmp_path / 'pz.yaml').write_text(yaml_fragment(robot_piezo, z))
+    assert load_machine('robot_piezo', belief=[tmp_path / 'pz.yaml']).axis('pz') == robot_piezo.axis('pz')
 
 
 def test_an_axis_without_a_force_drive_and_friction_is_refused_and_the_command_says_why(micromill, capsys):

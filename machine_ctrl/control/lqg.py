@@ -174,7 +174,8 @@ class LqgLaw:
     identify AXIS --out``; hw_sim simulates plant.modes, the truth) in its balanced
     realization (identification/subspace.py), with Q = state_weight I and R = control_weight
     (Eq. 2.5); the Kalman filter's noise: an input disturbance of
-    `process_noise` per period and the sensor's noise plus its quantization; the
+    `process_noise` per period and the sensor's noise (plant.sensor_noise: the truth, read as
+    the sensor's data sheet would give it) plus its quantization; the
     reference notch at `notch_frequency` (section 2.5). Nothing is live: a new design is a new law."""
 
     parameters = (
@@ -188,8 +189,10 @@ class LqgLaw:
     @classmethod
     def from_axis(cls, gains: LqgGains, axis: AxisConfig, period: float) -> LqgLaw:
         plant, drive = axis.plant, axis.drive
-        if drive.type != 'piezo' or plant is None or not drive.modes:
+        if drive.type != 'piezo' or not drive.modes:
             raise ValueError(f'axis {axis.name}: the lqg law needs a piezo drive with drive.modes (its model)')
+        if plant is None:       # the sensor's noise for the Kalman filter is read from the plant (class doc)
+            raise ValueError(f'axis {axis.name}: the lqg law needs the plant section (its sensor noise)')
         a, b, c = modal.state_space([(m.omega, m.zeta) for m in drive.modes], drive.real_pole)
         phi, gamma = modal.held(a, b, period)
         n = len(gamma)

@@ -378,8 +378,10 @@ def _piezo_subspace(machine: MachineConfig, axis: str) -> dict:
     form = modal_form(found.model)
     if form.reason:
         return {**result, 'status': 'refused', 'reason': f'the identified model has no modal form: {form.reason}'}
+    m = found.model
+    static = float(m.c[0] @ np.linalg.solve(np.eye(m.order) - m.a, m.b[:, 0]) + m.d[0, 0])
     result['model'] = {'modes': [{'omega': w, 'zeta': z} for w, z in form.modes], 'real_pole': form.real_pole,
-                       'order': found.model.order, 'vaf': found.vaf}
+                       'order': m.order, 'vaf': found.vaf, 'static_gain': static}
     return {**result, 'status': 'ok', 'reason': ''}
 
 
@@ -426,8 +428,10 @@ def piezo_fragment(machine: MachineConfig, result: dict) -> str:
              '      modes:']
     lines += [f'        - {{omega: {m["omega"]:.6g}, zeta: {m["zeta"]:.4g}}}    # {m["omega"] / (2 * math.pi):.3f} Hz'
               for m in model['modes']]
-    if model['real_pole']:
-        lines.append(f'      real_pole: {model["real_pole"]:.6g}    # rad/s, {model["real_pole"] / (2 * math.pi):.3f} Hz')
+    pole = model['real_pole']      # always written: 0 replaces a real pole the config's model has
+    lines.append(f'      real_pole: {pole:.6g}    # rad/s' + (f', {pole / (2 * math.pi):.3f} Hz' if pole else ' (none)'))
+    lines.append(f'# the identified static gain, {model["static_gain"]:.4g}, is not in the modal form (it has 1); the '
+                 f'reference notch (control.lqg.notch_frequency) is the config\'s')
     return '\n'.join(lines) + '\n'
 
 

@@ -145,16 +145,25 @@ class ModalForm:
 
 
 def modal_form(model: StateSpaceModel) -> ModalForm:
-    """The model's :class:`ModalForm`: s = ln(z) / T of each pole."""
+    """The model's :class:`ModalForm`: s = ln(z) / T of each pole. Refused (the reason): a
+    pole on or outside the unit circle or at the origin, a real pole at z < 0 (no continuous
+    pole samples to it), more than one real pole, a pair with zeta outside (0, 1), no pair."""
     poles = model.poles().astype(complex)
     if np.any(np.abs(poles) >= 1.0) or np.any(np.abs(poles) == 0.0):
         return ModalForm(reason='a pole on or outside the unit circle, or at the origin: no continuous pole')
+    real_z = [p for p in poles if abs(p.imag) <= 1e-12]
+    if any(p.real < 0.0 for p in real_z):
+        return ModalForm(reason='a real pole at z < 0: no continuous pole samples to it')
     s = np.log(poles) / model.period
     pairs = sorted((float(abs(p)), float(-p.real / abs(p))) for p in s if p.imag > 1e-9)
     real = [float(-p.real) for p in s if abs(p.imag) <= 1e-9]
+    if 2 * len(pairs) + len(real) != model.order:
+        return ModalForm(reason=f'{model.order} poles that are neither conjugate pairs nor real')
     if len(real) > 1:
         return ModalForm(reason=f'{len(real)} real poles ({", ".join(f"{r:.4g}" for r in sorted(real))} rad/s): '
                                 'the modal form holds one')
+    if not pairs:
+        return ModalForm(reason='no pole pair: the modal form needs at least one mode')
     if any(zeta >= 1.0 or zeta <= 0.0 for _, zeta in pairs):
         return ModalForm(reason='a pole pair that is not lightly damped (zeta outside (0, 1))')
     return ModalForm(tuple(pairs), real[0] if real else 0.0)
