@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import LinAlgError, solve_discrete_are
 
-from machine_ctrl.control.lqg import kalman_gain
+from machine_ctrl.control.lqg import filter_step, kalman_gain
 from machine_ctrl.control.midranging import RLS
 from machine_ctrl.identification.subspace import NoiseCovariance, StateSpaceModel
 
@@ -62,7 +62,6 @@ class FeedForceDesign:
     feedback: np.ndarray            # L over [x, x_f], (n + 1,)
     integral_gain: float            # l_i
     reference_gain: float           # l_r
-    observer_gain: np.ndarray       # Kalman gain over [x, x^e], (n + 1,)
 
 
 class Status(enum.Enum):
@@ -93,10 +92,10 @@ def force_model(model: StateSpaceModel, stiffness: float, removal: float) -> tup
     return big_a, big_b
 
 
-def design(model: StateSpaceModel, noise: NoiseCovariance, stiffness: float, removal: float,
-           weights: Weights = Weights()) -> DesignResult:
-    """The module doc's controller for G_v = `model` (with its noise), K_f = `stiffness` and
-    D_f = `removal`, or the reason why there is none."""
+def design(model: StateSpaceModel, stiffness: float, removal: float, weights: Weights = Weights()) -> DesignResult:
+    """The module doc's LQ law for G_v = `model`, K_f = `stiffness` and D_f = `removal`, or the
+    reason why there is none (the Kalman filter does not depend on D_f:
+    :class:`FeedForceController` designs it once)."""
     if not (math.isfinite(stiffness) and stiffness > 0 and math.isfinite(removal) and removal > 0):
         return DesignResult(Status.FAILED, f'K_f and D_f must be positive, got {stiffness!r} N/m and {removal!r} N s/m')
     n, h = model.order, model.period
@@ -112,14 +111,13 @@ def design(model: StateSpaceModel, noise: NoiseCovariance, stiffness: float, rem
         feedback = gains[:n + 1]
         closed = np.linalg.solve(np.eye(n + 1) - a + np.outer(b, feedback), b)   # x_f / (l_r f_r) at rest
         static = float(closed[n])
-        observer = kalman_gain(model.a, model.c[0], noise.process, noise.measurement, noise.cross)
     except (LinAlgError, ValueError) as exc:
         return DesignResult(Status.FAILED, f'no LQ design for D_f = {removal:.4g} N s/m: '
                                            f'{" ".join(str(exc).split()) or type(exc).__name__}')
-    if not (abs(static) > 1e-12 and np.isfinite(gains).all() and np.isfinite(observer).all()):
+    if not (abs(static) > 1e-12 and np.isfinite(gains).all()):
         return DesignResult(Status.FAILED, f'no LQ design for D_f = {removal:.4g} N s/m: the gains are not finite')
     return DesignResult(Status.OK, '', FeedForceDesign(model, float(stiffness), float(removal), feedback,
-                                                      float(gains[n + 1]), 1.0 / static, observer))
+                                                      float(gains[n + 1]), 1.0 / static))
 
 
 # assumed: RLS's start covariance P0 = p0 I. With the regressors' scales (f ~ 20 N, v ~ 6 mm/s)
@@ -162,7 +160,7 @@ class RemovalEstimator:
         grad = (b / (1.0 - a) ** 2, 1.0 / (1.0 - a))
         p = self.rls.P
         var = self.error_variance * sum(grad[i] * p[i][j] * grad[j] for i in range(2) for j in range(2))
-        value = b / (1.0 - a)
+        value = self.value
         return math.sqrt(max(var, 0.0)) / abs(value) if value else math.nan
 
     def update(self, force: float, velocity: float, next_force: float) -> float:
@@ -205,10 +203,14 @@ class FeedForceController:
 
     def __init__(self, model: StateSpaceModel, noise: NoiseCovariance, stiffness: float,
                  config: AdaptationConfig = AdaptationConfig(), weights: Weights = Weights()):
-        self.model, self.noise, self.stiffness = model, noise, stiffness
+        self.model, self.stiffness = model, stiffness
         self.config, self.weights = config, weights
         self.estimator = RemovalEstimator(model.period, stiffness, config.initial_removal, config.forgetting)
-        first = design(model, noise, stiffness, config.initial_removal, weights)
+        try:
+            self.observer_gain = kalman_gain(model.a, model.c[0], noise.process, noise.measurement, noise.cross)
+        except (LinAlgError, ValueError) as exc:
+            raise ValueError(f'no Kalman filter for G_v: {" ".join(str(exc).split()) or type(exc).__name__}') from None
+        first = design(model, stiffness, config.initial_removal, weights)
         if not first.ok:
             raise ValueError(first.reason)
         self._initial_design = first.design
@@ -229,12 +231,9 @@ class FeedForceController:
 
     def _observe(self, velocity: float) -> None:
         """Eqs. (5.7)-(5.8) for the last period's input and the measured velocity."""
-        g, n = self.design, self.model.order
-        model, u = self.model, self.last_input
-        x = self.estimate[:n]
-        innovation = velocity - (model.c[0] @ x + float(model.d[0, 0]) * u + self.estimate[n])
-        predicted = np.concatenate([model.a @ x + model.b[:, 0] * u, [self.estimate[n]]])
-        self.estimate = predicted + g.observer_gain * innovation
+        m = self.model
+        self.estimate = filter_step(self.estimate, m.a, m.b[:, 0], m.c[0], float(m.d[0, 0]), self.observer_gain,
+                                    self.last_input, velocity)
 
     def _adapt(self, removal: float, force: float, reference: float) -> None:
         """A new design for an estimate that has moved by more than `redesign`; bumpless: the
@@ -249,7 +248,7 @@ class FeedForceController:
 
     def _redesign(self, removal: float) -> bool:
         """The design for D_f = `removal`; False (counted in `refused`) when there is none."""
-        result = design(self.model, self.noise, self.stiffness, removal, self.weights)
+        result = design(self.model, self.stiffness, removal, self.weights)
         if not result.ok:
             self.refused += 1
             return False

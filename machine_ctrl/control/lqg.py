@@ -95,6 +95,15 @@ def kalman_gain(phi, c, process, measurement, cross, drift: float = DISTURBANCE_
     return ((a @ p @ ce + se[:, 0]) / (ce @ p @ ce + r))
 
 
+def filter_step(estimate, phi, gamma, c, d: float, gain, u: float, y: float) -> np.ndarray:
+    """One step of the Kalman predictor of Eq. (2.6) with the constant output disturbance of
+    Eq. (2.8): [x^, x^e] for the next sample from input `u` and measurement `y`."""
+    n = phi.shape[0]
+    x = estimate[:n]
+    innovation = y - (c @ x + d * u + estimate[n])
+    return np.concatenate([phi @ x + gamma * u, [estimate[n]]]) + gain * innovation
+
+
 class Status(enum.Enum):
     OK = 'ok'
     FAILED = 'failed'
@@ -157,12 +166,9 @@ class LqgController:
     def step(self, r: float, y: float) -> float:
         g = self.design
         r = r if self.notch is None else self.notch.step(r)
-        n = g.phi.shape[0]
-        x = self.estimate[:n]
+        x = self.estimate[:g.phi.shape[0]]
         u = float(-g.feedback @ x - g.integral_gain * self.integral + g.reference_gain * r)
-        innovation = y - (g.c @ x + g.d * u + self.estimate[n])
-        predicted = np.concatenate([g.phi @ x + g.gamma * u, [self.estimate[n]]])
-        self.estimate = predicted + g.observer_gain * innovation
+        self.estimate = filter_step(self.estimate, g.phi, g.gamma, g.c, g.d, g.observer_gain, u, y)
         self.integral += g.period * (r - y)
         return u
 

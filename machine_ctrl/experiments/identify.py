@@ -378,10 +378,8 @@ def _piezo_subspace(machine: MachineConfig, axis: str) -> dict:
     form = modal_form(found.model)
     if form.reason:
         return {**result, 'status': 'refused', 'reason': f'the identified model has no modal form: {form.reason}'}
-    m = found.model
-    static = float(m.c[0] @ np.linalg.solve(np.eye(m.order) - m.a, m.b[:, 0]) + m.d[0, 0])
     result['model'] = {'modes': [{'omega': w, 'zeta': z} for w, z in form.modes], 'real_pole': form.real_pole,
-                       'order': m.order, 'vaf': found.vaf, 'static_gain': static}
+                       'order': found.model.order, 'vaf': found.vaf, 'static_gain': found.model.static_gain()}
     return {**result, 'status': 'ok', 'reason': ''}
 
 

@@ -61,6 +61,10 @@ class StateSpaceModel:
     def poles(self) -> np.ndarray:
         return np.linalg.eigvals(self.a)
 
+    def static_gain(self) -> float:
+        """y / u at rest: C (I - A)^-1 B + D."""
+        return float(self.c[0] @ np.linalg.solve(np.eye(self.order) - self.a, self.b[:, 0]) + self.d[0, 0])
+
     def natural_frequencies(self) -> np.ndarray:
         """|ln z| / (2 pi T) of every pole (Hz, ascending): the continuous modes it samples."""
         return np.sort(np.abs(np.log(self.poles().astype(complex))) / (2 * math.pi * self.period))
