@@ -83,7 +83,8 @@ EXTRAS = {
     'test': ['pytest>=9.2', 'rosbags>=0.11.9,<0.12',  # rosbags: an independent bag reader for the tests
              'pytest-xdist>=3.8,<4',  # dev/test: ROS-free tests in a second worker
              'hypothesis>=6.170,<7',  # test/test_fuzz_graph.py: property-based fuzzing of the graph
-             'websockets>=17.4,<18'],  # test/test_view.py: a Foxglove WebSocket client
+             'websockets>=17.4,<18',  # test/test_view.py: a Foxglove WebSocket client
+             'py-spy>=0.4.3,<0.5'],  # node_common: a shutdown that hangs prints its native stacks
     'bench': ['toppra>=0.6.10,<0.7'],  # bench/feed_vs_toppra.py
 }
 

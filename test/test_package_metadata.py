@@ -36,6 +36,7 @@ DISTRIBUTION_TO_KEY = {
     'foxglove-sdk': 'python3-foxglove-sdk-pip',
     'websockets': 'python3-websockets-pip',
     'pytest-xdist': 'python3-pytest-xdist-pip',
+    'py-spy': 'python3-py-spy-pip',
 }
 # exec_depends with no requirement in setup.py, and why.
 PACKAGE_XML_ONLY = {

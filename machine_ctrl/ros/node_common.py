@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import faulthandler
 import gc
+import os
+import shutil
 import signal
+import subprocess
 import sys
 import time
 
@@ -54,6 +57,9 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # idle and a few s on a loaded 2-core machine; 8 s stays below launch's escalation to
 # SIGKILL (sigterm_timeout + sigkill_timeout, 5 s each), so a hang leaves its stacks in the log.
 SHUTDOWN_LIMIT = 8.0       # s (wall)
+# assumed: half the limit, so that py-spy (~1.6 s to attach and walk the stacks on a loaded
+# 2-core machine) is done before the process is ended at SHUTDOWN_LIMIT.
+NATIVE_STACKS_AFTER = 4.0  # s (wall)
 
 
 _early_signals: list[int] = []     # SIGINT / SIGTERM received before spin() began
@@ -80,7 +86,9 @@ def spin(nodes, executor=None) -> None:
     context's shutdown, then shut down cleanly: further signals ignored (for the rest of the
     process: spin is the end of a node process), executor shut down, nodes destroyed,
     context shut down — no traceback, and the caller exits 0. A shutdown that takes longer
-    than :data:`SHUTDOWN_LIMIT` dumps every thread's stack on stderr and exits 1.
+    than :data:`NATIVE_STACKS_AFTER` prints its native stacks (:func:`native_stacks_later`);
+    one longer than :data:`SHUTDOWN_LIMIT` dumps every Python thread's stack on stderr and
+    exits 1.
 
     Not executor.spin(): with rclpy 7.1's EventsExecutor, spinning without a timeout never
     fires timers nor callbacks for other processes' messages. spin_until_future_complete on
@@ -122,13 +130,40 @@ def spin(nodes, executor=None) -> None:
         # while the interpreter exits: ignored from here to the end of the process.
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
-        # a shutdown that hangs (seen once: hw_sim under `ros2 launch` on a loaded machine, not
-        # yet explained) prints every thread's stack on stderr and ends the process, exit 1
+        # a shutdown that hangs (seen in test_launch's two graphs stopped at once on a loaded
+        # machine, inside rclpy's destroy of a service: run89, run107) prints its native stacks
+        # after NATIVE_STACKS_AFTER (where py-spy is installed), every Python thread's stack at
+        # SHUTDOWN_LIMIT, and ends the process there, exit 1
         faulthandler.dump_traceback_later(SHUTDOWN_LIMIT, exit=True)
+        native_stacks = native_stacks_later(NATIVE_STACKS_AFTER)
         executor.shutdown()
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
+        if native_stacks is not None:     # done: the watcher ends (or finishes its dump)
+            native_stacks.stdin.close()
+            native_stacks.wait()
+
+
+def native_stacks_later(delay: float) -> subprocess.Popen | None:
+    """Where py-spy is installed (beside this interpreter or on PATH; the test extras bring
+    it): a watcher that prints this process's native and Python stacks on stderr
+    (`py-spy dump --native`) unless its stdin is closed within `delay` s. For shutdowns that
+    hang inside rcl / rmw / Fast DDS: faulthandler shows only the Python caller, and no Python
+    thread can run while rclpy holds the GIL in such a call; the watcher is another process.
+    None without py-spy. Needs ptrace permission on this process (root, or
+    kernel.yama.ptrace_scope 0); py-spy says so on stderr when refused."""
+    where = os.pathsep.join((os.path.dirname(sys.executable), os.environ.get('PATH', '')))
+    py_spy = shutil.which('py-spy', path=where)
+    if py_spy is None:
+        return None
+    # `timeout` ends cat after `delay` s with status 124; cat ends at once (status 0) on the
+    # EOF of a closed stdin, also when this process exits: then the watcher exits 0
+    script = 'timeout "$0" cat > /dev/null; [ $? -ne 124 ] || exec "$1" dump --native --pid "$2"'
+    # its own session: a second Ctrl-C to the terminal's process group does not end it
+    return subprocess.Popen(['sh', '-c', script, f'{delay:g}', py_spy, str(os.getpid())],
+                            stdin=subprocess.PIPE, stdout=sys.stderr.fileno(), stderr=sys.stderr.fileno(),
+                            start_new_session=True)
 
 
 def subscribe_joint_states(node: Node, topic: str, on_state, refuse):
