@@ -3,6 +3,7 @@ to the per-step states and the reference chunks (decoded by machine_ctrl.recordi
 one or several nodes (one process per node, or all in one) with clean shutdown."""
 from __future__ import annotations
 
+import contextlib
 import faulthandler
 import gc
 import os
@@ -85,10 +86,8 @@ def spin(nodes, executor=None) -> None:
     """Spin until SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down, a supervisor) or the
     context's shutdown, then shut down cleanly: further signals ignored (for the rest of the
     process: spin is the end of a node process), executor shut down, nodes destroyed,
-    context shut down — no traceback, and the caller exits 0. A shutdown that takes longer
-    than :data:`NATIVE_STACKS_AFTER` prints its native stacks (:func:`native_stacks_later`);
-    one longer than :data:`SHUTDOWN_LIMIT` dumps every Python thread's stack on stderr and
-    exits 1.
+    context shut down — no traceback, and the caller exits 0; a teardown that hangs is
+    reported and ended (:func:`bounded_teardown`).
 
     Not executor.spin(): with rclpy 7.1's EventsExecutor, spinning without a timeout never
     fires timers nor callbacks for other processes' messages. spin_until_future_complete on
@@ -130,16 +129,25 @@ def spin(nodes, executor=None) -> None:
         # while the interpreter exits: ignored from here to the end of the process.
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
-        # a shutdown that hangs (seen in test_launch's two graphs stopped at once on a loaded
-        # machine, inside rclpy's destroy of a service: run89, run107) prints its native stacks
-        # after NATIVE_STACKS_AFTER (where py-spy is installed), every Python thread's stack at
-        # SHUTDOWN_LIMIT, and ends the process there, exit 1
-        faulthandler.dump_traceback_later(SHUTDOWN_LIMIT, exit=True)
-        native_stacks = native_stacks_later(NATIVE_STACKS_AFTER)
-        executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        with bounded_teardown():
+            executor.shutdown()
+            for node in nodes:
+                node.destroy_node()
+            rclpy.try_shutdown()
+
+
+@contextlib.contextmanager
+def bounded_teardown():
+    """The end of a node process: ROS entities, nodes and context destroyed inside. One that
+    hangs (seen in test_launch's two graphs stopped at once on a loaded machine, inside rclpy's
+    destroy of a service or a node, i.e. in rmw / Fast DDS: run89, run107) prints its native
+    stacks after :data:`NATIVE_STACKS_AFTER` (where py-spy is installed), every Python
+    thread's stack at :data:`SHUTDOWN_LIMIT`, and ends the process there, exit 1."""
+    faulthandler.dump_traceback_later(SHUTDOWN_LIMIT, exit=True)
+    native_stacks = native_stacks_later(NATIVE_STACKS_AFTER)
+    try:
+        yield
+    finally:
         if native_stacks is not None:     # done: the watcher ends (or finishes its dump)
             native_stacks.stdin.close()
             native_stacks.wait()

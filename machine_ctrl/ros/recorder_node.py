@@ -23,7 +23,8 @@ which would read as a clock source.
 
 Stopping (SIGINT, SIGTERM, ``duration``): discovery stops, messages already received by
 DDS are drained (until none arrives for ``DRAIN_QUIET`` s), the bag is closed (summary,
-footer, metadata.yaml) and the per-topic counts are printed on stdout.
+footer, metadata.yaml) and the per-topic counts are printed on stdout; then the ROS teardown,
+bounded as every node's (node_common.bounded_teardown: a hang prints its stacks, exit 1).
 
 Crash safety: every chunk of the bag reaches the file when it is complete, and a chunk is
 completed after at most ``bag.CHUNK_PERIOD`` s (a wall timer every ``FLUSH_CHECK`` s checks,
@@ -65,7 +66,8 @@ from machine_ctrl.recording.bag import BagError, qos_profile
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.recording.msgdefs import DefinitionNotFound
-from machine_ctrl.ros.node_common import DefaultExecutor, qos, report_stacks_on_signal, wall_timer
+from machine_ctrl.ros.node_common import (DefaultExecutor, bounded_teardown, qos, report_stacks_on_signal,
+                                         wall_timer)
 from machine_ctrl.ros.node_parameters import declare_parameters
 
 DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
@@ -306,8 +308,10 @@ def run(node: RecorderNode) -> int:
             executor.spin_until_future_complete(Future(), timeout_sec=0.05)
     finally:
         print(node.finish(), flush=True)
-        executor.shutdown()
-        node.destroy_node()
+        with bounded_teardown():      # the bag is closed: nothing is lost if this hangs
+            executor.shutdown()
+            node.destroy_node()
+            rclpy.try_shutdown()
     return 0 if node.stopped is None else 1
 
 
