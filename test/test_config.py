@@ -27,15 +27,16 @@ def test_shipped_machines_load(micromill, trt):
     assert micromill.axis('x_f').stroke == (-100e-6, 100e-6)
 
 
-def edited_machine(tmp_path, yaml_edit=None, urdf_edit=None):
+def edited_machine(tmp_path, yaml_edit=None, urdf_edit=None, name='micromill_9axis'):
+    """A copy of machine `name` in tmp_path with one (old, new) edit of its YAML and of its URDF."""
     for suffix, edit in (('yaml', yaml_edit), ('urdf', urdf_edit)):
-        text = (MACHINES / f'micromill_9axis.{suffix}').read_text()
+        text = (MACHINES / f'{name}.{suffix}').read_text()
         if edit:
             old, new = edit
             assert old in text, f'test edit does not apply: {old!r}'
             text = text.replace(old, new, 1)
-        (tmp_path / f'micromill_9axis.{suffix}').write_text(text)
-    return tmp_path / 'micromill_9axis.yaml'
+        (tmp_path / f'{name}.{suffix}').write_text(text)
+    return tmp_path / f'{name}.yaml'
 
 
 X_C_LIMIT = '<limit lower="-0.050" upper="0.050" velocity="0.15" effort="364"/>'
@@ -110,8 +111,8 @@ def test_a_true_mass_on_a_drive_without_a_rigid_body_is_refused(tmp_path):
             plant = text.index('    plant:\n', start) + len('    plant:\n')
             text = text[:plant] + '      mass: 1.0\n' + text[plant:]
         (tmp_path / f'robot_piezo.{suffix}').write_text(text)
-    with pytest.raises(ConfigError, match=r'axes\.px\.plant: mass: a true rigid body apart from the drive\'s is only '
-                                          r'for linear_motor, maglev, servo_voltage drives'):
+    with pytest.raises(ConfigError, match=r'axes\.px\.plant: mass: a true body apart from the drive\'s is only '
+                                          r'for linear_motor, maglev, servo_voltage, voice_coil drives'):
         load_machine(tmp_path / 'robot_piezo.yaml')
 
 
@@ -128,12 +129,14 @@ def test_a_belief_file_changes_the_controllers_values_and_not_the_plant(micromil
 
 @pytest.mark.parametrize('text, message', [
     ('axes:\n  x_c:\n    plant: {mass: 30.0}\n',
-     r'belief\.yaml: axes\.x_c\.plant: a belief file sets only drive\.mass, drive\.damping, drive\.modes, '
-     r'drive\.real_pole, control \(the plant is the truth hw_sim simulates\)'),
+     r'belief\.yaml: axes\.x_c\.plant: a belief file sets only drive\.mass, drive\.damping, drive\.flexure, '
+     r'drive\.modes, drive\.real_pole, control \(the plant is the truth hw_sim simulates\)'),
     ('axes:\n  x_c:\n    drive: {force_constant: 50.0}\n',
      r"axes\.x_c\.drive: force_constant: a belief file sets only a linear_motor drive's mass and damping"),
     ('axes:\n  x_c:\n    drive: {modes: [{omega: 100.0, zeta: 0.1}]}\n',
      r"axes\.x_c\.drive: modes: a belief file sets only a linear_motor drive's mass and damping"),
+    ('axes:\n  x_c:\n    drive: {flexure: {stiffness: 1.0, secondary_mass: 1.0, secondary_stiffness: 1.0}}\n',
+     r"axes\.x_c\.drive: flexure: a belief file sets only a linear_motor drive's mass and damping"),
     ('axes:\n  q:\n    drive: {mass: 1.0}\n', r'belief\.yaml: axes\.q: unknown axis'),
     ('control_period: 1.0e-3\naxes: {}\n', r'belief\.yaml: <top>: unknown key\(s\): control_period'),
     ('axes:\n  x_c:\n    drive: {mass: -1.0}\n',
@@ -196,12 +199,31 @@ def test_a_piezo_drives_model_is_the_controllers_and_a_belief_file_replaces_it(t
              r'axes\.py\.drive: .*a piezo drive needs modes'),          # py does not inherit px's model
             ('      modes: [{omega: 295.325, zeta: 0.04056}]', '      modes: [{omega: 295.325, zeta: 1.5}]',
              r'axes\.py\.drive: modes: zeta must be below 1')):
-        text = (MACHINES / 'robot_piezo.yaml').read_text()
-        assert old in text, old
-        (tmp_path / 'robot_piezo.yaml').write_text(text.replace(old, new, 1))
-        (tmp_path / 'robot_piezo.urdf').write_text((MACHINES / 'robot_piezo.urdf').read_text())
         with pytest.raises(ConfigError, match=message):
-            load_machine(tmp_path / 'robot_piezo.yaml')
+            load_machine(edited_machine(tmp_path, (old, new), name='robot_piezo'))
+
+
+def test_a_flexure_stages_model_is_the_controllers_and_a_belief_file_replaces_it(tmp_path):
+    """fts_lathe's W: the drive's mass, damping and flexure are what the H2 law designs from,
+    the plant's the truth; a belief file sets the drive's alone; the plant's truth is required,
+    and a flexure model on another drive is refused."""
+    machine = load_machine('fts_lathe')
+    w = machine.axis('w')
+    belief = tmp_path / 'belief.yaml'
+    belief.write_text('axes:\n  w:\n    drive:\n      mass: 0.08\n      flexure: {stiffness: 30000.0, secondary_mass: '
+                      '0.01, secondary_stiffness: 60000.0, secondary_damping: 5.0}\n')
+    changed = load_machine('fts_lathe', belief=[belief]).axis('w')
+    assert (changed.drive.mass, changed.drive.damping) == (0.08, w.drive.damping)
+    assert (changed.drive.flexure.stiffness, changed.drive.flexure.secondary_damping) == (30000.0, 5.0)
+    assert changed.plant == w.plant
+    for old, new, message in (
+            ('      mass: 0.074              # kg, m1 + m2', '      # mass: 0.074',
+             r"axes\.w\.plant: a voice_coil drive's plant needs mass and damping: the truth hw_sim simulates"),
+            ('      type: servo_voltage\n', '      type: servo_voltage\n      flexure: {stiffness: 1.0, '
+             'secondary_mass: 1.0, secondary_stiffness: 1.0, secondary_damping: 1.0}\n',
+             r'axes\.c\.drive: flexure: only for voice_coil drives')):
+        with pytest.raises(ConfigError, match=message):
+            load_machine(edited_machine(tmp_path, (old, new), name='fts_lathe'))
 
 
 @pytest.mark.parametrize('case', sorted(BAD_CONFIGS))

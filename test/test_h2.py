@@ -97,6 +97,27 @@ def test_the_law_needs_a_flexure_axis_and_refuses_every_retune(fts_lathe, microm
     assert law.retune_problem(gains) is None
 
 
+def test_the_law_designs_from_the_drives_model_and_hw_sim_simulates_the_plants(fts_lathe):
+    """[8/8]: the H2 design reads the drive's mass, damping and flexure (the controllers' model),
+    never the plant's (hw_sim's truth); without a drive flexure it refuses, naming identify."""
+    from machine_ctrl.model.flexure_model import continuous_model
+    w, period = fts_lathe.axis('w'), 5e-5
+    stiffer = dataclasses.replace(w, drive=dataclasses.replace(
+        w.drive, flexure=dataclasses.replace(w.drive.flexure, stiffness=2.0 * w.drive.flexure.stiffness)))
+    nominal, other = h2_design(w, w.control.h2, period), h2_design(stiffer, w.control.h2, period)
+    assert nominal.ok and other.ok, (nominal.reason, other.reason)
+    assert not np.allclose(nominal.discrete.d, other.discrete.d, rtol=1e-3)
+    assert np.array_equal(continuous_model(stiffer).a, continuous_model(w).a)             # the truth alike
+    truer = dataclasses.replace(w, plant=dataclasses.replace(
+        w.plant, flexure=dataclasses.replace(w.plant.flexure, stiffness=2.0 * w.plant.flexure.stiffness)))
+    same = h2_design(truer, w.control.h2, period)
+    assert np.array_equal(same.discrete.d, nominal.discrete.d) and np.array_equal(same.discrete.a, nominal.discrete.a)
+    blind = dataclasses.replace(w, drive=dataclasses.replace(w.drive, flexure=None))
+    refused = h2_design(blind, w.control.h2, period)
+    assert refused.status is H2Status.INVALID_INPUT
+    assert "drive's flexure" in refused.reason and 'machine-ctrl identify w --out' in refused.reason
+
+
 @pytest.fixture(scope='module')
 def h2_result():
     result = fts_h2.reproduce()

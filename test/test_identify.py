@@ -220,9 +220,10 @@ def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe,
     """[8/8] part 3: `machine-ctrl identify` on fts_lathe's W runs Ding's stepped sine and
     grey-box fit (each parameter within 5 % of what hw_sim simulates, the [3/8] tolerance), on
     robot_piezo's px Sörnmo's chirp and N4SID (the first eigenfrequency within 5 % of the
-    plant's lowest mode). The piezo stage's `--out` is a belief file of its model (drive.modes,
-    what its LQG designs from: each mode within 1 % / 10 % of the plant's frequency / damping);
-    the flexure stage writes none (its PID takes no identified values)."""
+    plant's lowest mode). Each `--out` is a belief file of the model the axis's model-based
+    law designs from: the flexure stage's drive mass, damping and flexure (its H2 law), the
+    piezo stage's drive.modes (its LQG: each mode within 1 % / 10 % of the plant's frequency /
+    damping); the shipped configs hold exactly these, the plants untouched."""
     from machine_ctrl.app import cli
     from machine_ctrl.experiments.identify import identify_axis, yaml_fragment
     flexure = identify_axis(fts_lathe, 'w')
@@ -233,9 +234,15 @@ def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe,
     assert piezo['status'] == 'ok' and piezo['method'] == 'subspace', piezo['reason']
     (_, seed_order, _, order), _, (_, _, true_hz, found_hz) = piezo['rows']
     assert order == seed_order == 4 and found_hz == pytest.approx(true_hz, rel=0.05)
-    assert cli.main(['identify', 'w', '--machine', 'fts_lathe', '--out', str(tmp_path / 'w.yaml')]) == 2
-    assert "--out: w (frf_grey_box): its law takes no identified values" in capsys.readouterr().err
-    assert not (tmp_path / 'w.yaml').exists()
+    assert cli.main(['identify', 'w', '--machine', 'fts_lathe', '--out', str(tmp_path / 'w.yaml')]) == 0
+    other = tmp_path / 'other_w.yaml'      # a model the written file must replace, each number
+    other.write_text('axes:\n  w:\n    drive:\n      mass: 1.0\n      damping: 1.0\n      flexure: {stiffness: 1.0, '
+                     'secondary_mass: 1.0, secondary_stiffness: 1.0, secondary_damping: 1.0}\n')
+    believed = load_machine('fts_lathe', belief=[other, tmp_path / 'w.yaml']).axis('w')
+    assert believed == fts_lathe.axis('w')        # the shipped config holds exactly these (README)
+    model = flexure['model']
+    assert (believed.drive.mass, believed.drive.flexure.stiffness) == (pytest.approx(model['m12'], rel=1e-4),
+                                                                      pytest.approx(model['k2'], rel=1e-4))
     assert cli.main(['identify', 'px', '--machine', 'robot_piezo', '--out', str(tmp_path / 'px.yaml')]) == 0
     other = tmp_path / 'other.yaml'        # a model the written file must replace, modes and real pole
     other.write_text('axes:\n  px:\n    drive:\n      modes: [{omega: 200.0, zeta: 0.2}]\n      real_pole: 50.0\n')

@@ -1,10 +1,12 @@
 """The H2-optimal position law of Ding's fast tool servo (seed 003_edeaa855566124b7, Ch. 6),
-designed when the law is built from the axis's own models (the controller's belief: its
-machine config) and run as a discrete state-space filter on the position error (Fig. 6-8).
+designed when the law is built from the axis's own models (the controllers' belief: the
+drive's mass, damping and flexure, identified by `machine-ctrl identify`; hw_sim simulates the
+plant's) and run as a discrete state-space filter on the position error (Fig. 6-8).
 
 The generalized plant (Figs. 6-2, 6-3), continuous time, built by :func:`augmented_plant`:
 
-* the stage: machine_ctrl/model/flexure_model.py (Table 5-2 flexure, current loop Eq. 5-9,
+* the stage: machine_ctrl/model/flexure_model.py (the drive's flexure: Table 5-2 as identified
+  by the grey-box fit of section 5.5, machine_ctrl/experiments/fts_identify.py; current loop Eq. 5-9,
   K_T Eq. 5-10, sensor low-pass Eq. 5-8), its command through the loop delay
   tau = loop_delay + T/2 (section 4.4.4 DAC -> ADC, plus the zero-order hold's half period),
   as the (1,1) Pade approximant (1 - s tau/2)/(1 + s tau/2);
@@ -81,8 +83,9 @@ def measurement_noise_density(axis: AxisConfig, period: float) -> float:
 
 def augmented_plant(axis: AxisConfig, gains: H2Gains, period: float) -> GeneralizedPlant:
     """The generalized plant of the module doc; states [stage (flexure_model order), Pade delay,
-    W_e, W_u], inputs w = [current noise, measurement noise], z = [W_e x1, W_u u]."""
-    model = continuous_model(axis)
+    W_e, W_u], inputs w = [current noise, measurement noise], z = [W_e x1, W_u u]; the stage's
+    mechanics as the controllers know them (the drive's mass, damping and flexure)."""
+    model = continuous_model(axis, belief=True)
     n, sensor, noise = model.core, model.sensor, model.current_noise     # the accelerometer is not used
     a, b_u, b_w = model.a[:n, :n], model.b_u[:n], model.b_w[:n]
     a[noise, noise] -= gains.noise_pole * np.eye(noise.stop - noise.start)
@@ -132,6 +135,10 @@ def h2_design(axis: AxisConfig, gains: H2Gains, period: float) -> H2Design:
     if axis.drive.type != 'voice_coil' or plant is None or plant.flexure is None or plant.current_loop is None:
         return H2Design(H2Status.INVALID_INPUT, f'axis {axis.name}: the H2 design needs a voice_coil drive '
                                                 'with its flexure and current loop in the machine config')
+    if axis.drive.flexure is None:
+        return H2Design(H2Status.INVALID_INPUT, f'axis {axis.name}: the H2 design needs the drive\'s flexure '
+                                                '(drive.flexure: the controllers\' model of the stage; '
+                                                f'`machine-ctrl identify {axis.name} --out FILE` writes one)')
     if not 0.0 <= plant.loop_delay < period:
         return H2Design(H2Status.INVALID_INPUT, f'axis {axis.name}: loop_delay must be in [0, period)')
     p = augmented_plant(axis, gains, period)
@@ -155,11 +162,12 @@ def _balanced(k: StateSpace) -> StateSpace:
 
 
 def _sampled_loop_radius(axis: AxisConfig, k: StateSpace, period: float) -> float:
-    """Spectral radius of the sampled loop as hw_sim runs it: the stage (noise filters left
-    out: nothing in the loop drives them) discretized exactly with the command of the sample
-    at t_k applied from t_k + loop_delay, closed by the discrete controller `k`. An H2
-    controller may itself be unstable (module doc); its loop may not."""
-    model = continuous_model(axis)
+    """Spectral radius of the sampled loop as hw_sim runs it, on the design's model of the stage
+    (the drive's mechanics; noise filters left out: nothing in the loop drives them)
+    discretized exactly with the command of the sample at t_k applied from t_k + loop_delay,
+    closed by the discrete controller `k`. An H2 controller may itself be unstable (module
+    doc); its loop may not."""
+    model = continuous_model(axis, belief=True)
     keep = [i for i in range(model.core) if not model.current_noise.start <= i < model.current_noise.stop]
     a, b = model.a[np.ix_(keep, keep)], model.b_u[keep]
     y = keep.index(0 if model.sensor is None else model.sensor)

@@ -69,8 +69,9 @@ CALIBRATION = 'peak_ka0_nm'
 
 
 def mass_factor(machine: MachineConfig, ka: float, sensitivity: float | None = None) -> float:
-    """K_g = (M + K_a H_acc H_I K_T)/M at DC (section 7.4.1, seed-notes.md), M = m1 + m2
-    (H_acc: the law's, or `sensitivity`)."""
+    """K_g = (M + K_a H_acc H_I K_T)/M at DC (section 7.4.1, seed-notes.md), M = m1 + m2 as the
+    controllers know it (the drive's mass: a gain setting is a design step), H_acc the law's or
+    `sensitivity`."""
     axis = machine.axis(AXIS)
     h_acc = axis.control.pid.accelerometer_sensitivity if sensitivity is None else sensitivity
     m = axis.drive.mass

@@ -145,7 +145,7 @@ def loop_of_axis(axis, period: float) -> tuple[FtsPlant, Pid]:
     if drive.type != 'voice_coil' or axis.control is None or axis.control.pid is None:
         raise ValueError(f'axis {axis.name}: needs a voice_coil drive with pid gains for the FTS loop')
     flex, current, sensor, gains = plant.flexure, plant.current_loop, plant.sensor_bandwidth, axis.control.pid
-    return (FtsPlant(m12=drive.mass, k2=flex.stiffness, c2=drive.damping, m4=flex.secondary_mass,
+    return (FtsPlant(m12=plant.mass, k2=flex.stiffness, c2=plant.damping, m4=flex.secondary_mass,
                      k4=flex.secondary_stiffness, c4=flex.secondary_damping, force_constant=drive.force_constant,
                      current_bandwidth_hz=current.omega / TWO_PI, current_zeta=current.zeta,
                      current_gain=drive.amplifier_gain,

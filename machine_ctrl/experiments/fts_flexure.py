@@ -42,9 +42,12 @@ SOURCES = ('current', 'sensor', 'measurement', 'ground')
 
 
 def _with_flexure(machine: MachineConfig, k2: float, c2: float) -> MachineConfig:
-    axes = tuple(dataclasses.replace(a, drive=dataclasses.replace(a.drive, damping=c2), plant=dataclasses.replace(
-        a.plant, flexure=dataclasses.replace(a.plant.flexure, stiffness=k2))) if a.name == fts_h2.AXIS else a
-        for a in machine.axes)
+    """The machine with W's flexure stiffness k2 and damping c2, in the plant and in the drive's
+    model alike (Fig. 6-17 designs the law for each flexure: a design study, not a model error)."""
+    def changed(body):
+        return dataclasses.replace(body, damping=c2, flexure=dataclasses.replace(body.flexure, stiffness=k2))
+    axes = tuple(dataclasses.replace(a, drive=changed(a.drive), plant=changed(a.plant)) if a.name == fts_h2.AXIS else a
+                 for a in machine.axes)
     return dataclasses.replace(machine, axes=axes)
 
 
@@ -85,7 +88,7 @@ def closed_loop_budget(machine: MachineConfig, f: np.ndarray, ground_in_metres: 
     sensitivity = axis.control.pid.sensitivity
     ground = np.abs(dist.ground * (s + dist.ground_corner_rad) / s) ** 2 / (1.0 if ground_in_metres else sensitivity ** 2)
     scale = np.vstack([np.ones_like(f), np.ones_like(f), np.full(f.shape, measurement_noise_density(axis, period) ** 2),
-                       ground * np.abs(axis.drive.damping * s + axis.plant.flexure.stiffness) ** 2])
+                       ground * np.abs(axis.plant.damping * s + axis.plant.flexure.stiffness) ** 2])
     eye = np.eye(size)
     real, following = np.empty((4, len(f))), np.empty((4, len(f)))
     for i, x in enumerate(s):

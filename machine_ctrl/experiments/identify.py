@@ -321,7 +321,8 @@ def identify_axis(machine: MachineConfig, axis: str, workers: int | None = None)
     (:func:`identify`). The result's 'method' names which; the other two give 'rows' of
     (parameter, seed, true, identified); a piezo stage's 'model' is the identified model in
     the config's modal form, the belief file of its LQG (:func:`yaml_fragment`); a flexure
-    stage's PID takes no identified values (README "Truth and belief")."""
+    stage's 'model' the grey-box parameters, the belief file of its H2 law (its PID takes no
+    identified values; README "Truth and belief")."""
     method = method_of(machine, axis)
     if method == 'frf_grey_box':
         return _flexure_frf(machine, axis)
@@ -340,7 +341,7 @@ def _flexure_frf(machine: MachineConfig, axis: str) -> dict:
     from machine_ctrl.experiments import fts_identify as fts
     config = machine.axis(axis)
     flexure = config.plant.flexure
-    true = {'m12': config.drive.mass, 'c2': config.drive.damping, 'k2': flexure.stiffness,
+    true = {'m12': config.plant.mass, 'c2': config.plant.damping, 'k2': flexure.stiffness,
             'm4': flexure.secondary_mass, 'c4': flexure.secondary_damping, 'k4': flexure.secondary_stiffness}
     start = {k: fts.TABLE_5_2[k] * fts.START[k] for k in fts.TABLE_5_2}
     fitted = fts.fit(fts.stepped_sine(machine, axis=axis), machine, start, axis)
@@ -351,7 +352,8 @@ def _flexure_frf(machine: MachineConfig, axis: str) -> dict:
                         f'Table 5-2; RMS of log(model / measured) {fitted["rms_log_residual"]:.2e}']}
     if not fitted['success']:
         return {**result, 'status': 'refused', 'reason': f'the grey-box fit did not converge: {fitted["message"]}'}
-    return {**result, 'status': 'ok', 'reason': ''}
+    return {**result, 'model': {**fitted['params'], 'rms_log_residual': fitted['rms_log_residual']},
+            'status': 'ok', 'reason': ''}
 
 
 def _piezo_subspace(machine: MachineConfig, axis: str) -> dict:
@@ -402,15 +404,32 @@ def true_values(machine: MachineConfig, axis: str) -> dict:
 
 def yaml_fragment(machine: MachineConfig, result: dict) -> str:
     """The belief file of an identified axis (:func:`identify_axis`): a feed drive's
-    (:func:`feed_drive_fragment`) or a piezo stage's model (:func:`piezo_fragment`).
-    ValueError for a method that gives none."""
+    (:func:`feed_drive_fragment`), a flexure stage's (:func:`flexure_fragment`) or a piezo
+    stage's model (:func:`piezo_fragment`)."""
     method = result.get('method', 'feed_drive')      # identify()'s own result names none
-    if method == 'feed_drive':
-        return feed_drive_fragment(machine, result)
-    if method == 'subspace':
-        return piezo_fragment(machine, result)
-    raise ValueError(f'{result.get("axis")} ({method}): its law takes no identified values, so there is no belief '
-                     'file to write')
+    return {'feed_drive': feed_drive_fragment, 'frf_grey_box': flexure_fragment,
+            'subspace': piezo_fragment}[method](machine, result)
+
+
+def flexure_fragment(machine: MachineConfig, result: dict) -> str:
+    """A flexure stage's grey-box parameters as the drive's mass, damping and flexure (the
+    controllers' model its H2 law designs from; the plant section, hw_sim's truth, is not
+    touched)."""
+    axis, p = result['axis'], result['model']
+    return '\n'.join([
+        f'# machine-ctrl identify {axis} --machine {machine.name}: offline on hw_sim (simulation.seed '
+        f'{machine.simulation.seed}); stepped sine and the grey-box fit of Ding section 5.5, RMS of '
+        f'log(model / measured) {p["rms_log_residual"]:.2e}',
+        'axes:',
+        f'  {axis}:',
+        '    drive:',
+        f'      mass: {p["m12"]:.5g}          # m12, kg',
+        f'      damping: {p["c2"]:.5g}        # c2, N*s/m',
+        '      flexure:',
+        f'        stiffness: {p["k2"]:.5g}             # k2, N/m',
+        f'        secondary_mass: {p["m4"]:.5g}        # m4, kg',
+        f'        secondary_stiffness: {p["k4"]:.5g}   # k4, N/m',
+        f'        secondary_damping: {p["c4"]:.5g}     # c4, N*s/m']) + '\n'
 
 
 def piezo_fragment(machine: MachineConfig, result: dict) -> str:

@@ -43,6 +43,8 @@ DRIVE_TYPES = {
 CLOSED_LOOP_DRIVES = ('position_servo', 'piezo')
 # drives hw_sim simulates as a rigid body under a force: the plant's mass and damping are the truth
 RIGID_BODY_DRIVES = ('linear_motor', 'maglev', 'servo_voltage')
+# drives whose plant has a mass and damping of its own (the truth; the drive's are the belief)
+TRUE_BODY_DRIVES = (*RIGID_BODY_DRIVES, 'voice_coil')
 
 
 def _positive(**kw):
@@ -67,6 +69,9 @@ class DriveConfig:
     # and plant.real_pole, which are the truth hw_sim simulates (README "Truth and belief")
     modes: tuple[ModeConfig, ...] = ()
     real_pole: float = _nonnegative(default=0.0)        # rad/s (0: none)
+    # voice_coil drives: the controllers' model of the flexure (the H2 law designs from it, with
+    # the drive's mass and damping), as plant.flexure, the truth
+    flexure: FlexureConfig | None = None
 
     @property
     def gain(self) -> float:
@@ -106,8 +111,9 @@ class ModeConfig:
 @dataclass(frozen=True)
 class FlexureConfig:
     """A flexure-guided stage with a second mass hung on it (Ding thesis Fig. 5-4, Eqs. 5-4..5-7
-    with k1 rigid): the drive's mass on the flexure (stiffness to the frame, the drive's damping
-    as its damping), the secondary mass coupled to it by a spring and a damper."""
+    with k1 rigid): the stage's mass on the flexure (stiffness to the frame, the stage's damping
+    as its damping: the plant's mass and damping in hw_sim's truth, the drive's in the
+    controllers' model), the secondary mass coupled to it by a spring and a damper."""
     stiffness: float = _positive()             # k2, N/m, flexure to the frame
     secondary_mass: float = _positive()        # m4, kg
     secondary_stiffness: float = _positive()   # k4, N/m
@@ -146,7 +152,7 @@ class AccelerometerConfig:
 class PlantConfig:
     """What hw_sim simulates beyond the drive (gain, saturation, quantization). The drive's
     mass and damping are the controllers' belief (what their laws are designed from); the
-    plant's are the truth hw_sim simulates, required in a plant section of RIGID_BODY_DRIVES
+    plant's are the truth hw_sim simulates, required in a plant section of TRUE_BODY_DRIVES
     (README "Truth and belief")."""
     mass: float | None = _positive(default=None)      # as DriveConfig.mass
     damping: float | None = _nonnegative(default=None)   # as DriveConfig.damping
@@ -561,10 +567,11 @@ def _axis(s: _Section, name: str, joint: urdf.Joint) -> AxisConfig:
     return axis
 
 
-# what a belief file may set, per axis: a rigid-body drive's mass and damping, a piezo drive's
-# model, the numbers of the axis's law
-BELIEF_KEYS = ('drive.mass', 'drive.damping', 'drive.modes', 'drive.real_pole', 'control')
-BELIEF_DRIVE_KEYS = {**{drive: ('mass', 'damping') for drive in RIGID_BODY_DRIVES}, 'piezo': ('modes', 'real_pole')}
+# what a belief file may set, per axis: a rigid-body drive's mass and damping, a flexure stage's
+# (and its flexure), a piezo drive's model, the numbers of the axis's law
+BELIEF_KEYS = ('drive.mass', 'drive.damping', 'drive.flexure', 'drive.modes', 'drive.real_pole', 'control')
+BELIEF_DRIVE_KEYS = {**{drive: ('mass', 'damping') for drive in RIGID_BODY_DRIVES},
+                     'voice_coil': ('mass', 'damping', 'flexure'), 'piezo': ('modes', 'real_pole')}
 
 
 def _read_yaml(path: Path):
@@ -578,7 +585,8 @@ def _merge_belief(raw: dict, machine: MachineConfig, path: Path) -> None:
     """Merge the belief file `path` (``machine-ctrl identify --out``'s fragment) into the
     machine's `raw` mapping (of `machine`, already checked alone): per axis, a rigid-body
     drive's mass and damping, and the numbers of the axis's own law's section and of its
-    lugre_feedforward; a piezo drive's model (modes, real_pole). Anything else is refused: the
+    lugre_feedforward; a flexure stage's mass, damping and flexure; a piezo drive's model
+    (modes, real_pole). Anything else is refused: the
     plant above all (the truth hw_sim simulates), another law, a control section the axis does
     not have."""
     belief = _read_yaml(path)
@@ -710,6 +718,8 @@ def _drive_problem(drive: DriveConfig) -> str:
         return f'a {drive.type} drive needs mass and damping'
     if drive.type != 'piezo' and (drive.modes or drive.real_pole):
         return 'modes and real_pole: only for piezo drives (the controllers\' model of the stage)'
+    if drive.type != 'voice_coil' and drive.flexure is not None:
+        return 'flexure: only for voice_coil drives (the controllers\' model of the stage)'
     if drive.type == 'piezo' and not drive.modes:
         return ('a piezo drive needs modes (at least one: omega, zeta): the controllers\' model of the stage, '
                 'plant.modes being the truth')
@@ -731,10 +741,10 @@ def _plant_problem(axis: AxisConfig, period: float) -> str:
     if plant is None:
         return ''
     own_body = [k for k in ('mass', 'damping') if getattr(plant, k) is not None]
-    if own_body and drive.type not in RIGID_BODY_DRIVES:
-        return (f'{", ".join(own_body)}: a true rigid body apart from the drive\'s is only for '
-                f'{", ".join(RIGID_BODY_DRIVES)} drives')
-    if drive.type in RIGID_BODY_DRIVES and len(own_body) < 2:
+    if own_body and drive.type not in TRUE_BODY_DRIVES:
+        return (f'{", ".join(own_body)}: a true body apart from the drive\'s is only for '
+                f'{", ".join(TRUE_BODY_DRIVES)} drives')
+    if drive.type in TRUE_BODY_DRIVES and len(own_body) < 2:
         return (f'a {drive.type} drive\'s plant needs mass and damping: the truth hw_sim simulates (the drive\'s '
                 f'are the controllers\' belief; the same numbers where they agree)')
     own = {'position_servo': ('servo',), 'piezo': ('modes', 'real_pole')}

@@ -1,7 +1,8 @@
 """The linear model of a voice-coil flexure axis (Ding's fast tool servo, seed
 003_edeaa855566124b7, Ch. 5) built from its machine config: the machine model that the
-simulated plant (hw_sim/flexure.py, the truth) and model-based laws (the H2 design of
-machine_ctrl/control/h2.py, the controller's belief) both start from.
+simulated plant (hw_sim/flexure.py, from the plant's mechanics: the truth) and model-based laws
+(the H2 design of machine_ctrl/control/h2.py, from the drive's: the controllers' belief) both
+start from.
 
     u  -> current loop H_I(s) = g w_I^2 / (s^2 + 2 zeta w_I s + w_I^2)     (Eq. 5-9), A
     F   = K_T (I + dI)                                                      (Eq. 5-10), N
@@ -94,11 +95,20 @@ def _filter_order(noise: NoiseConfig | None) -> int:
     return 0 if noise is None else noise_filter(noise)[0].shape[0]
 
 
-def continuous_model(axis: AxisConfig) -> FlexureModel:
-    """The module doc's system for `axis` (a voice_coil drive with its flexure and current loop)."""
+def continuous_model(axis: AxisConfig, belief: bool = False) -> FlexureModel:
+    """The module doc's system for `axis` (a voice_coil drive with its flexure and current loop):
+    the stage's mechanics (m12, c2 and the flexure) as hw_sim simulates them (the plant's: the
+    truth) or, with `belief`, as the controllers know them (the drive's mass, damping and
+    flexure; ValueError where the drive has no flexure). The current loop, K_T, the sensor, the
+    delay and the noises are the plant's either way: measured apart, as the thesis had them
+    (section 5.5: the grey-box fit takes them as known)."""
     drive, plant = axis.drive, axis.plant
-    flex, loop, accel = plant.flexure, plant.current_loop, plant.accelerometer
-    m12, c2, k2 = drive.mass, drive.damping, flex.stiffness
+    body = drive if belief else plant
+    if body.flexure is None:
+        raise ValueError(f'axis {axis.name}: the drive has no flexure model (drive.flexure: the controllers\' '
+                         'model of the stage; `machine-ctrl identify` writes one)')
+    flex, loop, accel = body.flexure, plant.current_loop, plant.accelerometer
+    m12, c2, k2 = body.mass, body.damping, flex.stiffness
     m4, k4, c4 = flex.secondary_mass, flex.secondary_stiffness, flex.secondary_damping
     kt, wi, zi = drive.force_constant, loop.omega, loop.zeta
     n_cur = _filter_order(plant.current_noise)

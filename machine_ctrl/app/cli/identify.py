@@ -7,7 +7,9 @@ identified values as a machine-YAML fragment go to FILE with ``--out``; ``--json
 the result as one object, {"status", "reason", "axis", "method", ...}: for a feed drive
 "rigid_body", "steady", "bristles", "observer" ({"identified", "true"}), "frf" (the closed
 loop's frequency response with coherence), "true", "seed", "speeds", "forces"; for the other methods "rows" ([parameter, seed, true, identified]) and
-"notes", for a piezo stage "model" ({"modes": [{"omega", "zeta"}], "real_pole", "order", "vaf"}: what ``--out`` writes) (SI: m/s, N, the observer gains per m and m/s; the fits' dataclasses as mappings). Progress on stderr; exit 1 when the identification is refused
+"notes", for a flexure stage "model" ({"m12", "c2", "k2", "m4", "c4", "k4", "rms_log_residual"}: what ``--out``
+writes, the model of its H2 law), for a piezo stage "model" ({"modes": [{"omega", "zeta"}], "real_pole", "order",
+"vaf"}: what ``--out`` writes) (SI: m/s, N, the observer gains per m and m/s; the fits' dataclasses as mappings). Progress on stderr; exit 1 when the identification is refused
 (the reason on stderr).
 """
 from __future__ import annotations
@@ -45,9 +47,6 @@ def cmd_identify(args) -> int:
     if args.jobs is not None and args.jobs < 1:
         return error('identify', f'--jobs must be a whole number > 0, got {args.jobs}')
     method = identify.method_of(machine, args.axis)
-    if args.out and method == 'frf_grey_box':
-        return error('identify', f'--out: {args.axis} ({method}): its law takes no identified values, so there is '
-                                 'no belief file to write (README "Identification")')
     print(f'identifying {args.axis} of {machine.name} offline on hw_sim ({method}) ...', file=sys.stderr, flush=True)
     result = identify.identify_axis(machine, args.axis, workers=args.jobs)
     if args.json:
