@@ -242,12 +242,16 @@ class LockStepSession(Session):
         """hw_sim's own stall: more than `command_timeout` s since the last call (the node
         calls this from each of its timers, every `timer_period` s) means its process did
         not run — stopped (SIGSTOP) or starved. From step 1 on that faults the machine (the
-        nodes waited for it, a client may have given up on it): nothing goes on from a gap."""
+        nodes waited for it, a client may have given up on it): nothing goes on from a gap.
+        A shorter gap does not count toward the current step's command timeout beyond one
+        timer period: the answers may be in hw_sim's queue, not yet taken (run109: stopped
+        4.9 s, hw_sim blamed the servos for a step they had answered)."""
         gap = now - self._watched_at
         self._watched_at = now
         if gap > self.command_timeout and self.lockstep.step > 0:
             self.fault(f'hw_sim stalled: its process did not run for {gap:.1f} s (stopped or starved; '
                        f'limit command_timeout {self.command_timeout:g} s)', now)
+        self._step_started_at += max(0.0, gap - self.timer_period)
 
     def recorder_alive(self, alive: bool, now: float) -> None:
         """The recorder's liveliness (its progress writer's lease, contract.PROGRESS_QOS):
@@ -331,8 +335,9 @@ class PacedSession(Session):
     it). A timer call that finds more than one step due means hw_sim itself ran late: it takes
     one step (the controllers must see every state: a simulator that caught up would skip
     states they answer), counts the periods it slipped as overruns and shifts the schedule
-    by as many periods; slipped more than `command_timeout` s once ready, its process did
-    not run (stopped, starved): the machine faults, as in lock-step mode. Before ready a slip
+    by as many periods (which count toward no axis's silence); slipped more than
+    `command_timeout` s once ready, its process did not run (stopped, starved): the machine
+    faults, as in lock-step mode. Before ready a slip
     only shifts the schedule (the graph is still coming up: in one process the other nodes
     are built after hw_sim's timer started)."""
     mode = 'paced'
@@ -381,6 +386,9 @@ class PacedSession(Session):
                                f'process did not run: stopped or starved; limit command_timeout '
                                f'{self.command_timeout:g} s)', now)
             self.pacer.slip(now, step + 1)
+            # the time hw_sim did not run is no axis's silence: no state went out meanwhile
+            for axis in self._commanded_at:
+                self._commanded_at[axis] += slipped * self.pacer.period
         waiting = len(self.lockstep.axis_names) - self.lockstep.in_hand
         if self.ready and waiting:               # not all in hand: latency at least this long
             self.step_latency.add(now - self._published_at)

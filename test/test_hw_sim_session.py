@@ -437,6 +437,49 @@ def test_hw_sim_s_own_stall_faults_the_machine_from_step_1_on(make):
     assert s.step == 3                            # faulted: nothing goes on without a reset
 
 
+def test_a_short_stall_of_hw_sim_does_not_count_toward_the_servos_command_timeout(make):
+    """run109: hw_sim stopped a little under command_timeout, its servos' answers waiting in its
+    queue; the first timer call after it must not blame them. The time it did not run (beyond
+    one timer period) moves the deadline; a servo that stays silent still faults, after
+    command_timeout s of hw_sim running."""
+    s, io = make(command_timeout=2.0, republish_period=0.2)     # timer period 0.2 s
+    s.watch(now=50.0)
+    run_to(s, 3, now=50.0)
+    s.watch(now=50.15)
+    s.watch(now=52.1)                              # stopped 1.95 s: not a stall of its own
+    s.on_timer(now=52.1)                           # 2.1 s after step 3 went out
+    assert s.sim.fault is None
+    command(s, 3, now=52.11)                       # the answers it had not taken yet
+    assert s.step == 4 and s.sim.fault is None
+    command(s, 4, COARSE, now=52.12)               # the fine servo stays silent
+    t = 52.12
+    while s.sim.fault is None and t < 60.0:
+        t = round(t + 0.2, 2)
+        s.watch(now=t)
+        s.on_timer(now=t)
+    assert s.sim.fault == 'missing command for x_f y_f z_f a_f b_f c_f (no answer to step 4 within 2 s)'
+    assert t == 54.32                              # the first call more than 2 s after step 4 went out
+
+
+def test_paced_mode_a_slip_does_not_count_toward_an_axis_s_silence(make):
+    """The periods hw_sim slipped sent no state: an axis's silence counts without them."""
+    s, io = make(PacedSession, real_time_factor=0.1, command_timeout=0.05)      # 1 ms per step
+    command(s, 0, now=0.0)
+    s.on_timer(now=0.001)
+    command(s, 1, now=0.0015)                      # the last commands
+    s.on_timer(now=0.002)
+    s.on_timer(now=0.0405)                         # 38.5 ms without running
+    slip = s.overruns * 0.001
+    assert s.sim.fault is None and slip >= 0.037
+    k = 41
+    while s.sim.fault is None and k < 200:         # every servo silent from now on, a call each 1 ms
+        s.on_timer(now=k * 0.001)
+        k += 1
+    assert s.sim.fault.startswith('missing command for x_c')
+    # the first call more than 50 ms of hw_sim running after the last commands
+    assert (k - 2) * 0.001 <= 0.0015 + slip + 0.05 < (k - 1) * 0.001
+
+
 def test_a_recorder_lost_by_its_liveliness_releases_the_hold_and_a_new_one_holds_again(make):
     s, io = make(recorder_window=3)
     run_to(s, 4)
