@@ -216,7 +216,7 @@ def test_the_circle_with_identified_values_against_the_nominal(micromill, x_c, y
     assert json.loads(out.out)["identified"] == [str(f) for f in files]     # said in the result too (absolute)
 
 
-def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe, robot_piezo, capsys, tmp_path):
+def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe, robot_piezo, tmp_path):
     """[8/8] part 3: `machine-ctrl identify` on fts_lathe's W runs Ding's stepped sine and
     grey-box fit (each parameter within 5 % of what hw_sim simulates, the [3/8] tolerance), on
     robot_piezo's px Sörnmo's chirp and N4SID (the first eigenfrequency within 5 % of the

@@ -105,8 +105,9 @@ def continuous_model(axis: AxisConfig, belief: bool = False) -> FlexureModel:
     drive, plant = axis.drive, axis.plant
     body = drive if belief else plant
     if body.flexure is None:
-        raise ValueError(f'axis {axis.name}: the drive has no flexure model (drive.flexure: the controllers\' '
-                         'model of the stage; `machine-ctrl identify` writes one)')
+        raise ValueError(f'axis {axis.name}: no flexure in its ' + (
+            'drive (drive.flexure: the controllers\' model of the stage; `machine-ctrl identify` writes one)'
+            if belief else 'plant (a voice_coil drive\'s plant.flexure)'))
     flex, loop, accel = body.flexure, plant.current_loop, plant.accelerometer
     m12, c2, k2 = body.mass, body.damping, flex.stiffness
     m4, k4, c4 = flex.secondary_mass, flex.secondary_stiffness, flex.secondary_damping
