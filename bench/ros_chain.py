@@ -39,6 +39,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
 from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
+from machine_ctrl.ros.node_common import bounded_teardown
 
 BENCH_DIR = Path(__file__).resolve().parent
 EXECUTORS = ('single', 'events')
@@ -316,11 +317,14 @@ def relay_main(argv: list[str]) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        # a teardown that hangs in rmw (as the nodes' did, run89 / run107; a relay's, run114)
+        # prints its native stacks, as every node's does
+        with bounded_teardown():
+            if executor is not None:
+                executor.shutdown()
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
     return 0
 
 

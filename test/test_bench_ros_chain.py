@@ -29,5 +29,7 @@ def test_the_relays_are_stopped_cleanly(ros_chain):
         chain.measure(10)
         supervisor = chain.supervisor
     assert supervisor.alive() == []
-    assert {name: child.returncode for name, child in supervisor.children.items()} == \
-        {'chain_relay_1': 0, 'chain_relay_2': 0}      # SIGINT was enough: a clean exit
+    codes = {name: child.returncode for name, child in supervisor.children.items()}
+    tails = {name: child.tail(200) for name, child in supervisor.children.items() if codes[name] != 0}
+    # SIGINT was enough: a clean exit (or what the one that was not printed, run114)
+    assert codes == {'chain_relay_1': 0, 'chain_relay_2': 0}, tails
