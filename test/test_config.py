@@ -103,17 +103,12 @@ def test_the_plant_is_the_truth_and_the_drive_the_belief(micromill):
 
 def test_a_true_mass_on_a_drive_without_a_rigid_body_is_refused(tmp_path):
     """robot_piezo's piezo stage is its closed loop (modes): a plant mass there means nothing."""
-    for suffix in ('yaml', 'urdf'):
-        text = (MACHINES / f'robot_piezo.{suffix}').read_text()
-        if suffix == 'yaml':
-            old = '  px: &piezo\n'
-            start = text.index(old)
-            plant = text.index('    plant:\n', start) + len('    plant:\n')
-            text = text[:plant] + '      mass: 1.0\n' + text[plant:]
-        (tmp_path / f'robot_piezo.{suffix}').write_text(text)
+    px_plant = '    plant:\n      modes:                   # x: 40 Hz and 58 Hz'
+    path = edited_machine(tmp_path, (px_plant, px_plant.replace('plant:\n', 'plant:\n      mass: 1.0\n')),
+                          name='robot_piezo')
     with pytest.raises(ConfigError, match=r'axes\.px\.plant: mass: a true body apart from the drive\'s is only '
                                           r'for linear_motor, maglev, servo_voltage, voice_coil drives'):
-        load_machine(tmp_path / 'robot_piezo.yaml')
+        load_machine(path)
 
 
 def test_a_belief_file_changes_the_controllers_values_and_not_the_plant(micromill, tmp_path):
