@@ -1,10 +1,14 @@
 """The simulated machine without ROS: every axis's plant and sensor, stepped one control
 period at a time with one command per axis, plus the fault logic of the hardware.
 
+A machine with ``simulation.tool_compliance`` (a robot arm) also deflects under the milling
+force (hw_sim/tool_deflection.py): :attr:`MachineSimulator.deflection` moves the true tool tip
+(tool_deflection.deflected), not the axes, so no encoder sees it.
+
 Faults (the machine stops and stays stopped until :meth:`reset`): a non-finite command, a
 true position outside its stroke after a step, or (raised by the lock-step layer) a
 missing command. "Stopped" means drives disabled and axes held where they are: the state is
-frozen, velocities read zero. Sensor noise is seeded from the machine config
+frozen (the deflection too), velocities read zero. Sensor noise is seeded from the machine config
 (simulation.seed), one stream per axis, so a run is reproducible bit for bit.
 """
 from __future__ import annotations
@@ -17,6 +21,7 @@ from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
 from hw_sim.flexure import Accelerometer, FlexureAxis
 from hw_sim.plant import FrictionAxis, LinearAxis, PiezoDriveAxis, PositionServoAxis, Sensor
+from hw_sim.tool_deflection import ToolDeflection, rigid_tip
 from machine_ctrl.model.config import AxisConfig, MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 
@@ -51,6 +56,7 @@ class MachineSimulator:
         self.initial = tuple(machine.home if initial_position is None else initial_position)
         if len(self.initial) != len(machine.axes):
             raise ValueError(f'initial position needs {len(machine.axes)} values')
+        self._tool_pose = true_geometry(machine) if machine.simulation.tool_compliance else None
         self.reset()
 
     def reset(self, initial_position=None) -> None:
@@ -71,6 +77,8 @@ class MachineSimulator:
         self.step_index = 0
         self.fault: str | None = None
         self.applied = (0.0,) * len(self.plants)
+        self.compliance = None if self._tool_pose is None else ToolDeflection(
+            machine.simulation.tool_compliance, period, seed, rigid_tip(self._tool_pose, self.true_position))
         self._measure()
 
     def _measure(self) -> None:
@@ -94,6 +102,12 @@ class MachineSimulator:
         return tuple([p.position for p in self.plants])
 
     @property
+    def deflection(self) -> float:
+        """m, the true tool tip's displacement along the workpiece's z by the structure's
+        compliance (0.0 without tool_compliance)."""
+        return 0.0 if self.compliance is None else self.compliance.deflection
+
+    @property
     def true_velocity(self) -> tuple[float, ...]:
         return tuple(p.velocity for p in self.plants)
 
@@ -108,6 +122,8 @@ class MachineSimulator:
         if self.fault is None:
             self.applied = tuple([p.step(u) for p, u in zip(self.plants, commands)])
             self.fault = self.stroke_fault(self.true_position)
+            if self.compliance is not None:
+                self.compliance.step(rigid_tip(self._tool_pose, self.true_position))
         else:
             self.applied = (0.0,) * len(self.plants)
         self.step_index += 1

@@ -346,11 +346,44 @@ class ContourControlConfig:
 
 
 @dataclass(frozen=True)
+class FaceMillingConfig:
+    """The cut that loads a compliant machine's tool (hw_sim/tool_deflection.py): a block of
+    material on the workpiece's face (the workpiece frame's xy plane, its finished face at z =
+    0, `depth` of material above it), cut by a tool of `tool_radius` fed along the face."""
+    interaction_stiffness: float = _positive()    # K_f, N/m, Eq. (5.3)
+    removal: float = _positive()                  # D_f, N s/m, Eqs. (5.3)-(5.4): force = D_f v
+    depth: float = _positive()                    # m, the layer cut above the finished face
+    tool_radius: float = _positive()              # m
+    block_x: tuple[float, float]                  # m, the block's extent on the face, low < high
+    block_y: tuple[float, float]                  # m
+    tooth_frequency: float = _positive()          # Hz, flutes x spindle speed
+    ripple: float = _nonnegative(default=0.0)     # relative force swing at the tooth frequency
+    variation: float = _nonnegative(default=0.0)  # relative RMS of each tooth's force (seeded)
+
+
+@dataclass(frozen=True)
+class ToolComplianceConfig:
+    """The compliance of a machine whose structure deflects under the process force (a robot
+    arm, Sörnmo Ch. 4): one mode along the face normal (the workpiece frame's z), stiffness
+    k(x) = stiffness + stiffness_variation sin(2 pi x / stiffness_wavelength) along the face's
+    x, modal mass stiffness / (2 pi eigenfrequency)^2, `damping` of critical
+    (hw_sim/tool_deflection.py)."""
+    stiffness: float = _positive()                # N/m
+    stiffness_variation: float = _nonnegative()   # N/m
+    stiffness_wavelength: float = _positive()     # m
+    eigenfrequency: float = _positive()           # Hz
+    damping: float = _nonnegative()               # 1
+    milling: FaceMillingConfig
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     seed: int = 0             # seeds every random source of hw_sim
     substeps: int = 1         # plant integration steps per control period (nonlinear plants)
     error_map: str | None = None   # true geometric errors (path relative to the YAML file;
                                    # compensation/error_map.py), None: an ideal machine
+    tool_compliance: ToolComplianceConfig | None = None   # the structure's deflection under the
+                                   # cutting force, seen by the true tool tip (not by the encoders)
 
     def error_map_path(self, yaml_path: Path) -> Path | None:
         return None if self.error_map is None else (yaml_path.parent / self.error_map).resolve()
@@ -693,6 +726,9 @@ def _build_machine(raw, path: Path) -> MachineConfig:
         if 'cartesian_dual_stage' in top.data else None
     simulation = _read(top.section('simulation'), SimulationConfig) if 'simulation' in top.data \
         else SimulationConfig()
+    problem = simulation.tool_compliance and _compliance_problem(simulation.tool_compliance, control_period)
+    if problem:
+        top.section('simulation').fail(problem, 'tool_compliance')
     contour = _contour_control(top.section('contour_control'), axes) if 'contour_control' in top.data else None
     top._used.update(('dual_stage', 'simulation', 'cartesian_dual_stage', 'contour_control'))
     top.finish()
@@ -701,6 +737,24 @@ def _build_machine(raw, path: Path) -> MachineConfig:
             raise ConfigError(f'{path}: home.{axis.name}: {value:g} is outside the stroke {axis.stroke}')
     return MachineConfig(name, description, path, urdf_path, control_period, workpiece_frame,
                          tool_frame, tuple(axes), home, dual_stage, simulation, cartesian, contour)
+
+
+# assumed: semi-implicit Euler at the control period resolves the mode when w T <= 0.05 (a
+# relative frequency error below 1e-3, hw_sim/tool_deflection.py)
+COMPLIANCE_STEP_LIMIT = 0.05
+
+
+def _compliance_problem(c: ToolComplianceConfig, period: float) -> str:
+    if 2.0 * math.pi * c.eigenfrequency * period > COMPLIANCE_STEP_LIMIT:
+        return (f'eigenfrequency {c.eigenfrequency:g} Hz is too high for the control period {period:g} s '
+                f'(2 pi f T must be <= {COMPLIANCE_STEP_LIMIT:g})')
+    if c.stiffness_variation >= c.stiffness:
+        return f'stiffness_variation {c.stiffness_variation:g} must be below the stiffness {c.stiffness:g} N/m'
+    for key in ('block_x', 'block_y'):
+        lo, hi = getattr(c.milling, key)
+        if not lo < hi:
+            return f'milling.{key}: [{lo:g}, {hi:g}] is empty (low must be below high)'
+    return ''
 
 
 FLEXURE_ONLY = ('flexure', 'current_loop', 'sensor_bandwidth', 'sensor_noise_density', 'current_noise', 'accelerometer',

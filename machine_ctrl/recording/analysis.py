@@ -20,6 +20,9 @@ Results (SI: m, rad, s; the text table prints um / urad):
   (:class:`machine_ctrl.model.kinematics.Kinematics`): ``tracking`` = |P_ref(k) - P_meas(k)|,
   ``contour`` = distance of P_meas(k) from the reference tool path (the polyline of P_ref,
   searched within ``CONTOUR_WINDOW`` s of step k).
+  With the simulated machine's ground truth in the bag (/hw_sim/ground_truth/tool_pose, every
+  few steps), ``true_tracking`` = |P_ref(k) - P_true(k)| at those steps: the error the
+  encoders cannot see (a structure deflected by the cutting force, a geometric error map).
 * ``limits``: per axis peak |v|, |a|, |j| over the axis limits, of the reference (finite
   differences at the control period) and of the measured positions (finite differences over
   ``DIFF_STEPS`` periods).
@@ -63,6 +66,7 @@ class Run:
     reference: np.ndarray       # (n, axes)
     source: str
     session: dict = field(default_factory=dict)     # how the graph ran (recorder.session_of), {} when unsaid
+    true_tip: dict[int, tuple[float, float, float]] = field(default_factory=dict)   # step -> true tool tip
 
 
 def _decoder(bag: Bag, topic: str):
@@ -108,11 +112,12 @@ def load(path, machine: str | MachineConfig | None = None) -> Run:
         names = list(config.axis_names)
         states = _states(bag, states_topic, period_ns, names)
         reference = _reference(bag, reference_topic, period_ns, names)
+        true_tip = _true_tips(bag, contract.TRUE_TOOL_POSE.full(namespace), period_ns)
     steps = np.array(sorted(set(states) & set(reference)), dtype=np.int64)
     if len(steps) == 0:
         raise AnalysisError(f'{path}: no control step has both a {states_topic} and a {reference_topic} row')
     return Run(config, steps, np.array([states[k] for k in steps]), np.array([reference[k] for k in steps]),
-               str(path), session)
+               str(path), session, true_tip)
 
 
 def _columns(message_names, wanted, topic) -> list[int]:
@@ -154,6 +159,22 @@ def _reference(bag: Bag, topic: str, period_ns: int, names) -> dict[int, list[fl
             rows[first + i] = [point.positions[c] for c in picks]
         end = max(end, first + len(msg.points))
     return rows
+
+
+def _true_tips(bag: Bag, topic: str, period_ns: int) -> dict[int, tuple[float, float, float]]:
+    """The ground truth's tool-tip positions by step ({} when the bag has none)."""
+    info = bag.topics.get(topic)
+    if info is None or info.type != contract.TRUE_TOOL_POSE.type:
+        return {}
+    decode = _decoder(bag, topic)
+    tips = {}
+    for message in bag.messages([topic]):
+        msg = decode(message.data)
+        step, rest = divmod(_stamp_ns(msg.header), period_ns)
+        if not rest:
+            p = msg.pose.position
+            tips[step] = (p.x, p.y, p.z)
+    return tips
 
 
 def error_stats(errors: np.ndarray) -> dict[str, float]:
@@ -222,6 +243,10 @@ def analyse(run: Run) -> dict:
     contour = contour_errors(p_ref, p_meas, window)
     result['tool_tip'] = {'tracking': error_stats(np.linalg.norm(p_ref - p_meas, axis=1)),
                           'contour': error_stats(contour)}
+    rows = [i for i, k in enumerate(run.steps.tolist()) if k in run.true_tip]
+    if rows:
+        p_true = np.array([run.true_tip[int(run.steps[i])] for i in rows])
+        result['tool_tip']['true_tracking'] = error_stats(np.linalg.norm(p_ref[rows] - p_true, axis=1))
     result['limits'] = {'reference': {}, 'measured': {}}
     if not contiguous:
         result['limits_note'] = 'steps missing from the run: differences span the gaps'
@@ -284,9 +309,10 @@ def table(results: list[dict], machines: list[MachineConfig]) -> str:
             for stat in ('mean', 'max', 'rms'):
                 row(f'  {pair} {stat} [um]', [r['dual_stage'][pair][stat] * 1e6 for r in results])
     lines.append('tool tip (forward kinematics)')
-    for key in ('tracking', 'contour'):
-        for stat in ('mean', 'max', 'rms'):
-            row(f'  {key} {stat} [um]', [r['tool_tip'][key][stat] * 1e6 for r in results])
+    for key in ('tracking', 'contour', 'true_tracking'):
+        if all(key in r['tool_tip'] for r in results):       # true_tracking: with the ground truth only
+            for stat in ('mean', 'max', 'rms'):
+                row(f'  {key} {stat} [um]', [r['tool_tip'][key][stat] * 1e6 for r in results])
     for source in ('reference', 'measured'):
         lines.append(f'drive-limit usage, {source} (peak |v|,|a|,|j| / limit)')
         for axis in results[0]['limits'][source]:

@@ -4,7 +4,8 @@ Publishes /clock (every `clock_decimation` steps), /joint_states (measured posit
 differentiated velocities, efforts = commands applied over the previous period; stamp =
 sim time of the step), ground truth every `ground_truth_decimation` steps (default 10:
 1 kHz on the micromill) on /hw_sim/ground_truth/joint_states and
-/hw_sim/ground_truth/tool_pose (true tool tip in the workpiece frame; no controller
+/hw_sim/ground_truth/tool_pose (true tool tip in the workpiece frame, with the structure's
+deflection under the cutting force on a machine with simulation.tool_compliance; no controller
 subscribes to them; each is computed and published only while it has a subscriber, as the
 true tool pose through the error map costs ~0.15 ms), /accelerometers (sensor_msgs/Imu, one
 per step and accelerometer of the machine, before the step's state, while subscribed: the
@@ -62,6 +63,7 @@ from std_srvs.srv import Trigger
 
 from hw_sim.session import LockStepSession, PacedSession
 from hw_sim.simulator import MachineSimulator, true_geometry
+from hw_sim.tool_deflection import deflected
 from machine_ctrl import contract, parameters
 from machine_ctrl.model.numeric import all_finite
 from machine_ctrl.ros import messages as ros_io
@@ -216,8 +218,9 @@ class HwSimNode(Node):
             if self.pub_true.get_subscription_count():
                 self.pub_true.publish(self.encoder.encode(sec, nanosec, self.sim.true_position, self.sim.true_velocity))
             if self.pub_pose.get_subscription_count():
+                pose = deflected(self.true_tool_pose(self.sim.true_position), self.sim.deflection)
                 self.pub_pose.publish(ros_io.pose_message(Time(sec=sec, nanosec=nanosec), self.machine.workpiece_frame,
-                                                          self.true_tool_pose(self.sim.true_position)))
+                                                          pose))
 
     def publish_diagnostics(self) -> None:
         now = time.monotonic()

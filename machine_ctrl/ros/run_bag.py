@@ -25,6 +25,7 @@ from rosgraph_msgs.msg import Clock
 
 from hw_sim.offline_goal import GoalRun, run_goal
 from hw_sim.simulator import true_geometry
+from hw_sim.tool_deflection import deflected, deflections
 from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.bag import BagWriter, qos_profile
@@ -66,7 +67,8 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
     clock = ros_io.StepClock.of(machine)
     axes = list(machine.axis_names)
     groups = [(g, [axes.index(a) for a in g]) for g in servo_groups(machine)]
-    true_tool_pose = true_geometry(machine)     # what hw_sim publishes (its error map included)
+    true_tool_pose = true_geometry(machine)     # what hw_sim publishes (its error map included) ...
+    deflection = deflections(machine, true_tool_pose, record.true)     # ... and its structure's deflection
     steps = len(record.measured)
 
     def put(topic, msg, ns):
@@ -83,7 +85,8 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
         if k % TRUTH_DECIMATION == 0:
             put(contract.TRUE_JOINT_STATES.full(), ros_io.joint_state(stamp, axes, record.true[k]), ns)
             put(contract.TRUE_TOOL_POSE.full(), ros_io.pose_message(stamp, machine.workpiece_frame,
-                                                                     true_tool_pose(record.true[k])), ns)
+                                                                     deflected(true_tool_pose(record.true[k]),
+                                                                               deflection[k])), ns)
         put(contract.JOINT_STATES.full(), ros_io.joint_state(stamp, axes, record.measured[k],
                                                           record.measured_velocity[k], record.effort[k]), ns)
         if has_offsets:
