@@ -89,7 +89,7 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         for axis, f in forces.items():
             simulator.set_force(axis, f[min(k, len(f) - 1)])
         measured = simulator.measurement
-        offsets = coupling.step(ref_pos, measured.position).offsets
+        offsets = coupling.step(ref_pos, measured.position, measured.tracker).offsets
         servo_ref = apply_offsets(ref_pos, fine_index, offsets)
         if contour is not None:
             servo_ref = apply_offsets(servo_ref, contour_index, contour.step(k, measured.position).corrections)

@@ -20,7 +20,7 @@ from typing import NamedTuple
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
 from hw_sim.flexure import Accelerometer, FlexureAxis
-from hw_sim.plant import FrictionAxis, LinearAxis, PiezoDriveAxis, PositionServoAxis, Sensor
+from hw_sim.plant import FrictionAxis, LinearAxis, PiezoDriveAxis, PositionServoAxis, Sensor, quantize
 from hw_sim.tool_deflection import ToolDeflection, rigid_tip
 from machine_ctrl.model.config import AxisConfig, MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
@@ -47,6 +47,7 @@ class Measurement(NamedTuple):       # a NamedTuple: one is made per step (cheap
     velocity: tuple[float, ...]      # differentiated readings
     effort: tuple[float, ...]        # commands applied during the previous period
     acceleration: tuple[float, ...] = ()   # accelerometer readings, m/s^2 (0.0 on axes without one)
+    tracker: tuple[float, ...] = ()  # the tracker's reading (x, y, z), m, workpiece frame; () without one
 
 
 class MachineSimulator:
@@ -56,7 +57,13 @@ class MachineSimulator:
         self.initial = tuple(machine.home if initial_position is None else initial_position)
         if len(self.initial) != len(machine.axes):
             raise ValueError(f'initial position needs {len(machine.axes)} values')
-        self._tool_pose = true_geometry(machine) if machine.simulation.tool_compliance else None
+        tracker = machine.tracker
+        needs_pose = machine.simulation.tool_compliance is not None or tracker is not None
+        self._tool_pose = true_geometry(machine) if needs_pose else None
+        # the tracker reads the coarse stage: the true tool tip with the fine axes at home
+        self._tracker_home = None if tracker is None else [
+            (machine.axis_names.index(a), machine.home[machine.axis_names.index(a)])
+            for a in machine.cartesian_dual_stage.fine]
         self.reset()
 
     def reset(self, initial_position=None) -> None:
@@ -77,15 +84,30 @@ class MachineSimulator:
         self.step_index = 0
         self.fault: str | None = None
         self.applied = (0.0,) * len(self.plants)
-        self.compliance = None if self._tool_pose is None else ToolDeflection(
-            machine.simulation.tool_compliance, period, seed, rigid_tip(self._tool_pose, self.true_position))
+        compliance = machine.simulation.tool_compliance
+        self.compliance = None if compliance is None else ToolDeflection(
+            compliance, period, seed, rigid_tip(self._tool_pose, self.true_position))
+        self._tracker_rng = random.Random(f'{seed}:tracker')
         self._measure()
 
     def _measure(self) -> None:
         position, velocity = zip(*[s.measure(p.sensed) for s, p in zip(self.sensors, self.plants)])
         acceleration = self._no_acceleration if not self._with_accelerometer else \
             tuple([0.0 if a is None else a.measure(p.acceleration_sensed) for a, p in zip(self.accelerometers, self.plants)])
-        self.measurement = Measurement(position, velocity, self.applied, acceleration)
+        tracker = () if self._tracker_home is None else self._tracker_reading()
+        self.measurement = Measurement(position, velocity, self.applied, acceleration, tracker)
+
+    def _tracker_reading(self) -> tuple[float, float, float]:
+        """The tracker (machine.tracker): the true tool tip with the fine axes at home, the
+        structure's deflection included, plus its noise, quantized."""
+        q = list(self.true_position)
+        for index, home in self._tracker_home:
+            q[index] = home
+        x, y, z = rigid_tip(self._tool_pose, tuple(q))
+        tracker, rng = self.machine.tracker, self._tracker_rng
+        z += self.deflection
+        return tuple([quantize(c + (rng.gauss(0.0, tracker.noise) if tracker.noise > 0.0 else 0.0),
+                               tracker.resolution) for c in (x, y, z)])
 
     def set_force(self, axis: str, force: float) -> None:
         """An external force (N) on `axis`'s moving mass from the next step on (the cutting
@@ -132,7 +154,7 @@ class MachineSimulator:
         else:
             held = self.measurement
             zeros = (0.0,) * len(held.position)
-            self.measurement = Measurement(held.position, zeros, self.applied, zeros)
+            self.measurement = Measurement(held.position, zeros, self.applied, zeros, held.tracker)
         return self.measurement
 
     def command_fault(self, commands) -> str | None:

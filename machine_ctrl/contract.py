@@ -206,6 +206,10 @@ DUAL_STAGE_OFFSETS = Topic('dual_stage/offsets', 'sensor_msgs/msg/JointState', S
 ACCELEROMETERS = Topic('accelerometers', 'sensor_msgs/msg/Imu', STEP_QOS,
                        'one per step and accelerometer (published while subscribed): frame_id = the URDF link '
                        'of its axis, linear_acceleration = the reading along the joint axis, m/s^2')
+TRACKER = Topic('hw_sim/tracker', 'geometry_msgs/msg/PointStamped', STEP_QOS,
+                'the tracking system of a Cartesian coupling (machine config cartesian_dual_stage.tracker): the '
+                'coarse stage\'s tool tip (fine axes at home, deflection included), m, frame workpiece; one per step, '
+                'before the state (published while subscribed)')
 TRUE_JOINT_STATES = Topic('hw_sim/ground_truth/joint_states', 'sensor_msgs/msg/JointState', STEP_QOS,
                           'true axis positions (published only while subscribed)')
 TRUE_TOOL_POSE = Topic('hw_sim/ground_truth/tool_pose', 'geometry_msgs/msg/PoseStamped', STEP_QOS,
@@ -274,13 +278,13 @@ COMMAND_API = (PATH, JOINT_GOAL, PROGRAM, FEED_OVERRIDE, HOLD, RESUME, STOP, CAN
                COMPENSATION_ENABLE, TRAJECTORY_STATUS, GOAL_STATUS, READY, ROBOT_DESCRIPTION, DIAGNOSTICS)
 # The per-step streams of the lock-step graph: each publisher of these answers every step,
 # so the recorder's progress is the minimum over them.
-PER_STEP_TOPICS = (JOINT_STATES, SERVO_COMMANDS, DUAL_STAGE_OFFSETS, CLOCK, ACCELEROMETERS, TRUE_JOINT_STATES,
+PER_STEP_TOPICS = (JOINT_STATES, SERVO_COMMANDS, DUAL_STAGE_OFFSETS, CLOCK, ACCELEROMETERS, TRACKER, TRUE_JOINT_STATES,
                    TRUE_TOOL_POSE)
 # Of those, the answers of the step nodes to each state (one stream per publisher; the rest
 # are hw_sim's own).
 STEP_ANSWERS = (SERVO_COMMANDS, DUAL_STAGE_OFFSETS)
 TOPICS = (CLOCK, JOINT_STATES, SERVO_COMMANDS, REFERENCE, TRAJECTORY_REFERENCE, DUAL_STAGE_OFFSETS, ACCELEROMETERS,
-          TRUE_JOINT_STATES, TRUE_TOOL_POSE, DIAGNOSTICS, PATH, JOINT_GOAL, PROGRAM, FEED_OVERRIDE, TRAJECTORY_STATUS,
+          TRACKER, TRUE_JOINT_STATES, TRUE_TOOL_POSE, DIAGNOSTICS, PATH, JOINT_GOAL, PROGRAM, FEED_OVERRIDE, TRAJECTORY_STATUS,
           CONTOUR_TOOL_TIP, CONTOUR_TOOL_TIP_MAGNITUDE, CONTOUR_ORIENTATION, CONTOUR_ORIENTATION_MAGNITUDE,
           RECORDER_PROGRESS, GOAL_STATUS, READY, ROBOT_DESCRIPTION, COMPENSATION_READY)
 SERVICES = (HOLD, RESUME, STOP, CANCEL, HOME, RESET, DUAL_STAGE_ENABLE, COMPENSATION_ENABLE)

@@ -4,6 +4,7 @@ its kinematics against the manufacturer's numbers, the two new drives (a joint c
 own position loop, a piezo stage of modes) against their transfer functions, the two new
 laws, the Cartesian coupling against the kinematics it cancels, bad configs refused with the
 reason, and an offline milling run with the coupling on and off."""
+import dataclasses
 import math
 import random
 from pathlib import Path
@@ -12,7 +13,8 @@ import numpy as np
 import pytest
 
 from hw_sim.offline_goal import run_goal
-from hw_sim.simulator import make_plant
+from hw_sim.simulator import make_plant, true_geometry
+from hw_sim.tool_deflection import deflections
 from machine_ctrl.control.dual_stage import DualStageCoupling
 from machine_ctrl.control.lqg import LqgLaw
 from machine_ctrl.control.registry import make_law
@@ -117,7 +119,15 @@ def test_the_lqg_designs_from_the_drives_model_not_from_the_plant(robot_piezo):
         assert np.abs(found - poles(axis.plant.modes, axis.plant.real_pole)).max() > 1e-6, name
 
 
-def test_the_cartesian_coupling_cancels_the_tool_deviation_of_the_robots_errors(robot_piezo, kin):
+@pytest.fixture(scope='module')
+def encoders_only(robot_piezo):
+    """robot_piezo whose coupling reads the robot's deviation from its encoders (no tracker)."""
+    return dataclasses.replace(robot_piezo, cartesian_dual_stage=dataclasses.replace(
+        robot_piezo.cartesian_dual_stage, tracker=None))
+
+
+def test_the_cartesian_coupling_cancels_the_tool_deviation_of_the_robots_errors(encoders_only, kin):
+    robot_piezo = encoders_only
     coupling = DualStageCoupling(robot_piezo)
     ref = np.array(robot_piezo.home)
     error = np.array([2e-5, -3e-5, 4e-5, 1e-5, -2e-5, 1e-5, 0, 0, 0])     # rad, the robot lagging
@@ -133,9 +143,33 @@ def test_the_cartesian_coupling_cancels_the_tool_deviation_of_the_robots_errors(
     assert coupling.step(ref, pos).offsets == (0.0, 0.0, 0.0)
 
 
-def test_the_coupling_follows_the_jacobian_along_the_path_and_a_reset_one_is_a_fresh_one(robot_piezo):
+def test_with_the_tracker_the_stage_cancels_what_the_tracker_sees_the_deflection_too(robot_piezo, kin):
+    """The tracker reads the robot's tool tip (stage at home) with the arm's deflection: the
+    stage's offsets put the deflected tool tip back on the reference. px moves the tool along
+    the workpiece's z (J_fine is a signed permutation at home), so a deflection d along z
+    alone is cancelled by px = -d exactly."""
+    coupling = DualStageCoupling(robot_piezo)
+    assert coupling.uses_tracker
+    ref = np.array(robot_piezo.home)
+    d = 100e-6
+    tip = kin.forward(ref)[0]
+    offsets = coupling.step(ref, ref, tuple(tip + [0.0, 0.0, d])).offsets
+    assert offsets[0] == pytest.approx(-d, abs=1e-12) and max(map(abs, offsets[1:])) < 1e-12
+    error = np.array([2e-5, -3e-5, 4e-5, 1e-5, -2e-5, 1e-5, 0, 0, 0])     # rad, the robot lagging, too
+    pos = ref - error
+    offsets = np.array(DualStageCoupling(robot_piezo).step(ref, pos, tuple(kin.forward(pos)[0] + [0.0, 0.0, d])).offsets)
+    compensated = pos.copy()
+    compensated[6:] += offsets
+    left = kin.forward(compensated)[0] + [0.0, 0.0, d] - kin.forward(ref)[0]
+    assert np.linalg.norm(left) < 1e-3 * d                                  # second order only
+    with pytest.raises(ValueError, match=r'measures the deviation with a tracker: needs its reading'):
+        DualStageCoupling(robot_piezo).step(ref, pos)
+
+
+def test_the_coupling_follows_the_jacobian_along_the_path_and_a_reset_one_is_a_fresh_one(encoders_only):
     """J is evaluated again once the reference has moved more than JACOBIAN_STEP: stepped
     from home to a pose 0.1 rad away, the coupling gives what a fresh one gives there."""
+    robot_piezo = encoders_only
     home = np.array(robot_piezo.home)
     moved = home + np.array([0.1, -0.05, 0.08, 0.1, 0.05, 0.0, 0, 0, 0])
     error = np.array([2e-5, -3e-5, 4e-5, 1e-5, -2e-5, 1e-5, 0, 0, 0])
@@ -230,14 +264,16 @@ def face_runs(robot_piezo):
     return {on: run_goal(robot_piezo, cl, feed=7.5e-3, dual_stage=on) for on in (False, True)}
 
 
-def test_milling_with_the_piezo_compensation_follows_the_path_closer(face_runs, kin):
+def test_milling_with_the_piezo_compensation_follows_the_path_closer(robot_piezo, face_runs, kin):
+    """The true tool tip (the arm's deflection under the cut included) against the reference's."""
     errors = {}
     for on, run in face_runs.items():
         record = run.record
         assert run.goal_state == 'succeeded' and record.fault is None, (on, record.fault)
+        deflection = deflections(robot_piezo, true_geometry(robot_piezo), record.true)
         rows = range(run.motion_start, min(run.motion_end, len(record.true)), 10)
-        errors[on] = np.array([np.linalg.norm(kin.forward(record.reference[k])[0] - kin.forward(record.true[k])[0])
-                               for k in rows])
+        errors[on] = np.array([np.linalg.norm(kin.forward(record.reference[k])[0] - kin.forward(record.true[k])[0]
+                                              - [0.0, 0.0, deflection[k]]) for k in rows])
         moved = np.abs(record.true[:, 6:]).max()
         assert (moved > 1e-6) == on                       # the stage moves only with the coupling
     rms = {on: float(np.sqrt(np.mean(e ** 2))) for on, e in errors.items()}

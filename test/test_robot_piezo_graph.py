@@ -1,8 +1,9 @@
 """robot_piezo through the graph as a user runs it (issue [4/8], "Done when"): `machine-ctrl
 bringup robot_piezo --single-process --record DIR` (one process: README "Quick start"), a
 milling path sent with `machine-ctrl send`, Ctrl-C, and `machine-ctrl analyze` of the bag,
-which learns the machine from its config, and sees in the recorded ground truth the arm's
-deflection under the milling force that the encoders cannot see. Real nodes over real DDS; the coupling's effect (on
+which learns the machine from its config; the arm deflects under the milling force where no
+encoder sees it, the coupling cancels it through the tracker (/hw_sim/tracker), and the recorded
+ground truth shows it cancelled. Real nodes over real DDS; the coupling's effect (on
 against off) is measured offline (test/test_robot_piezo.py), where the two runs cost seconds,
 not minutes."""
 import json
@@ -10,6 +11,8 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from machine_ctrl import parameters
 from trajectory import toolpath
@@ -19,8 +22,11 @@ EXE = str(Path(sys.executable).with_name('machine-ctrl'))
 
 def test_robot_piezo_mills_a_path_through_the_graph_recorded_and_analysed(ros_supervisor, ros_env, tmp_path,
                                                                            robot_piezo):
-    path = tmp_path / 'face.csv'           # a 1 mm circle on the workpiece's face, from home
-    toolpath.write_csv(path, toolpath.circle_xy(radius=0.5e-3, points=91))
+    # from home (the tool one radius off the block's edge) 3 mm into the block along the face:
+    # at the end the tool's centre is on the edge, half the tool engaged
+    path = tmp_path / 'face.csv'
+    toolpath.write_csv(path, toolpath.from_arrays(np.linspace([0.0, 0.0, 0.0], [-3e-3, 0.0, 0.0], 31),
+                                                  np.tile([0.0, 0.0, 1.0], (31, 1))))
     bag = tmp_path / 'bag'
     child = ros_supervisor.start('bringup', [EXE, 'bringup', 'robot_piezo', '--single-process', '--record', str(bag)])
     ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
@@ -40,11 +46,13 @@ def test_robot_piezo_mills_a_path_through_the_graph_recorded_and_analysed(ros_su
     assert set(stroke) == {'px', 'py', 'pz'}
     assert max(entry['max'] - entry['min'] for entry in stroke.values()) > 1e-6
     assert all(entry['usage'] < 0.9 for entry in stroke.values())     # inside the coupling's margin
-    assert result['tool_tip']['tracking']['max'] < 100e-6
-    # the arm deflects under the milling force (hw_sim/tool_deflection.py): the encoders do not
-    # see it, the recorded ground truth does. At the feed's steady force D_f v the static
-    # deflection is D_f v / k; the cut starts at once, so the 9 Hz mode overshoots it.
+    # the arm deflects under the milling force (hw_sim/tool_deflection.py): at the path's end, half
+    # engaged, by w D_f v / k = 0.5 D_f v / k (the cut enters slowly: no overshoot). No encoder
+    # sees it, the tracker does: the stage moves the tool by about that much (the encoders see
+    # it as a deviation from the rigid path), and the recorded ground truth keeps a fraction
     compliance = robot_piezo.simulation.tool_compliance
     feed = parameters.TRAJECTORY.spec('feed').default
-    static = compliance.milling.removal * feed / (compliance.stiffness + compliance.stiffness_variation)
-    assert result['tool_tip']['true_tracking']['max'] > static > result['tool_tip']['tracking']['max']
+    assert compliance.milling.block_x[1] == -3e-3 and compliance.milling.tool_radius == 3e-3     # the path's premise
+    deflection = 0.5 * compliance.milling.removal * feed / (compliance.stiffness + compliance.stiffness_variation)
+    tool = result['tool_tip']
+    assert tool['true_tracking']['max'] < 0.5 * deflection < tool['tracking']['max'], tool

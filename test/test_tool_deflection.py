@@ -16,6 +16,7 @@ from machine_ctrl.recording import analysis
 from test_config import edited_machine
 
 PERIOD = 1.0e-4
+X_IN = -0.05              # m, along the face: inside robot_piezo's block (-103 ... -3 mm) and its ramps
 
 
 @pytest.fixture(scope='module')
@@ -46,19 +47,20 @@ def test_the_machine_cuts_as_section_2_7_with_the_mechanistic_removal(compliance
 
 
 def test_a_steady_cut_deflects_the_tool_by_d_f_v_over_k(smooth):
-    model = ToolDeflection(smooth, PERIOD, 1, (0.0, 0.0, 0.0))
+    model = ToolDeflection(smooth, PERIOD, 1, (X_IN, 0.0, 0.0))
     v, steps = 7.5e-3, 40000                  # 4 s: the 9 Hz mode (zeta 0.05) has rung down to e^-11
-    d = feed_along_x(model, v, steps)
-    x = v * steps * PERIOD                    # 30 mm: k(x) = 150 + 5 sin(2 pi 0.3) N/mm
+    d = feed_along_x(model, v, steps, x0=X_IN)
+    x = X_IN + v * steps * PERIOD             # -20 mm: k(x) = 150 + 5 sin(-2 pi 0.2) N/mm
     k = 150e3 + 5e3 * math.sin(2 * math.pi * x / 0.1)
     assert model.force == pytest.approx(2762.1 * v, rel=1e-9)        # Eq. (5.4): f = D_f v
     assert d[-1] == pytest.approx(2762.1 * v / k, rel=1e-3)          # Eq. (4.1): f = k d (k drifts slowly)
 
 
 def test_the_mode_rings_at_the_robots_eigenfrequency(smooth):
-    model = ToolDeflection(smooth, PERIOD, 1, (0.0, 0.0, 0.0))
-    d = feed_along_x(model, 7.5e-3, 20000)   # the cut starts at once: a step of force, D_f/K_f = 19 ms
-    static = 2762.1 * 7.5e-3 / 150e3
+    model = ToolDeflection(smooth, PERIOD, 1, (X_IN, 0.0, 0.0))
+    d = feed_along_x(model, 7.5e-3, 20000, x0=X_IN)   # the cut starts at once: a step of force, D_f/K_f = 19 ms
+    x = X_IN + 7.5e-3 * 0.055                 # where the peak comes (half a period in): k(x) = 150 + 5 sin(...)
+    static = 2762.1 * 7.5e-3 / (150e3 + 5e3 * math.sin(2 * math.pi * x / 0.1))
     # the overshoot of a lightly damped mode over a step, e^(-pi zeta / sqrt(1 - zeta^2)), times
     # the first-order lag's gain at the mode, 1 / sqrt(1 + (w tau)^2), tau = D_f / K_f
     w, tau = 2 * math.pi * 9.0, 2762.1 / 143e3
@@ -71,30 +73,40 @@ def test_the_mode_rings_at_the_robots_eigenfrequency(smooth):
 
 def test_no_force_at_rest_above_the_cut_or_off_the_block_and_half_at_its_edge(compliance):
     milling = compliance.milling
-    assert engagement(milling, 0.0, 0.0, 0.0) == 1.0
-    assert engagement(milling, 0.0, 0.0, milling.depth) == 0.0                 # above the layer
-    assert engagement(milling, 0.0, 0.0, -milling.depth) == 2.0                # twice as deep
-    assert engagement(milling, 0.0, 0.0, milling.depth / 4) == 0.75
+    x = sum(milling.block_x) / 2                                               # inside the block
+    assert engagement(milling, x, 0.0, 0.0) == 1.0
+    assert engagement(milling, x, 0.0, milling.depth) == 0.0                   # above the layer
+    assert engagement(milling, x, 0.0, -milling.depth) == 2.0                  # twice as deep
+    assert engagement(milling, x, 0.0, milling.depth / 4) == 0.75
     edge, r = milling.block_x[1], milling.tool_radius
     assert engagement(milling, edge, 0.0, 0.0) == pytest.approx(0.5)           # centre on the edge
     assert engagement(milling, edge + r, 0.0, 0.0) == 0.0                      # just touching from outside
     assert engagement(milling, edge - r, 0.0, 0.0) == 1.0
-    assert engagement(milling, 0.0, milling.block_y[0] - 2 * r, 0.0) == 0.0
+    assert engagement(milling, x, milling.block_y[0] - 2 * r, 0.0) == 0.0
+    model = ToolDeflection(compliance, PERIOD, 1, (x, 0.0, 0.0))
+    assert not feed_along_x(model, 0.0, 1000, x0=x).any() and model.force == 0.0    # no feed, no chip
+    model = ToolDeflection(compliance, PERIOD, 1, (x, 0.0, 0.0))
+    assert not feed_along_x(model, 7.5e-3, 1000, x0=x, z=2 * milling.depth).any()    # cutting air
     model = ToolDeflection(compliance, PERIOD, 1, (0.0, 0.0, 0.0))
-    assert not feed_along_x(model, 0.0, 1000).any() and model.force == 0.0    # no feed, no chip
-    model = ToolDeflection(compliance, PERIOD, 1, (0.0, 0.0, 0.0))
-    assert not feed_along_x(model, 7.5e-3, 1000, z=2 * milling.depth).any()    # cutting air
+    assert not feed_along_x(model, 7.5e-3, 1000).any()                          # off the block: home
+
+
+def in_the_block(machine):
+    """An initial position with the tool ~10 mm inside the block (j5 moves it along -x at home)."""
+    q = list(machine.home)
+    q[4] += 0.054
+    return q
 
 
 @pytest.fixture(scope='module')
-def circle_run(robot_piezo):
-    """hw_sim's simulator feeding the robot's j1 at a steady 1e-3 rad/s (the tool tip moves
-    along the face at ~1 mm/s) for 0.5 s."""
-    sim = MachineSimulator(robot_piezo)
-    home = list(robot_piezo.home)
+def feed_run(robot_piezo):
+    """hw_sim's simulator turning the robot's j1 at a steady 1e-3 rad/s (the tool tip moves
+    along the face at ~1 mm/s) for 0.5 s, in the block."""
+    start = in_the_block(robot_piezo)
+    sim = MachineSimulator(robot_piezo, initial_position=start)
     true, measured, deflection = [sim.true_position], [sim.measurement.position], [sim.deflection]
     for k in range(1, 5001):
-        command = list(home)
+        command = list(start)
         command[0] += 1e-3 * k * PERIOD
         sim.step(command)
         true.append(sim.true_position)
@@ -104,14 +116,15 @@ def circle_run(robot_piezo):
 
 
 def test_hw_sim_deflects_the_true_tip_the_encoders_do_not_see_it_and_a_replay_matches_it_bit_for_bit(robot_piezo,
-                                                                                                   circle_run):
-    true, measured, deflection = circle_run
+                                                                                                   feed_run):
+    true, measured, deflection = feed_run
     assert deflection.max() > 1e-6                              # the cut loads the arm
     without = dataclasses.replace(robot_piezo, simulation=dataclasses.replace(robot_piezo.simulation,
                                                                               tool_compliance=None))
-    sim = MachineSimulator(without)
+    start = in_the_block(robot_piezo)
+    sim = MachineSimulator(without, initial_position=start)
     for k in range(1, 5001):
-        command = list(robot_piezo.home)
+        command = list(start)
         command[0] += 1e-3 * k * PERIOD
         sim.step(command)
     assert sim.measurement.position == tuple(measured[-1])      # the same encoders, to the bit
@@ -120,10 +133,11 @@ def test_hw_sim_deflects_the_true_tip_the_encoders_do_not_see_it_and_a_replay_ma
 
 
 def test_a_fault_freezes_the_deflection_and_a_reset_starts_it_afresh(robot_piezo):
-    sim = MachineSimulator(robot_piezo)
-    command = list(robot_piezo.home)
+    start = in_the_block(robot_piezo)
+    sim = MachineSimulator(robot_piezo, initial_position=start)
+    command = list(start)
     for k in range(1, 300):
-        command[0] = robot_piezo.home[0] + 1e-3 * k * PERIOD
+        command[0] = start[0] + 1e-3 * k * PERIOD
         sim.step(command)
     held = sim.deflection
     assert held != 0.0
@@ -153,7 +167,7 @@ def test_analyze_reports_the_error_only_the_ground_truth_sees(robot_piezo):
 
 @pytest.mark.parametrize('edit, reason', [
     (('eigenfrequency: 9.0 ', 'eigenfrequency: 90.0 '), r'tool_compliance: eigenfrequency 90 Hz is too high'),
-    (('block_x: [-0.05, 0.05]', 'block_x: [0.05, -0.05]'), r'milling\.block_x: \[0\.05, -0\.05\] is empty'),
+    (('block_x: [-0.103, -0.003]', 'block_x: [-0.003, -0.103]'), r'milling\.block_x: \[-0\.003, -0\.103\] is empty'),
     (('stiffness_variation: 5.0e+3', 'stiffness_variation: 150.0e+3'), r'stiffness_variation 150000 must be below'),
     (('      depth: 1.0e-3 ', '      depth: -1.0e-3 '), r'tool_compliance\.milling\.depth: must be > 0'),
     (('      tool_radius: 3.0e-3 ', '      # no radius '), r'tool_compliance\.milling\.tool_radius: missing'),

@@ -11,7 +11,14 @@ the coarse axes' errors, J_P,coarse (r_c - x_c), is cancelled by the fine axes,
     r_f' = r_f + pinv(J_P,fine) J_P,coarse (r_c - x_c)
 
 with J_P the tool-tip position rows of the Jacobian at the reference (for a pair of parallel
-axes this is the pair's law, the sign coming out of the kinematics).
+axes this is the pair's law, the sign coming out of the kinematics). With a tracker (config
+``cartesian_dual_stage.tracker``; Sörnmo §2.4-2.5: the robot's deviation is measured, the arm
+deflects where no joint encoder sees it) the deviation is the tracker's instead:
+
+    r_f' = r_f + pinv(J_P,fine) (P(r_c, q_f,home) - y)
+
+with y the tracker's reading of the coarse stage's tool tip (the fine axes at home) and P the
+forward kinematics' tool tip.
 
 Stroke: the fine axis must stay inside its stroke. The total fine reference is clipped to
 the stroke shrunk by a margin (default 10 % of its width, assumed: room for the fine axis's
@@ -22,8 +29,8 @@ going — the fine stage then compensates only part of the error, it never fault
 operation (um-level coarse errors) neither limit is active.
 
 Same shape as a control law (machine_ctrl/control/law.py), over all axes at once:
-``step(ref_pos, pos)`` -> offsets (in the order of MachineConfig.fine_axes), ``reset()``,
-declared ``parameters``.
+``step(ref_pos, pos, tracker=None)`` -> offsets (in the order of MachineConfig.fine_axes),
+``reset()``, declared ``parameters``.
 """
 from __future__ import annotations
 
@@ -69,14 +76,20 @@ class DualStageCoupling:
         if self.cartesian is not None:
             self.cartesian.reset()
 
-    def step(self, ref_pos, pos) -> CouplingResult:
-        """ref_pos, pos: reference and measured position of every axis (machine order)."""
+    @property
+    def uses_tracker(self) -> bool:
+        """Whether :meth:`step` needs the tracker's reading (a Cartesian coupling with a tracker)."""
+        return self.cartesian is not None and self.cartesian.tracker
+
+    def step(self, ref_pos, pos, tracker=None) -> CouplingResult:
+        """ref_pos, pos: reference and measured position of every axis (machine order);
+        `tracker`: the tracker's reading (x, y, z), required when :attr:`uses_tracker`."""
         if not self.enabled:
             self._last_total = [None] * len(self.fine)
             return CouplingResult((0.0,) * len(self.fine), (False,) * len(self.fine))
         corrections = [sign * (ref_pos[coarse] - pos[coarse]) for coarse, sign in self.pairs]
         if self.cartesian is not None:
-            corrections += self.cartesian.corrections(ref_pos, pos)
+            corrections += self.cartesian.corrections(ref_pos, pos, tracker)
         offsets, saturated = [], []
         for i, (fine, correction, (lo, hi, slew)) in enumerate(zip(self.fine, corrections, self.limits)):
             wanted = ref_pos[fine] + correction
@@ -107,6 +120,8 @@ class _CartesianDeviation:
         self.kinematics = Kinematics.from_config(machine)
         self.coarse = np.array([index[n] for n in machine.cartesian_dual_stage.coarse])
         self.fine = np.array([index[n] for n in machine.cartesian_dual_stage.fine])
+        self.tracker = machine.tracker is not None
+        self.fine_home = np.array(machine.home, float)[self.fine]
         at_home = self.kinematics.jacobian(np.array(machine.home))[:3, self.fine]
         if np.linalg.matrix_rank(at_home) < len(self.fine):
             raise ValueError(f'{machine.name}: cartesian_dual_stage: the fine axes '
@@ -116,16 +131,25 @@ class _CartesianDeviation:
 
     def reset(self) -> None:
         """Forget the Jacobian: the next step evaluates it (a reset coupling is a fresh one)."""
-        self._at, self._map = None, None
+        self._at, self._map, self._fine_pinv = None, None, None
 
-    def corrections(self, ref_pos, pos) -> list[float]:
+    def corrections(self, ref_pos, pos, tracker=None) -> list[float]:
         ref = np.asarray(ref_pos, float)
         if self._at is None or np.abs(ref - self._at).max() > self.JACOBIAN_STEP:
             jacobian = self.kinematics.jacobian(ref)[:3]
-            self._map = np.linalg.pinv(jacobian[:, self.fine]) @ jacobian[:, self.coarse]
+            self._fine_pinv = np.linalg.pinv(jacobian[:, self.fine])
+            self._map = self._fine_pinv @ jacobian[:, self.coarse]
             self._at = ref.copy()
-        error = ref[self.coarse] - np.asarray(pos, float)[self.coarse]
-        return (self._map @ error).tolist()
+        if not self.tracker:
+            error = ref[self.coarse] - np.asarray(pos, float)[self.coarse]
+            return (self._map @ error).tolist()
+        if tracker is None or len(tracker) != 3:
+            raise ValueError(f'the coupling measures the deviation with a tracker: needs its reading (x, y, z), '
+                             f'got {tracker!r}')
+        coarse_ref = ref.copy()
+        coarse_ref[self.fine] = self.fine_home
+        deviation = self.kinematics.forward(coarse_ref)[0] - np.asarray(tracker, float)
+        return (self._fine_pinv @ deviation).tolist()
 
 
 def apply_offsets(ref_pos, slots, offsets) -> list[float]:

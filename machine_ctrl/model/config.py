@@ -313,14 +313,26 @@ class DualStagePair:
 
 
 @dataclass(frozen=True)
+class TrackerConfig:
+    """A tracking system that measures the coarse stage's tool-tip position, deflection and all
+    (Sörnmo §2.4-2.5, Fig. 2.9): once per control period, each coordinate with white noise and
+    quantized to its resolution (hw_sim/simulator.py)."""
+    resolution: float = _nonnegative(default=0.0)    # m
+    noise: float = _nonnegative(default=0.0)         # m RMS per reading and coordinate
+
+
+@dataclass(frozen=True)
 class CartesianCoupling:
     """A coarse stage of several axes and a fine stage of others (Sörnmo Fig. 2.9: a robot and
     a micro manipulator): the tool's deviation caused by the coarse axes' tracking errors,
     J_coarse (r_c - x_c), is cancelled by the fine axes, J_fine dq_f = J_coarse (r_c - x_c),
     in the least-squares sense over the tool-tip position (machine_ctrl/control/dual_stage.py).
-    The fine axes only compensate: a path plan holds them at home (a joint goal may jog them)."""
+    With a `tracker` the deviation is measured instead: the tool tip of the reference with the
+    fine axes at home, minus the tracker's reading of the coarse stage's. The fine axes only
+    compensate: a path plan holds them at home (a joint goal may jog them)."""
     coarse: tuple[str, ...]
     fine: tuple[str, ...]
+    tracker: TrackerConfig | None = None
 
 
 @dataclass(frozen=True)
@@ -444,6 +456,11 @@ class MachineConfig:
         coupling's."""
         cartesian = self.cartesian_dual_stage.fine if self.cartesian_dual_stage is not None else ()
         return tuple(p.fine for p in self.dual_stage) + cartesian
+
+    @property
+    def tracker(self) -> TrackerConfig | None:
+        """The tracking system of a Cartesian coupling, or None."""
+        return self.cartesian_dual_stage.tracker if self.cartesian_dual_stage is not None else None
 
     @property
     def accelerometer_axes(self) -> tuple[AxisConfig, ...]:
@@ -875,6 +892,7 @@ def _cartesian_dual_stage(s: _Section, axes: list[AxisConfig], pairs) -> Cartesi
         if len(set(raw)) != len(raw):
             s.fail('names an axis twice', role)
         roles[role] = tuple(raw)
+    tracker = _read(s.section('tracker'), TrackerConfig) if 'tracker' in s.data else None
     s.finish()
     if set(roles['coarse']) & set(roles['fine']):
         s.fail('an axis cannot be both coarse and fine')
@@ -885,7 +903,7 @@ def _cartesian_dual_stage(s: _Section, axes: list[AxisConfig], pairs) -> Cartesi
         s.fail(f'{len(roles["fine"])} fine axes: the tool-tip position has three coordinates', 'fine')
     if any(by_name[n].kind != 'linear' or by_name[n].stroke is None for n in roles['fine']):
         s.fail('fine axes must be linear with a stroke', 'fine')
-    return CartesianCoupling(roles['coarse'], roles['fine'])
+    return CartesianCoupling(roles['coarse'], roles['fine'], tracker)
 
 
 def _contour_control(s: _Section, axes: list[AxisConfig]) -> ContourControlConfig:

@@ -9,8 +9,10 @@ deflection under the cutting force on a machine with simulation.tool_compliance;
 subscribes to them; each is computed and published only while it has a subscriber, as the
 true tool pose through the error map costs ~0.15 ms), /accelerometers (sensor_msgs/Imu, one
 per step and accelerometer of the machine, before the step's state, while subscribed: the
-reading of hw_sim.flexure.Accelerometer along the axis, frame_id the axis's URDF link) and
-/diagnostics (1 Hz wall, and at once on a fault). Per-step states go out and commands come in as CDR bytes
+reading of hw_sim.flexure.Accelerometer along the axis, frame_id the axis's URDF link),
+/hw_sim/tracker (geometry_msgs/PointStamped, one per step before the state, while subscribed,
+on a machine whose Cartesian coupling has a tracker: the coarse stage's tool tip as the
+tracking system reads it, frame the workpiece) and /diagnostics (1 Hz wall, and at once on a fault). Per-step states go out and commands come in as CDR bytes
 (machine_ctrl.recording.cdr; standard sensor_msgs/JointState on the wire). Subscribes
 /servo_commands (sensor_msgs/JointState: name = axes, effort = commands, stamp = the stamp
 of the state answered). Service /hw_sim/reset (std_srvs/Trigger) clears a fault.
@@ -54,7 +56,7 @@ import time
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
@@ -108,6 +110,9 @@ class HwSimNode(Node):
         self.accelerometer_axes = [(self.machine.axes.index(a), a) for a in self.machine.accelerometer_axes]
         self.pub_acceleration = (self.create_publisher(Imu, contract.ACCELEROMETERS.name, ros_io.STEP_QOS)
                                  if self.accelerometer_axes else None)
+        # the tracker's reading of each step (a Cartesian coupling's dual_stage waits for it), while subscribed
+        self.pub_tracker = (self.create_publisher(PointStamped, contract.TRACKER.name, ros_io.STEP_QOS)
+                            if self.machine.tracker is not None else None)
         self.pub_true = self.create_publisher(JointState, contract.TRUE_JOINT_STATES.name, ros_io.STEP_QOS)
         self.pub_pose = self.create_publisher(PoseStamped, contract.TRUE_TOOL_POSE.name, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
@@ -207,6 +212,9 @@ class HwSimNode(Node):
             stamp = Time(sec=sec, nanosec=nanosec)      # before the state: a servo waiting for both has it first
             for i, axis in self.accelerometer_axes:
                 self.pub_acceleration.publish(ros_io.accelerometer_message(stamp, axis, m.acceleration[i]))
+        if self.pub_tracker is not None and self.pub_tracker.get_subscription_count():
+            self.pub_tracker.publish(ros_io.tracker_message(Time(sec=sec, nanosec=nanosec), self.machine.workpiece_frame,
+                                                            m.tracker))
         self.pub_state.publish(self.encoder.encode(sec, nanosec, m.position, m.velocity, m.effort))
         if not self.ready_published and self.session.ready:
             self.ready_published = True

@@ -15,7 +15,7 @@ import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PointStamped, PoseStamped
 from nav_msgs.msg import Path
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
@@ -89,6 +89,23 @@ def accelerometer_reading(msg: Imu, axes) -> tuple[str, float]:
     a = msg.linear_acceleration
     x, y, z = _finite((a.x, a.y, a.z), 'linear_acceleration')
     return axis.name, x * axis.direction[0] + y * axis.direction[1] + z * axis.direction[2]
+
+
+def tracker_message(stamp: Time, frame: str, reading) -> PointStamped:
+    """geometry_msgs/PointStamped of a tracker reading (contract.TRACKER), m."""
+    msg = PointStamped()
+    msg.header.stamp, msg.header.frame_id = stamp, frame
+    msg.point.x, msg.point.y, msg.point.z = reading
+    return msg
+
+
+def tracker_reading(msg: PointStamped, frame: str) -> tuple[float, float, float]:
+    """(x, y, z) of a tracker message; InvalidMessage when its frame is not `frame` or a
+    coordinate is NaN or inf."""
+    if msg.header.frame_id != frame:
+        raise InvalidMessage(f'tracker frame_id {msg.header.frame_id!r} is not the workpiece frame {frame!r}')
+    p = msg.point
+    return tuple(_finite((p.x, p.y, p.z), 'point'))
 
 
 def joint_state(stamp: Time, names, position=(), velocity=(), effort=()) -> JointState:

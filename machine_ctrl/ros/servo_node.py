@@ -45,7 +45,7 @@ from machine_ctrl.control.dual_stage import apply_offsets
 from machine_ctrl.ros.node_common import main_for, subscribe_joint_states, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, gain_parameters, machine_parameter
 from machine_ctrl.control.servo import ServoGroup
-from machine_ctrl.ros.step_node import StepNode, matched
+from machine_ctrl.ros.step_node import StepInput, StepNode
 
 
 class ServoNode(StepNode):
@@ -268,51 +268,6 @@ class ServoNode(StepNode):
             (self.accelerations.missing, 'steps without accelerometer readings'),
             (self.rejections.count, 'rejected messages')) if count]
         return '; '.join(problems) or 'ok'
-
-
-class StepInput:
-    """A per-step input stream besides the state (the offsets of the dual-stage node, the
-    accelerometer readings): values by step until their step is computed, whether it has ever
-    delivered, and the steps left unanswered for want of it; what it waits for says how many
-    writers its reader (`reader`, the node's subscription) is matched with."""
-
-    def __init__(self, topic: str):
-        self.topic = topic
-        self.reader = None                 # the node's subscription, once made
-        self.pending: dict[int, object] = {}
-        self.started = False
-        self.missing = 0                   # steps left unanswered for want of this input
-        self.lost_step: int | None = None  # the newest such step
-
-    # assumed: 10,000 steps (1 s at 10 kHz) is far more than lock-step lets a stream run ahead
-    # (hw_sim waits for every answer); a stream that does (paced hw_sim before any reference
-    # arrives) keeps only its newest steps
-    WINDOW = 10_000
-
-    def put(self, step: int, value) -> None:
-        self.pending[step] = value
-        self.started = True
-        if len(self.pending) > self.WINDOW:
-            del self.pending[next(iter(self.pending))]        # the oldest put
-
-    def take(self, step: int):
-        """The value of `step` (None if it has none), dropping it and every older one."""
-        value = self.pending.pop(step, None)
-        for old in [s for s in self.pending if s < step]:
-            del self.pending[old]
-        return value
-
-    def miss(self, step: int) -> None:
-        self.missing += 1
-        self.lost_step = step
-
-    def waiting_text(self, answered_step: int, timeout: float) -> list[str]:
-        if not self.started:
-            return [f'{self.topic} (never received; {matched(self.reader)})']
-        if self.lost_step is not None and self.lost_step >= answered_step:
-            return [f'{self.topic} (none for step {self.lost_step} within {timeout:g} s: not answered; '
-                    f'{matched(self.reader)})']
-        return []
 
 
 def contour_axes(machine, axes) -> bool:

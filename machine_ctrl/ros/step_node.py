@@ -81,3 +81,48 @@ def matched(reader) -> str:
     its DDS participant's lease runs out."""
     count = reader.get_publisher_count()
     return f'{count} writer{"" if count == 1 else "s"} matched'
+
+
+class StepInput:
+    """A per-step input stream besides the state (the offsets of the dual-stage node, the
+    accelerometer readings): values by step until their step is computed, whether it has ever
+    delivered, and the steps left unanswered for want of it; what it waits for says how many
+    writers its reader (`reader`, the node's subscription) is matched with."""
+
+    def __init__(self, topic: str):
+        self.topic = topic
+        self.reader = None                 # the node's subscription, once made
+        self.pending: dict[int, object] = {}
+        self.started = False
+        self.missing = 0                   # steps left unanswered for want of this input
+        self.lost_step: int | None = None  # the newest such step
+
+    # assumed: 10,000 steps (1 s at 10 kHz) is far more than lock-step lets a stream run ahead
+    # (hw_sim waits for every answer); a stream that does (paced hw_sim before any reference
+    # arrives) keeps only its newest steps
+    WINDOW = 10_000
+
+    def put(self, step: int, value) -> None:
+        self.pending[step] = value
+        self.started = True
+        if len(self.pending) > self.WINDOW:
+            del self.pending[next(iter(self.pending))]        # the oldest put
+
+    def take(self, step: int):
+        """The value of `step` (None if it has none), dropping it and every older one."""
+        value = self.pending.pop(step, None)
+        for old in [s for s in self.pending if s < step]:
+            del self.pending[old]
+        return value
+
+    def miss(self, step: int) -> None:
+        self.missing += 1
+        self.lost_step = step
+
+    def waiting_text(self, answered_step: int, timeout: float) -> list[str]:
+        if not self.started:
+            return [f'{self.topic} (never received; {matched(self.reader)})']
+        if self.lost_step is not None and self.lost_step >= answered_step:
+            return [f'{self.topic} (none for step {self.lost_step} within {timeout:g} s: not answered; '
+                    f'{matched(self.reader)})']
+        return []
