@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 
 import rclpy
 from rclpy.task import Future
@@ -109,6 +110,7 @@ def spin(nodes, executor=None) -> None:
         signal.signal(sig, request_stop)
     if _early_signals:
         request_stop(_early_signals[0], None)
+    log_runtime_warnings(logger)
     # Everything made so far (modules, nodes, models) lives as long as the process: moved out of
     # the collector's view, a full collection scans only what the callbacks made since. It took
     # 26-50 ms a few times a minute in a one-process graph (hw_sim's paced steps slipped that
@@ -134,6 +136,24 @@ def spin(nodes, executor=None) -> None:
             for node in nodes:
                 node.destroy_node()
             rclpy.try_shutdown()
+
+
+def log_runtime_warnings(logger) -> None:
+    """Every RuntimeWarning of the process goes to `logger` as an error, each time (Python
+    prints one per source line to stderr, once). rclpy warns so when a service's answer is
+    lost: "failed to send response (timeout): client will not receive response", when
+    rmw_fastrtps's response writer has not matched the client's response reader within its
+    max_blocking_time (100 ms by default; the client, which may have discovered the service
+    first, then waits for ever: ros2/rmw_fastrtps#704). Such a loss must be in the node's log."""
+    warnings.filterwarnings('always', category=RuntimeWarning)
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, RuntimeWarning):
+            logger.error(f'{category.__name__}: {message} ({filename}:{lineno})')
+        else:
+            shown(message, category, filename, lineno, file, line)
+    warnings.showwarning = show
 
 
 @contextlib.contextmanager
