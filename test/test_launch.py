@@ -151,15 +151,20 @@ def wait_ready(env, namespace: str, launch: Launch) -> None:
                READY_TIMEOUT)
 
 
-def send_goal_and_follow(env, namespace: str, launch: Launch, goal: str, subscribers: int) -> list[int]:
+def send_goal_and_follow(env, namespace: str, launch: Launch, goal: str, subscribers: int,
+                         before: list | None = None) -> list[int]:
     """Publish a joint goal with `ros2 topic pub` once the goal status is being followed (the
     latched current list received), and return the statuses (action_msgs/GoalStatus codes)
     the newest goal goes through until it ends (succeeded 4, canceled 5, aborted 6).
-    `subscribers`: every subscriber of the goal topic, or the goal may reach only some."""
+    `subscribers`: every subscriber of the goal topic, or the goal may reach only some.
+    `before`: if given, the latched list received before the goal was sent is appended to it
+    (the goal status as it stood before this goal)."""
     seen: list[int] = []
     following = threading.Event()
 
     def ended(message) -> bool:
+        if not following.is_set() and before is not None:
+            before.append(message)
         following.set()
         statuses = message.get('status_list') or []
         if statuses and (not seen or seen[-1] != statuses[-1]['status']):
@@ -252,12 +257,12 @@ def test_two_machines_in_two_namespaces_run_side_by_side_one_records_and_both_st
             assert readers and all(line.split(':', 1)[1].strip() == ns for line in readers), info
         goal = '{joint_names: [x_c], points: [{positions: [0.002]}]}'
         assert send_goal_and_follow(cli_env, '/mill1', mill1, goal, 1) == [1, 2, 4]
-        other = echo_until(cli_env, '/mill2/trajectory/goal_status', 'action_msgs/msg/GoalStatusArray',
-                           lambda m: True, mill2, 60.0)
-        assert not other.get('status_list'), other            # the goal went to mill1 only
-        # mill2's own goal: 2 subscribers, the trajectory node and the recorder
+        # mill2's own goal: 2 subscribers, the trajectory node and the recorder; its goal status
+        # as it stood before (mill1's goal ended) is the latched list its follower gets first
+        other = []
         statuses = send_goal_and_follow(cli_env, '/mill2', mill2, '{joint_names: [x], points: [{positions: [0.01]}]}',
-                                        2)
+                                        2, before=other)
+        assert len(other) == 1 and not other[0].get('status_list'), other    # the goal went to mill1 only
         assert statuses == [1, 2, 4], statuses         # accepted, executing, succeeded
         status2, seconds = mill2.interrupt()
         status1, _ = mill1.interrupt()
@@ -290,22 +295,27 @@ def test_a_killed_servo_is_respawned_and_a_reset_continues(cli_env, tmp_path):
         # the machine faults on the servo's missing commands (launch starts its successor only
         # after hw_sim's command_timeout); or, where hw_sim's own process was starved longer
         # than that meanwhile (a busy machine), on that stall, which it checks first: either
-        # way a fault that only a reset leaves
-        echo_until(cli_env, '/mill3/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
-                   lambda m: _diagnostic_values(m).get('hw_sim', {}).get('fault', '').startswith(
-                       ('missing command for ', 'hw_sim stalled: ')),
-                   launch, READY_TIMEOUT, latched=False)
-        # respawned by launch; hw_sim re-sends the held step until the new servo answers it
+        # way a fault that only a reset leaves. Then, in the /diagnostics after that fault:
+        # respawned by launch; hw_sim re-sends the held step until the new servo answers it.
+        # (One reader of /diagnostics for both, in order: the second look starts with the
+        # message after the fault's.)
+        faulted = threading.Event()
         seen: dict = {}
 
-        def answers_the_held_step(message) -> bool:
+        def faults_then_answers_the_held_step(message) -> bool:
+            if not faulted.is_set():
+                if _diagnostic_values(message).get('hw_sim', {}).get('fault', '').startswith(
+                        ('missing command for ', 'hw_sim stalled: ')):
+                    faulted.set()
+                return False
             for name, values in _diagnostic_values(message).items():
                 seen.setdefault(name, {}).update(values)
             servo, hw = seen.get('servo_coarse', {}), seen.get('hw_sim', {})
             return len(started.findall(launch.text())) == 2 and 'answered_step' in servo \
                 and servo['answered_step'] == hw.get('step')
-        echo_until(cli_env, '/mill3/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray', answers_the_held_step,
-                   launch, READY_TIMEOUT, latched=False)
+        echo_until(cli_env, '/mill3/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
+                   faults_then_answers_the_held_step, launch, 2 * READY_TIMEOUT, latched=False)
+        assert faulted.is_set()
         answer = ros2(cli_env, 'service', 'call', '/mill3/hw_sim/reset', 'std_srvs/srv/Trigger')
         assert 'success=True' in answer, answer
         # the trajectory node leaves its fault once hw_sim's healthy /diagnostics reach it: a

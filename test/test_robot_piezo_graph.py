@@ -3,7 +3,8 @@ bringup robot_piezo --single-process --record DIR` (one process: README "Quick s
 milling path sent with `machine-ctrl send`, Ctrl-C, and `machine-ctrl analyze` of the bag,
 which learns the machine from its config; the arm deflects under the milling force where no
 encoder sees it, the coupling cancels it through the tracker (/hw_sim/tracker), and the recorded
-ground truth shows it cancelled. Real nodes over real DDS; the coupling's effect (on
+ground truth shows it cancelled; a rogue tracker's bad readings are refused with the reason.
+Real nodes over real DDS; the coupling's effect (on
 against off) is measured offline (test/test_robot_piezo.py), where the two runs cost seconds,
 not minutes."""
 import json
@@ -30,6 +31,10 @@ def test_robot_piezo_mills_a_path_through_the_graph_recorded_and_analysed(ros_su
     bag = tmp_path / 'bag'
     child = ros_supervisor.start('bringup', [EXE, 'bringup', 'robot_piezo', '--single-process', '--record', str(bag)])
     ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
+    # a rogue tracker: three bad readings, each refused with its reason, none moves anything
+    rogue = subprocess.run([sys.executable, '-c', ROGUE_TRACKER], env=ros_env, capture_output=True, text=True,
+                           timeout=120)
+    assert rogue.returncode == 0, rogue.stdout + rogue.stderr
     sent = subprocess.run([EXE, 'send', str(path), '--machine', 'robot_piezo', '--timeout', '600'], env=ros_env,
                           capture_output=True, text=True, timeout=700)
     assert sent.returncode == 0, sent.stdout + sent.stderr
@@ -56,3 +61,42 @@ def test_robot_piezo_mills_a_path_through_the_graph_recorded_and_analysed(ros_su
     deflection = 0.5 * compliance.milling.removal * feed / (compliance.stiffness + compliance.stiffness_variation)
     tool = result['tool_tip']
     assert tool['true_tracking']['max'] < 0.5 * deflection < tool['tracking']['max'], tool
+    status = last_status(bag, 'dual_stage')
+    assert status['rejected_messages'] == '3' and status['missing_tracker'] == '0', status
+    assert status['last_rejection'].startswith('tracker: point holds NaN or inf'), status
+
+
+# Publishes, once dual_stage reads /hw_sim/tracker, a reading in another frame, one off the
+# control grid and one with a NaN (in that order), and waits until they are delivered.
+ROGUE_TRACKER = """
+import math, rclpy
+from builtin_interfaces.msg import Time
+from rclpy.duration import Duration
+from machine_ctrl import contract
+from machine_ctrl.ros import messages as ros_io
+rclpy.init()
+node = rclpy.create_node('rogue_tracker')
+pub = node.create_publisher(ros_io.PointStamped, contract.TRACKER.name, ros_io.STEP_QOS)
+while not [i for i in node.get_subscriptions_info_by_topic(contract.TRACKER.name) if i.node_name == 'dual_stage']:
+    rclpy.spin_once(node, timeout_sec=0.05)
+for stamp, frame, value in ((Time(), 'base', 0.0), (Time(nanosec=1234), 'workpiece', 0.0),
+                            (Time(), 'workpiece', math.nan)):
+    pub.publish(ros_io.tracker_message(stamp, frame, (value, 0.0, 0.0)))
+assert pub.wait_for_all_acked(Duration(seconds=60))
+"""
+
+
+def last_status(bag_path, name: str) -> dict:
+    """The values of the newest /diagnostics status of `name` in the bag."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.serialization import deserialize_message
+
+    from machine_ctrl.recording.bag import Bag
+    values = None
+    with Bag(bag_path) as recorded:
+        for message in recorded.messages(['/diagnostics']):
+            for status in deserialize_message(message.data, DiagnosticArray).status:
+                if status.name == name:
+                    values = {kv.key: kv.value for kv in status.values}
+    assert values is not None, f'no {name} status in the bag'
+    return values
