@@ -48,6 +48,24 @@ def test_contour_error_of_a_line_and_a_circle():
     assert np.all(np.abs(errors - 1e-6) <= sagitta + 1e-15)
 
 
+def test_the_contour_error_looks_for_the_path_only_within_the_window():
+    """A path that comes back beside itself: 100 steps out along x, 100 back 2 um beside the way
+    out. A point of the way back (step 150), 1.5 um off it towards the way out, is 1.5 um from
+    its own part of the path, within a 10-step window; the way out's step 49 beside it, 0.5 um
+    away, counts only once the window reaches it."""
+    out = np.column_stack((np.linspace(0.0, 1e-3, 100), np.zeros(100), np.zeros(100)))
+    back = out[::-1] + [0.0, 2e-6, 0.0]
+    path = np.vstack((out, back))
+    points = path.copy()
+    points[150] = path[150] - [0.0, 1.5e-6, 0.0]               # on the way back, 1.5 um towards the way out
+    errors = analysis.contour_errors(path, points, 10)
+    assert errors[150] == pytest.approx(1.5e-6, rel=1e-9)      # its own part only: the way out is 40 steps away
+    assert analysis.contour_errors(path, points, 150)[150] == pytest.approx(0.5e-6, rel=1e-9)   # reaches step 49
+    assert np.all(np.delete(errors, 150) == 0.0)
+    with pytest.raises(ValueError, match='one row per step each, got 200 and 199'):
+        analysis.contour_errors(path, points[:-1], 10)
+
+
 def _cli(*args):
     return subprocess.run([sys.executable, '-m', 'machine_ctrl.app.cli', *map(str, args)], capture_output=True,
                           text=True, env={**os.environ, 'AMENT_PREFIX_PATH': sys.prefix})

@@ -48,6 +48,9 @@ REQUIRED = (contract.JOINT_STATES, contract.REFERENCE)
 # assumed: the tool tip lags its reference by far less than 50 ms at the feeds we run
 # (10 mm/s: 0.5 mm of path), so the nearest reference point lies within this window.
 CONTOUR_WINDOW = 0.05      # s
+# points per block of contour_errors: 64 rows keep its (rows, 2 window) temporaries in the
+# cache (bench/contour_analysis.py: 512 rows took 1.5x as long on the lathe's 199.6 kHz bag)
+CONTOUR_BLOCK = 64
 # assumed: 10 periods (1 ms on the micromill) resolve the drives' bandwidth (< 400 Hz) and
 # divide the encoder quantization in the differenced |a| and |j| by 10^2 and 10^3.
 DIFF_STEPS = 10
@@ -189,16 +192,32 @@ def tool_tips(kinematics: Kinematics, q: np.ndarray) -> np.ndarray:
 
 def contour_errors(path: np.ndarray, points: np.ndarray, window: int) -> np.ndarray:
     """Distance of each point i from the polyline `path`: the nearest path vertex within
-    i +- window, then the nearer of the (up to two) segments meeting there."""
+    i +- window, then the nearer of the (up to two) segments meeting there. Row i of both is
+    step i: ValueError for arrays of different lengths (a point without a vertex in its
+    window would have no answer)."""
+    if len(path) != len(points):
+        raise ValueError(f'path and points must have one row per step each, got {len(path)} and {len(points)}')
     n, last = len(points), len(path) - 1
     result = np.empty(n)
-    for start in range(0, n, 512):
-        stop = min(start + 512, n)
+    for start in range(0, n, CONTOUR_BLOCK):
+        stop = min(start + CONTOUR_BLOCK, n)
         lo, hi = max(start - window, 0), min(stop + window, last + 1)
         block = points[start:stop]
-        d2 = ((block[:, None, :] - path[None, lo:hi, :]) ** 2).sum(axis=2)
+        # squared distances summed per coordinate in place (x, then + y, then + z: the order
+        # and so the bits of a sum over the coordinate axis, without its (rows, columns, 3) temporaries)
+        d2 = np.subtract.outer(block[:, 0], path[lo:hi, 0])
+        d2 *= d2
+        for c in range(1, path.shape[1]):
+            d = np.subtract.outer(block[:, c], path[lo:hi, c])
+            d *= d
+            d2 += d
         index = np.arange(start, stop)[:, None]
-        d2[np.abs(np.arange(lo, hi)[None, :] - index) > window] = np.inf
+        # a vertex outside a point's own window can only lie among the first or last
+        # (stop - start) columns (the band's corners): masked there only
+        m = stop - start
+        for cols in (slice(0, min(m, hi - lo)), slice(max(hi - lo - m, 0), hi - lo)):
+            corner = d2[:, cols]
+            corner[np.abs(np.arange(lo, hi)[cols][None, :] - index) > window] = np.inf
         nearest = lo + np.argmin(d2, axis=1)
         best = np.sqrt(d2[np.arange(stop - start), nearest - lo])
         for j in (np.maximum(nearest - 1, 0), np.minimum(nearest, max(last - 1, 0))):
