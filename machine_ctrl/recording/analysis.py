@@ -39,8 +39,9 @@ from mcap_ros2._dynamic import generate_dynamic
 
 from machine_ctrl import contract
 from machine_ctrl.recording.bag import Bag, BagError
+from machine_ctrl.recording.cdr import JointStateDecoder
 from machine_ctrl.model.config import MachineConfig, load_machine
-from machine_ctrl.model.errors import ConfigError
+from machine_ctrl.model.errors import ConfigError, InvalidMessage
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.recording.recorder import MACHINE_FILE_KEY, MACHINE_KEY, namespace_of, session_of
 
@@ -113,9 +114,16 @@ def load(path, machine: str | MachineConfig | None = None) -> Run:
         config = machine_of(bag, machine)
         period_ns = contract.StepClock.of(config).period_ns
         names = list(config.axis_names)
-        states = _states(bag, states_topic, period_ns, names)
-        reference = _reference(bag, reference_topic, period_ns, names)
-        true_tip = _true_tips(bag, contract.TRUE_TOOL_POSE.full(namespace), period_ns)
+        add_state, states = _states(states_topic, period_ns, names)
+        add_chunk, reference = _reference(bag, reference_topic, period_ns, names)
+        readers = {states_topic: add_state, reference_topic: add_chunk}
+        truth_topic = contract.TRUE_TOOL_POSE.full(namespace)
+        info = bag.topics.get(truth_topic)
+        true_tip = {}
+        if info is not None and info.type == contract.TRUE_TOOL_POSE.type:
+            readers[truth_topic], true_tip = _true_tips(bag, truth_topic, period_ns)
+        for message in bag.messages(list(readers)):          # one pass over the bag's chunks
+            readers[message.topic](message.data)
     steps = np.array(sorted(set(states) & set(reference)), dtype=np.int64)
     if len(steps) == 0:
         raise AnalysisError(f'{path}: no control step has both a {states_topic} and a {reference_topic} row')
@@ -131,53 +139,62 @@ def _columns(message_names, wanted, topic) -> list[int]:
     return [index[w] for w in wanted]
 
 
-def _states(bag: Bag, topic: str, period_ns: int, names) -> dict[int, list[float]]:
-    decode = _decoder(bag, topic)
+def _states(topic: str, period_ns: int, names):
+    """(add, rows): add(data) takes one state message's bytes (decoded by recording.cdr) into
+    rows, step -> positions of `names`; a stamp seen before or off the grid is left out."""
+    decoder = JointStateDecoder()
     rows: dict[int, list[float]] = {}
     picks = None
-    for message in bag.messages([topic]):
-        msg = decode(message.data)
-        step, rest = divmod(_stamp_ns(msg.header), period_ns)
+
+    def add(data: bytes) -> None:
+        nonlocal picks
+        try:
+            msg = decoder.decode(data)
+        except InvalidMessage as exc:
+            raise AnalysisError(f'{topic}: {exc}') from None
+        step, rest = divmod(msg.sec * contract.NS_PER_SECOND + msg.nanosec, period_ns)
         if rest or step in rows:
-            continue
+            return
         if picks is None or len(msg.name) != len(names):
             picks = _columns(list(msg.name), names, topic)
         rows[step] = [msg.position[i] for i in picks]
-    return rows
+    return add, rows
 
 
-def _reference(bag: Bag, topic: str, period_ns: int, names) -> dict[int, list[float]]:
+def _reference(bag: Bag, topic: str, period_ns: int, names):
+    """(add, rows): add(data) takes one reference chunk into rows, step -> positions of
+    `names` (a later chunk replaces from its first step on)."""
     decode = _decoder(bag, topic)
     rows: dict[int, list[float]] = {}
     end = 0
-    for message in bag.messages([topic]):
-        msg = decode(message.data)
+
+    def add(data: bytes) -> None:
+        nonlocal end
+        msg = decode(data)
         first, rest = divmod(_stamp_ns(msg.header), period_ns)
         if rest or not msg.points:
-            continue
+            return
         picks = _columns(list(msg.joint_names), names, topic)
         for k in range(first, end):            # a new chunk replaces from its first step on
             rows.pop(k, None)
         for i, point in enumerate(msg.points):
             rows[first + i] = [point.positions[c] for c in picks]
         end = max(end, first + len(msg.points))
-    return rows
+    return add, rows
 
 
-def _true_tips(bag: Bag, topic: str, period_ns: int) -> dict[int, tuple[float, float, float]]:
-    """The ground truth's tool-tip positions by step ({} when the bag has none)."""
-    info = bag.topics.get(topic)
-    if info is None or info.type != contract.TRUE_TOOL_POSE.type:
-        return {}
+def _true_tips(bag: Bag, topic: str, period_ns: int):
+    """(add, tips): add(data) takes one ground-truth tool pose into tips, step -> (x, y, z)."""
     decode = _decoder(bag, topic)
-    tips = {}
-    for message in bag.messages([topic]):
-        msg = decode(message.data)
+    tips: dict[int, tuple[float, float, float]] = {}
+
+    def add(data: bytes) -> None:
+        msg = decode(data)
         step, rest = divmod(_stamp_ns(msg.header), period_ns)
         if not rest:
             p = msg.pose.position
             tips[step] = (p.x, p.y, p.z)
-    return tips
+    return add, tips
 
 
 def error_stats(errors: np.ndarray) -> dict[str, float]:
