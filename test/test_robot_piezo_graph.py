@@ -3,8 +3,8 @@ bringup robot_piezo --single-process --record DIR` (one process: README "Quick s
 milling path sent with `machine-ctrl send`, Ctrl-C, and `machine-ctrl analyze` of the bag,
 which learns the machine from its config; the arm deflects under the milling force where no
 encoder sees it, the coupling cancels it through the tracker (/hw_sim/tracker), and the recorded
-ground truth shows it cancelled; a rogue tracker's bad readings are refused with the reason.
-Real nodes over real DDS; the coupling's effect (on
+ground truth shows it cancelled; a rogue tracker's bad readings are refused with the reason;
+the bag equals the offline run of the goal bit for bit. Real nodes over real DDS; the coupling's effect (on
 against off) is measured offline (test/test_robot_piezo.py), where the two runs cost seconds,
 not minutes."""
 import json
@@ -64,6 +64,17 @@ def test_robot_piezo_mills_a_path_through_the_graph_recorded_and_analysed(ros_su
     status = last_status(bag, 'dual_stage')
     assert status['rejected_messages'] == '3' and status['missing_tracker'] == '0', status
     assert status['last_rejection'].startswith('tracker: point holds NaN or inf'), status
+    # bit for bit the offline run of the goal from the start step the graph reported
+    # (test_determinism.py's proof, here with the tracker's readings crossing DDS)
+    from machine_ctrl.ros.run_bag import write_goal_bag
+    from test_determinism import Recorded, assert_joint_states_equal, assert_per_step_topics_equal
+    graph = Recorded(bag, robot_piezo)
+    run, _ = write_goal_bag(tmp_path / 'offline', robot_piezo, toolpath.read_csv(path), start_step=graph.start_step,
+                            steps=graph.steps)
+    offline = Recorded(tmp_path / 'offline', robot_piezo)
+    assert run.goal_state == 'succeeded' and offline.steps == graph.steps > run.motion_end
+    assert_joint_states_equal(graph, offline, graph.steps)
+    assert_per_step_topics_equal(graph, offline, graph.steps)
 
 
 # Publishes, once dual_stage reads /hw_sim/tracker, a reading in another frame, one off the

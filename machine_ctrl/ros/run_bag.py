@@ -54,7 +54,8 @@ _TOPICS = [(topic, _offered(topic.qos if topic is not contract.CLOCK else contra
 
 def servo_groups(machine: MachineConfig) -> list[list[str]]:
     """The axes of each servo node of the default graph, in start order."""
-    return [list(s.parameters['axes']) for s in default_graph(machine) if s.module == 'machine_ctrl.ros.servo_node']
+    return [list(s.parameters['axes']) for s in default_graph(machine, contour=None)
+            if s.module == 'machine_ctrl.ros.servo_node']
 
 
 def write_run_bag(directory, machine: MachineConfig, reference, record, label: str = '') -> dict[str, int]:
