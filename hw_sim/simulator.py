@@ -3,7 +3,7 @@ period at a time with one command per axis, plus the fault logic of the hardware
 
 A machine with ``simulation.tool_compliance`` (a robot arm) also deflects under the milling
 force (hw_sim/tool_deflection.py): :attr:`MachineSimulator.deflection` moves the true tool tip
-(tool_deflection.deflected), not the axes, so no encoder sees it.
+(:meth:`MachineSimulator.true_tool_pose`), not the axes, so no encoder sees it.
 
 Faults (the machine stops and stays stopped until :meth:`reset`): a non-finite command, a
 true position outside its stroke after a step, or (raised by the lock-step layer) a
@@ -13,15 +13,18 @@ frozen (the deflection too), velocities read zero. Sensor noise is seeded from t
 """
 from __future__ import annotations
 
+import functools
 import math
 import random
 from typing import NamedTuple
+
+import numpy as np
 
 from compensation.error_map import load_error_map
 from compensation.error_model import ErrorKinematics
 from hw_sim.flexure import Accelerometer, FlexureAxis
 from hw_sim.plant import FrictionAxis, LinearAxis, PiezoDriveAxis, PositionServoAxis, Sensor, quantize
-from hw_sim.tool_deflection import ToolDeflection, rigid_tip
+from hw_sim.tool_deflection import ToolDeflection, deflected, rigid_tip
 from machine_ctrl.model.config import AxisConfig, MachineConfig
 from machine_ctrl.model.kinematics import Kinematics
 
@@ -57,14 +60,22 @@ class MachineSimulator:
         self.initial = tuple(machine.home if initial_position is None else initial_position)
         if len(self.initial) != len(machine.axes):
             raise ValueError(f'initial position needs {len(machine.axes)} values')
-        tracker = machine.tracker
-        needs_pose = machine.simulation.tool_compliance is not None or tracker is not None
-        self._tool_pose = true_geometry(machine) if needs_pose else None
+        self._tracker = machine.tracker
         # the tracker reads the coarse stage: the true tool tip with the fine axes at home
-        self._tracker_home = None if tracker is None else [
+        self._tracker_home = None if self._tracker is None else [
             (machine.axis_names.index(a), machine.home[machine.axis_names.index(a)])
             for a in machine.cartesian_dual_stage.fine]
         self.reset()
+
+    @functools.cached_property
+    def geometry(self):
+        """true_geometry(machine), built at its first use (an error map is read then: ConfigError)."""
+        return true_geometry(self.machine)
+
+    def true_tool_pose(self) -> np.ndarray:
+        """The true 4x4 tool pose in the workpiece frame now: the geometry's at the true axis
+        positions, moved by the structure's deflection."""
+        return deflected(self.geometry(self.true_position), self.deflection)
 
     def reset(self, initial_position=None) -> None:
         """Fresh plants and sensors at the initial (or given) position, fault cleared."""
@@ -86,7 +97,7 @@ class MachineSimulator:
         self.applied = (0.0,) * len(self.plants)
         compliance = machine.simulation.tool_compliance
         self.compliance = None if compliance is None else ToolDeflection(
-            compliance, period, seed, rigid_tip(self._tool_pose, self.true_position))
+            compliance, period, seed, rigid_tip(self.geometry, self.true_position))
         self._tracker_rng = random.Random(f'{seed}:tracker')
         self._measure()
 
@@ -94,7 +105,7 @@ class MachineSimulator:
         position, velocity = zip(*[s.measure(p.sensed) for s, p in zip(self.sensors, self.plants)])
         acceleration = self._no_acceleration if not self._with_accelerometer else \
             tuple([0.0 if a is None else a.measure(p.acceleration_sensed) for a, p in zip(self.accelerometers, self.plants)])
-        tracker = () if self._tracker_home is None else self._tracker_reading()
+        tracker = () if self._tracker is None else self._tracker_reading()
         self.measurement = Measurement(position, velocity, self.applied, acceleration, tracker)
 
     def _tracker_reading(self) -> tuple[float, float, float]:
@@ -103,8 +114,8 @@ class MachineSimulator:
         q = list(self.true_position)
         for index, home in self._tracker_home:
             q[index] = home
-        x, y, z = rigid_tip(self._tool_pose, tuple(q))
-        tracker, rng = self.machine.tracker, self._tracker_rng
+        x, y, z = rigid_tip(self.geometry, tuple(q))
+        tracker, rng = self._tracker, self._tracker_rng
         z += self.deflection
         return tuple([quantize(c + (rng.gauss(0.0, tracker.noise) if tracker.noise > 0.0 else 0.0),
                                tracker.resolution) for c in (x, y, z)])
@@ -143,9 +154,10 @@ class MachineSimulator:
             self.fault = self.command_fault(commands)
         if self.fault is None:
             self.applied = tuple([p.step(u) for p, u in zip(self.plants, commands)])
-            self.fault = self.stroke_fault(self.true_position)
+            true_position = self.true_position
+            self.fault = self.stroke_fault(true_position)
             if self.compliance is not None:
-                self.compliance.step(rigid_tip(self._tool_pose, self.true_position))
+                self.compliance.step(rigid_tip(self.geometry, true_position))
         else:
             self.applied = (0.0,) * len(self.plants)
         self.step_index += 1

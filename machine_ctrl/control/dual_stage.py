@@ -79,7 +79,7 @@ class DualStageCoupling:
     @property
     def uses_tracker(self) -> bool:
         """Whether :meth:`step` needs the tracker's reading (a Cartesian coupling with a tracker)."""
-        return self.cartesian is not None and self.cartesian.tracker
+        return self.cartesian is not None and self.cartesian.uses_tracker
 
     def step(self, ref_pos, pos, tracker=None) -> CouplingResult:
         """ref_pos, pos: reference and measured position of every axis (machine order);
@@ -120,7 +120,7 @@ class _CartesianDeviation:
         self.kinematics = Kinematics.from_config(machine)
         self.coarse = np.array([index[n] for n in machine.cartesian_dual_stage.coarse])
         self.fine = np.array([index[n] for n in machine.cartesian_dual_stage.fine])
-        self.tracker = machine.tracker is not None
+        self.uses_tracker = machine.tracker is not None
         self.fine_home = np.array(machine.home, float)[self.fine]
         at_home = self.kinematics.jacobian(np.array(machine.home))[:3, self.fine]
         if np.linalg.matrix_rank(at_home) < len(self.fine):
@@ -140,7 +140,7 @@ class _CartesianDeviation:
             self._fine_pinv = np.linalg.pinv(jacobian[:, self.fine])
             self._map = self._fine_pinv @ jacobian[:, self.coarse]
             self._at = ref.copy()
-        if not self.tracker:
+        if not self.uses_tracker:
             error = ref[self.coarse] - np.asarray(pos, float)[self.coarse]
             return (self._map @ error).tolist()
         if tracker is None or len(tracker) != 3:

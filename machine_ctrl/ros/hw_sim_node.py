@@ -64,14 +64,12 @@ from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 
 from hw_sim.session import LockStepSession, PacedSession
-from hw_sim.simulator import MachineSimulator, true_geometry
-from hw_sim.tool_deflection import deflected
+from hw_sim.simulator import MachineSimulator
 from machine_ctrl import contract, parameters
 from machine_ctrl.model.numeric import all_finite
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder, encode_time
 from machine_ctrl.model.errors import ConfigError
-from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.ros.node_common import main_for, qos, subscribe_joint_states, wall_timer, watch_liveliness
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 
@@ -84,7 +82,12 @@ class HwSimNode(Node):
         values = declare_parameters(self, parameters.HW_SIM, {'initial_position': [float(v) for v in self.machine.home]})
         self.check_parameters(values.initial_position)
         self.clock = ros_io.StepClock.of(self.machine)
-        self.sim = MachineSimulator(self.machine, initial_position=values.initial_position)
+        try:
+            self.sim = MachineSimulator(self.machine, initial_position=values.initial_position)
+            self.sim.true_tool_pose()              # its error map read now: a bad one stops the node at once
+        except ConfigError as exc:
+            self.get_logger().fatal(str(exc))
+            raise SystemExit(2) from None
         common = {'clock_decimation': values.clock_decimation, 'truth_decimation': values.ground_truth_decimation}
         if values.mode == 'lockstep':
             self.session = LockStepSession(self.sim, self.clock, self, command_timeout=values.command_timeout,
@@ -95,11 +98,6 @@ class HwSimNode(Node):
             self.session = PacedSession(self.sim, self.clock, self, real_time_factor=values.real_time_factor,
                                         command_timeout=values.command_timeout, **common)
         self.encoder = JointStateEncoder(axes)
-        try:
-            self.true_tool_pose = true_geometry(self.machine, Kinematics.from_config(self.machine))
-        except ConfigError as exc:
-            self.get_logger().fatal(str(exc))
-            raise SystemExit(2) from None
 
         # per-step traffic when clock_decimation is 1; deep like the states, so a recorder
         # that hw_sim lets fall recorder_window steps behind loses no /clock either
@@ -226,9 +224,8 @@ class HwSimNode(Node):
             if self.pub_true.get_subscription_count():
                 self.pub_true.publish(self.encoder.encode(sec, nanosec, self.sim.true_position, self.sim.true_velocity))
             if self.pub_pose.get_subscription_count():
-                pose = deflected(self.true_tool_pose(self.sim.true_position), self.sim.deflection)
                 self.pub_pose.publish(ros_io.pose_message(Time(sec=sec, nanosec=nanosec), self.machine.workpiece_frame,
-                                                          pose))
+                                                          self.sim.true_tool_pose()))
 
     def publish_diagnostics(self) -> None:
         now = time.monotonic()
