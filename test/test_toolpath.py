@@ -32,6 +32,10 @@ def test_axes_are_normalized_and_arrays_frozen():
     (lambda p, o: (np.where(np.arange(6)[:, None] == 3, np.nan, p), o), 'point 3: position is not finite'),
     (lambda p, o: (p, np.where(np.arange(6)[:, None] == 5, np.inf, o)), 'point 5: tool axis is not finite'),
     (lambda p, o: (p, np.where(np.arange(6)[:, None] == 2, 0.0, o)), 'point 2: zero-length tool axis'),
+    (lambda p, o: (p, np.where(np.arange(6)[:, None] == 2, 5e-10, o)), 'point 2: zero-length tool axis'),
+    (lambda p, o: (np.where(np.arange(6)[:, None] == 4, 1e308, p), o),
+     r'point 4: position \[1e\+308, 1e\+308, 1e\+308\] m is beyond \+-1000 m of the workpiece origin'),
+    (lambda p, o: (np.where(np.arange(6)[:, None] == 1, -1000.001, p), o), 'point 1: position .* is beyond'),
     (lambda p, o: (np.vstack((p[:5], p[4:5])), o), r'point 5 repeats point 4: points 4 and 5 are 0 m apart '
                                                    r'\(need >= 1e-09 m\)'),
     (lambda p, o: (np.vstack((p[:5], p[4:5] + [1e-12, 0.0, 0.0])), o),
@@ -42,6 +46,18 @@ def test_cldata_rejections(mutate, message):
     with pytest.raises(ValueError, match=message) as e:
         CLData(*mutate(p, o))
     assert '\n' not in str(e.value)
+
+
+def test_extreme_tool_axis_lengths_are_normalized_without_overflow():
+    """A tool axis of any finite length is a direction (|(1e308, 1e308, 0)| overflows a plain
+    norm); a tip 1 km out is still accepted (the reach is checked on the joint path)."""
+    p, o = line()
+    p[-1] = [1e3, -1e3, 1e3]
+    o[0], o[1], o[2] = [1e308, 1e308, 0.0], [0.0, -1e-8, 0.0], [3e-9, 0.0, 4e-9]
+    with np.errstate(all='raise'):
+        cl = CLData(p, o)
+    np.testing.assert_allclose(cl.axes[:3], [[math.sqrt(0.5), math.sqrt(0.5), 0], [0, -1, 0], [0.6, 0, 0.8]],
+                               rtol=1e-15)
 
 
 def test_six_points_are_the_fewest_and_they_fit_a_quintic():

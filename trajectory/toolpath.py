@@ -29,9 +29,17 @@ MIN_POINTS = 6
 # float rounding of coordinates of a 100 mm machine (~1e-17 m).
 MIN_SPACING = 1e-9
 
+# m. A tool-tip coordinate beyond +-this is refused before any arithmetic on it (a distance
+# between two such points would overflow a float). assumed: 1 km, far beyond any machine's
+# or robot's reach; the machine's own limits are checked later, on the joint path.
+MAX_COORDINATE = 1e3
+
 # A tool axis (or quaternion) shorter than this is zero-length.
 # assumed: 1e-9; shorter vectors are zero up to rounding of typical inputs.
 MIN_AXIS_NORM = 1e-9
+# A tool axis with a component beyond this is scaled before its norm is taken (its square
+# would overflow a float: 1e154² > 1.8e308); shorter ones are normalized as they are.
+HUGE_AXIS = 1e150
 
 # An orientation quaternion (x, y, z, w) is unit when |x² + y² + z² + w² - 1| is below this:
 # tf2's QUATERNION_NORMALIZATION_TOLERANCE (ros2/geometry2, tf2/src/buffer_core.cpp, 10e-3 on
@@ -76,6 +84,12 @@ class CLData:
             bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
             if len(bad):
                 raise CLDataError(f'point {bad[0]}: {name} is not finite (NaN or inf)', int(bad[0]))
+        bad = np.flatnonzero((np.abs(p) > MAX_COORDINATE).any(axis=1))
+        if len(bad):
+            raise CLDataError(f'point {bad[0]}: position {p[bad[0]].tolist()} m is beyond +-{MAX_COORDINATE:g} m '
+                              f'of the workpiece origin', int(bad[0]))
+        huge = np.abs(o).max(axis=1) > HUGE_AXIS      # their squares would overflow the norm: scaled first
+        o[huge] /= np.abs(o[huge]).max(axis=1)[:, None]
         norm = np.linalg.norm(o, axis=1)
         bad = np.flatnonzero(norm < MIN_AXIS_NORM)
         if len(bad):
