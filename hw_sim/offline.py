@@ -27,7 +27,7 @@ PROGRESS_STEPS = 10000       # progress(k, steps) after every this many steps
 class RunRecord:
     """Per step k (rows): reference, measured (position, velocity) and true positions at
     step k, the efforts applied over the period before it (what /joint_states carries), the
-    commands computed at k, and the fine-stage offsets."""
+    commands computed at k, and the dual-stage coupling's offsets (of `offset_axes`)."""
     axis_names: tuple[str, ...]
     period: float
     reference: np.ndarray
@@ -39,7 +39,7 @@ class RunRecord:
     offsets: np.ndarray
     fault: str | None = None
     saturations: int = 0
-    fine_axes: tuple[str, ...] = field(default_factory=tuple)
+    offset_axes: tuple[str, ...] = field(default_factory=tuple)     # MachineConfig.offset_axes
     contour_invalid: dict[str, int] | None = None    # with contour control: steps per channel without a valid estimate
     compiled: bool = False       # stepped by the compiled loop (hw_sim/compiled_loop.py), else the Python loop
 
@@ -65,7 +65,7 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     simulator = MachineSimulator(machine, initial_position=start)
     servo = ServoGroup(machine, machine.axis_names, laws, feedforward)
     coupling = DualStageCoupling(machine, dual_stage=dual_stage)
-    fine_index = [machine.axis_names.index(a) for a in coupling.fine_axes]
+    offset_index = [machine.axis_names.index(a) for a in coupling.offset_axes]
     contour = None
     if contour_control:
         contour = ContourCoupling(machine, enabled=True)
@@ -80,7 +80,8 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     if packed is not None:
         rec, fault = _run_compiled(packed, simulator, reference, steps, progress)
         return RunRecord(machine.axis_names, machine.control_period, fault=fault,
-                         saturations=packed.saturation_count, fine_axes=coupling.fine_axes, compiled=True, **rec)
+                         saturations=packed.saturation_count, offset_axes=coupling.offset_axes, compiled=True,
+                         **rec)
     names = ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')
     rows = [[] for _ in names]            # per step one tuple each; arrays at the end (cheaper per step)
     reference_rows, measured_rows, velocity_rows, effort_rows, true_rows, command_rows = rows
@@ -90,7 +91,7 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
             simulator.set_force(axis, f[min(k, len(f) - 1)])
         measured = simulator.measurement
         offsets = coupling.step(ref_pos, measured.position, measured.tracker).offsets
-        servo_ref = apply_offsets(ref_pos, fine_index, offsets)
+        servo_ref = apply_offsets(ref_pos, offset_index, offsets)
         if contour is not None:
             servo_ref = apply_offsets(servo_ref, contour_index, contour.step(k, measured.position).corrections)
         commands = servo.step(servo_ref, ref_vel, ref_acc, measured.position, measured.velocity,
@@ -107,9 +108,9 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
             progress(k, steps)
     rec = {name: np.array(r, dtype=float).reshape(steps, n) for name, r in zip(names, rows)}
     return RunRecord(machine.axis_names, machine.control_period,
-                     offsets=np.array(offsets_rows, dtype=float).reshape(steps, len(fine_index)),
+                     offsets=np.array(offsets_rows, dtype=float).reshape(steps, len(offset_index)),
                      fault=simulator.fault, saturations=coupling.saturation_count,
-                     fine_axes=coupling.fine_axes,
+                     offset_axes=coupling.offset_axes,
                      contour_invalid=None if contour is None else dict(contour.invalid_steps), **rec)
 
 

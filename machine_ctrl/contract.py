@@ -202,7 +202,8 @@ REFERENCE = Topic('reference', 'trajectory_msgs/msg/JointTrajectory', REFERENCE_
 TRAJECTORY_REFERENCE = Topic('trajectory/reference', 'trajectory_msgs/msg/JointTrajectory', REFERENCE_QOS,
                              'uncompensated reference chunks (when compensation runs)')
 DUAL_STAGE_OFFSETS = Topic('dual_stage/offsets', 'sensor_msgs/msg/JointState', STEP_QOS,
-                           'fine-stage reference offsets (position), one per step')
+                           'reference offsets (position) of the fine axes, with mid-ranging the coarse axes too, '
+                           'one per step')
 ACCELEROMETERS = Topic('accelerometers', 'sensor_msgs/msg/Imu', STEP_QOS,
                        'one per step and accelerometer (published while subscribed): frame_id = the URDF link '
                        'of its axis, linear_acceleration = the reading along the joint axis, m/s^2')

@@ -341,9 +341,10 @@ SERVO = NodeParameters('servo_node', (
                   'correction fading in from zero; off: it fades out (time constant fade)', live=True,
                   constraint='true only on the node holding every coupled axis of a machine with a contour_control '
                   'section'),
-    ParameterSpec('wait_for_offsets', BOOL, None, description='fine axes of a dual-stage coupling wait for '
-                  f'{contract.DUAL_STAGE_OFFSETS.name} each step (no effect without fine axes)',
-                  default_text='true when the node has fine axes'),
+    ParameterSpec('wait_for_offsets', BOOL, None, description='the axes a dual-stage coupling offsets (its fine '
+                  'axes; with mid-ranging its coarse axes too) wait for '
+                  f'{contract.DUAL_STAGE_OFFSETS.name} each step (no effect without such axes)',
+                  default_text='true when the node has such axes'),
     INPUT_TIMEOUT,
 ), sim_time=True)
 

@@ -26,8 +26,8 @@ def assert_same_run(python, compiled):
         assert x.shape == y.shape, name
         differ = np.argwhere((x.view(np.int64) != y.view(np.int64)) & ~(np.isnan(x) & np.isnan(y)))
         assert not len(differ), f'{name}: first differing (step, column) {differ[0].tolist()}'
-    assert (python.fault, python.saturations, python.fine_axes) == (compiled.fault, compiled.saturations,
-                                                                    compiled.fine_axes)
+    assert (python.fault, python.saturations, python.offset_axes) == (compiled.fault, compiled.saturations,
+                                                                    compiled.offset_axes)
 
 
 @pytest.mark.parametrize('seed', ['7:x_c:actuator', '7:z_f', 12345])

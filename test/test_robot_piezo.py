@@ -2,8 +2,9 @@
 workpiece and the 3-axis piezo micro manipulator carrying the tool. Checked without ROS:
 its kinematics against the manufacturer's numbers, the two new drives (a joint closing its
 own position loop, a piezo stage of modes) against their transfer functions, the two new
-laws, the Cartesian coupling against the kinematics it cancels, bad configs refused with the
-reason, and an offline milling run with the coupling on and off."""
+laws, the Cartesian coupling against the kinematics it cancels, its mid-ranging, bad configs
+refused with the reason, and offline milling runs with the coupling on and off, and with and
+without the mid-ranging."""
 import dataclasses
 import math
 import random
@@ -121,9 +122,10 @@ def test_the_lqg_designs_from_the_drives_model_not_from_the_plant(robot_piezo):
 
 @pytest.fixture(scope='module')
 def encoders_only(robot_piezo):
-    """robot_piezo whose coupling reads the robot's deviation from its encoders (no tracker)."""
+    """robot_piezo whose coupling reads the robot's deviation from its encoders (no tracker) and
+    leaves the robot's reference alone (no mid-ranging)."""
     return dataclasses.replace(robot_piezo, cartesian_dual_stage=dataclasses.replace(
-        robot_piezo.cartesian_dual_stage, tracker=None))
+        robot_piezo.cartesian_dual_stage, tracker=None, midranging=None))
 
 
 def test_the_cartesian_coupling_cancels_the_tool_deviation_of_the_robots_errors(encoders_only, kin):
@@ -153,11 +155,12 @@ def test_with_the_tracker_the_stage_cancels_what_the_tracker_sees_the_deflection
     ref = np.array(robot_piezo.home)
     d = 100e-6
     tip = kin.forward(ref)[0]
-    offsets = coupling.step(ref, ref, tuple(tip + [0.0, 0.0, d])).offsets
+    offsets = coupling.step(ref, ref, tuple(tip + [0.0, 0.0, d])).offsets[:3]      # then the mid-ranging's
     assert offsets[0] == pytest.approx(-d, abs=1e-12) and max(map(abs, offsets[1:])) < 1e-12
     error = np.array([2e-5, -3e-5, 4e-5, 1e-5, -2e-5, 1e-5, 0, 0, 0])     # rad, the robot lagging, too
     pos = ref - error
     offsets = np.array(DualStageCoupling(robot_piezo).step(ref, pos, tuple(kin.forward(pos)[0] + [0.0, 0.0, d])).offsets)
+    offsets = offsets[:3]
     compensated = pos.copy()
     compensated[6:] += offsets
     left = kin.forward(compensated)[0] + [0.0, 0.0, d] - kin.forward(ref)[0]
@@ -181,6 +184,80 @@ def test_the_coupling_follows_the_jacobian_along_the_path_and_a_reset_one_is_a_f
     assert at_moved != first                                  # the map changed with the pose
     used.reset()
     assert used.step(home, home - error).offsets == first     # no Jacobian kept across a reset
+
+
+def test_midranging_moves_a_lasting_deviation_over_to_the_robot_keeping_the_tool_s_orientation(robot_piezo, kin):
+    """A deflection d along the workpiece's z that lasts, and a robot that reaches its offset
+    reference by the next step: the stage's offset (in Cartesian terms) is -d (1 - h/T)^k after
+    k steps, by hand from Delta_k = Delta_{k-1} + (h/T) u_k and u_k = -d - Delta_{k-1}; the tool
+    tip stays on the reference and the robot's move keeps the tool's orientation."""
+    coupling = DualStageCoupling(robot_piezo)
+    assert coupling.offset_axes == ('px', 'py', 'pz', 'j1', 'j2', 'j3', 'j4', 'j5', 'j6')
+    ref = np.array(robot_piezo.home)
+    tip, rotation = kin.forward(ref)
+    d, rate = 100e-6, robot_piezo.control_period / robot_piezo.cartesian_dual_stage.midranging.time_constant
+    assert rate == 1e-3
+    robot = ref.copy()                          # the robot's joints, the stage at home (what the tracker reads)
+    for k in range(2001):
+        offsets = np.array(coupling.step(ref, robot, tuple(kin.forward(robot)[0] + [0.0, 0.0, d])).offsets)
+        stage = kin.jacobian(ref)[:3, 6:] @ offsets[:3]
+        np.testing.assert_allclose(stage, [0.0, 0.0, -d * (1 - rate) ** k], rtol=0, atol=1e-3 * d)
+        robot = ref.copy()
+        robot[:6] += offsets[3:]
+        tool = robot.copy()
+        tool[6:] += offsets[:3]
+        moved_tip, moved_rotation = kin.forward(tool)
+        assert np.linalg.norm(moved_tip + [0.0, 0.0, d] - tip) < 1e-3 * d
+        assert np.abs(moved_rotation - rotation).max() < 1e-6          # rad; the robot's move alone: ~1e-4 rad
+    assert abs(stage[2]) < 0.14 * d                                     # (1 - 1e-3)^2000 = 0.135
+    coupling.enabled = False                                            # off: no offsets, the take-over forgotten
+    assert coupling.step(ref, robot, tuple(tip)).offsets == (0.0,) * 9
+    coupling.enabled = True
+    assert np.abs(coupling.step(ref, ref, tuple(tip + [0.0, 0.0, d])).offsets[3:]).max() < 1e-6
+
+
+@pytest.fixture(scope='module')
+def line_runs(robot_piezo):
+    """test_robot_piezo_graph's cut, offline: from home 3 mm into the block along the face at
+    10 mm/s, the coupling with and without its mid-ranging."""
+    line = toolpath.from_arrays(np.linspace([0.0, 0.0, 0.0], [-3e-3, 0.0, 0.0], 31), np.tile([0.0, 0.0, 1.0], (31, 1)))
+    plain = dataclasses.replace(robot_piezo, cartesian_dual_stage=dataclasses.replace(
+        robot_piezo.cartesian_dual_stage, midranging=None))
+    return {midranged: run_goal(config, line, feed=0.010) for midranged, config in ((False, plain), (True, robot_piezo))}
+
+
+def test_midranging_in_a_cut_leaves_the_stage_the_deviations_high_pass_and_the_tool_on_the_path(robot_piezo,
+                                                                                               line_runs, kin):
+    """Without mid-ranging the stage's offset u is the robot's deviation D (the deflection
+    most of it). With it the stage should keep T s/(T s + 1) of D, by hand from the run without:
+    u_k = D_k - Delta_{k-1}, Delta_k = Delta_{k-1} + (h/T) u_k. The robot does not reach its
+    offset reference at once but lags it by about 2 zeta/omega = 11 ms (its closed loop, 20 Hz),
+    0.11 of T: the offsets may differ from that by 0.15 of D's largest. At the path's end the
+    stage is nearer its middle by more than half, and the true tool tip stays within half the
+    deflection of the path (as in test_robot_piezo_graph)."""
+    fine = [robot_piezo.axis_names.index(a) for a in robot_piezo.fine_axes]
+    stage = {}
+    for midranged, run in line_runs.items():
+        record = run.record
+        assert run.goal_state == 'succeeded' and record.fault is None and record.saturations == 0, midranged
+        stage[midranged] = np.array([kin.jacobian(record.reference[k])[:3, fine] @ record.offsets[k, :3]
+                                     for k in range(len(record.true))])
+    deviation = stage[False]
+    rate = robot_piezo.control_period / robot_piezo.cartesian_dual_stage.midranging.time_constant
+    expected, taken = np.zeros_like(deviation), np.zeros(3)
+    for k, D in enumerate(deviation):
+        expected[k] = D - taken
+        taken = taken + rate * expected[k]
+    largest = np.abs(deviation).max()
+    assert largest > 80e-6                                                   # the deflection, ~90 um
+    assert np.abs(stage[True] - expected).max() < 0.15 * largest
+    end = line_runs[True].motion_end
+    assert abs(stage[True][end, 2]) < 0.5 * abs(deviation[end, 2])
+    run = line_runs[True]
+    deflection = deflections(robot_piezo, true_geometry(robot_piezo), run.record.true)
+    error = [np.linalg.norm(kin.forward(run.record.reference[k])[0] - kin.forward(run.record.true[k])[0]
+                            - [0.0, 0.0, deflection[k]]) for k in range(run.motion_start, len(run.record.true), 10)]
+    assert max(error) < 0.5 * np.abs(deflection).max()
 
 
 def test_the_yaml_axes_are_the_experiments_axes(robot_piezo):
@@ -233,6 +310,9 @@ BASE = (MACHINES / 'robot_piezo.yaml').read_text()
      'cartesian_dual_stage.fine: 4 fine axes'),
     (('  coarse: [j1, j2, j3, j4, j5, j6]\n  fine: [px, py, pz]', '  coarse: [j1, j2, j3, j4, j5]\n  fine: [px, py, j6]'),
      'cartesian_dual_stage.fine: fine axes must be linear with a stroke'),
+    (('    time_constant: 0.1 ', '    time_constant: 0.0 '), 'cartesian_dual_stage.midranging.time_constant: must be > 0'),
+    (('    time_constant: 0.1 ', '    time_constant: .nan '), 'cartesian_dual_stage.midranging.time_constant'),
+    (('    time_constant: 0.1 ', '    gain: 1.0 '), 'cartesian_dual_stage.midranging.time_constant: missing'),
 ])
 def test_a_bad_robot_piezo_config_is_refused_with_the_reason(tmp_path, edit, reason):
     old, new = edit

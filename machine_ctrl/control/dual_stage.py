@@ -20,6 +20,28 @@ deflects where no joint encoder sees it) the deviation is the tracker's instead:
 with y the tracker's reading of the coarse stage's tool tip (the fine axes at home) and P the
 forward kinematics' tool tip.
 
+Mid-ranging (config ``cartesian_dual_stage.midranging``; Sörnmo Ch. 3): the fine stage's
+stroke is small (§3.1: ~0.5 mm), and a lasting deviation (the arm's static deflection under the
+milling force) would keep it off its middle for the whole cut. The valve-position-control
+structure of Fig. 3.2 moves such a deviation over to the coarse stage: C_s' acts on the fine
+stage's offset (the "valve position", its set point r_s = 0: the middle), and the coarse
+stage's tool tip is moved by
+
+    Delta_k = Delta_{k-1} + (h / T) J_P,fine dq_f,k        dq_c,k = pinv([J_P,coarse; J_O,coarse]) [Delta_k; 0]
+
+(h the control period, dq_f,k the fine offsets of step k). With the coarse stage following its
+reference fast compared with T, the coarse stage takes over 1/(T s + 1) of a deviation and the
+fine stage keeps T s/(T s + 1) (after a step its offset decays with T): C_s' is a plain
+integrator, the PI of §3.2 "designed for the same desired closed loop" T_s = 1/(T s + 1) with
+the coarse loop taken as 1 (its proportional part is zero). The coarse move keeps the tool's
+orientation (the zero rows; exactly when the coarse axes span all six directions, else in the
+least-squares sense). The deviation is still taken against the unshifted reference: as the
+coarse stage moves by Delta, the deviation it leaves (measured by the tracker, or by the
+encoders) shrinks by Delta, and so does the fine stage's offset; the tool tip stays on the path.
+This is VPC, not the adaptive IMC of Ch. 3 (machine_ctrl/control/midranging.py): the seed runs
+its mid-ranging on two first-order loops in simulation and on two robots (§3.6, Fig. 3.8), not
+on the machining robot with the micro manipulator.
+
 Stroke: the fine axis must stay inside its stroke. The total fine reference is clipped to
 the stroke shrunk by a margin (default 10 % of its width, assumed: room for the fine axis's
 own tracking error) and slewed at no more than the fine axis's velocity limit, so a large
@@ -29,8 +51,9 @@ going — the fine stage then compensates only part of the error, it never fault
 operation (um-level coarse errors) neither limit is active.
 
 Same shape as a control law (machine_ctrl/control/law.py), over all axes at once:
-``step(ref_pos, pos, tracker=None)`` -> offsets (in the order of MachineConfig.fine_axes),
-``reset()``, declared ``parameters``.
+``step(ref_pos, pos, tracker=None)`` -> offsets (in the order of MachineConfig.offset_axes:
+the fine axes, then with mid-ranging the coarse axes), ``reset()``, declared ``parameters``.
+Switched off (or reset), the offsets are zero at once, the mid-ranging's too.
 """
 from __future__ import annotations
 
@@ -43,8 +66,8 @@ from machine_ctrl.model.config import MachineConfig
 
 
 class CouplingResult(NamedTuple):     # a NamedTuple: one is made per step (cheaper than a frozen dataclass)
-    offsets: tuple[float, ...]       # added to each fine axis's reference, MachineConfig.fine_axes order
-    saturated: tuple[bool, ...]
+    offsets: tuple[float, ...]       # added to each axis's reference, MachineConfig.offset_axes order
+    saturated: tuple[bool, ...]      # per fine axis
 
 
 class DualStageCoupling:
@@ -57,6 +80,7 @@ class DualStageCoupling:
         index = {name: i for i, name in enumerate(machine.axis_names)}
         self.pairs = [(index[p.coarse], p.sign) for p in machine.dual_stage]
         self.fine_axes = machine.fine_axes
+        self.offset_axes = machine.offset_axes
         self.fine = [index[name] for name in self.fine_axes]
         self.limits = []                 # per fine axis: lowest and highest total reference, slew per step
         for name in self.fine_axes:
@@ -72,6 +96,10 @@ class DualStageCoupling:
         """Forget the last fine references (no slew limit on the next step) and the
         saturation count; `enabled` stays as it is."""
         self.saturation_count = 0
+        self.reset_motion()
+
+    def reset_motion(self) -> None:
+        """Forget the last fine references and the mid-ranging's take-over (both start from zero)."""
         self._last_total: list[float | None] = [None] * len(self.fine)
         if self.cartesian is not None:
             self.cartesian.reset()
@@ -85,8 +113,8 @@ class DualStageCoupling:
         """ref_pos, pos: reference and measured position of every axis (machine order);
         `tracker`: the tracker's reading (x, y, z), required when :attr:`uses_tracker`."""
         if not self.enabled:
-            self._last_total = [None] * len(self.fine)
-            return CouplingResult((0.0,) * len(self.fine), (False,) * len(self.fine))
+            self.reset_motion()
+            return CouplingResult((0.0,) * len(self.offset_axes), (False,) * len(self.fine))
         corrections = [sign * (ref_pos[coarse] - pos[coarse]) for coarse, sign in self.pairs]
         if self.cartesian is not None:
             corrections += self.cartesian.corrections(ref_pos, pos, tracker)
@@ -101,6 +129,8 @@ class DualStageCoupling:
             offsets.append(total - ref_pos[fine])
             saturated.append(total != wanted)
         self.saturation_count += sum(saturated)
+        if self.cartesian is not None and self.cartesian.midranging:
+            offsets += self.cartesian.midrange(offsets[len(self.pairs):])
         return CouplingResult(tuple(offsets), tuple(saturated))
 
 
@@ -121,6 +151,9 @@ class _CartesianDeviation:
         self.coarse = np.array([index[n] for n in machine.cartesian_dual_stage.coarse])
         self.fine = np.array([index[n] for n in machine.cartesian_dual_stage.fine])
         self.uses_tracker = machine.tracker is not None
+        midranging = machine.cartesian_dual_stage.midranging
+        self.midranging = midranging is not None
+        self._rate = None if midranging is None else machine.control_period / midranging.time_constant   # h / T
         self.fine_home = np.array(machine.home, float)[self.fine]
         at_home = self.kinematics.jacobian(np.array(machine.home))[:3, self.fine]
         if np.linalg.matrix_rank(at_home) < len(self.fine):
@@ -130,15 +163,20 @@ class _CartesianDeviation:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the Jacobian: the next step evaluates it (a reset coupling is a fresh one)."""
-        self._at, self._map, self._fine_pinv = None, None, None
+        """Forget the Jacobian and the mid-ranging's take-over (a reset coupling is a fresh one)."""
+        self._at, self._map, self._fine_pinv, self._fine_jacobian, self._coarse_pinv = None, None, None, None, None
+        self._taken_over = np.zeros(3)            # Delta, m: the tool-tip move given to the coarse stage
 
     def corrections(self, ref_pos, pos, tracker=None) -> list[float]:
         ref = np.asarray(ref_pos, float)
         if self._at is None or np.abs(ref - self._at).max() > self.JACOBIAN_STEP:
-            jacobian = self.kinematics.jacobian(ref)[:3]
-            self._fine_pinv = np.linalg.pinv(jacobian[:, self.fine])
+            full = self.kinematics.jacobian(ref)
+            jacobian = full[:3]
+            self._fine_jacobian = jacobian[:, self.fine]
+            self._fine_pinv = np.linalg.pinv(self._fine_jacobian)
             self._map = self._fine_pinv @ jacobian[:, self.coarse]
+            if self.midranging:
+                self._coarse_pinv = np.linalg.pinv(full[:, self.coarse])[:, :3]     # [Delta; 0]: the position columns
             self._at = ref.copy()
         if not self.uses_tracker:
             error = ref[self.coarse] - np.asarray(pos, float)[self.coarse]
@@ -151,9 +189,16 @@ class _CartesianDeviation:
         deviation = self.kinematics.forward(coarse_ref)[0] - np.asarray(tracker, float)
         return (self._fine_pinv @ deviation).tolist()
 
+    def midrange(self, fine_offsets) -> list[float]:
+        """The coarse axes' offsets of this step (module doc): Delta += (h / T) J_P,fine dq_f, in
+        joint space pinv([J_P; J_O]_coarse) [Delta; 0], at the Jacobian of the last
+        :meth:`corrections` (which is called first in each step)."""
+        self._taken_over = self._taken_over + self._rate * (self._fine_jacobian @ np.asarray(fine_offsets, float))
+        return (self._coarse_pinv @ self._taken_over).tolist()
+
 
 def apply_offsets(ref_pos, slots, offsets) -> list[float]:
-    """The reference the servos see: the fine axes at `slots` get their offsets added."""
+    """The reference the servos see: the axes at `slots` get their offsets added."""
     ref = list(ref_pos)
     for i, offset in zip(slots, offsets):
         ref[i] += offset

@@ -322,6 +322,15 @@ class TrackerConfig:
 
 
 @dataclass(frozen=True)
+class MidRangingConfig:
+    """Mid-ranging of a Cartesian coupling (Sörnmo Ch. 3, the VPC structure of Fig. 3.2): the
+    coarse stage slowly takes over the fine stage's offset so that the fine stage returns to
+    its home, the middle of its stroke (machine_ctrl/control/dual_stage.py).
+    `time_constant`: of the desired first-order take-over, T_s(s) = 1/(time_constant s + 1)."""
+    time_constant: float = _positive()     # s
+
+
+@dataclass(frozen=True)
 class CartesianCoupling:
     """A coarse stage of several axes and a fine stage of others (Sörnmo Fig. 2.9: a robot and
     a micro manipulator): the tool's deviation caused by the coarse axes' tracking errors,
@@ -329,10 +338,12 @@ class CartesianCoupling:
     in the least-squares sense over the tool-tip position (machine_ctrl/control/dual_stage.py).
     With a `tracker` the deviation is measured instead: the tool tip of the reference with the
     fine axes at home, minus the tracker's reading of the coarse stage's. The fine axes only
-    compensate: a path plan holds them at home (a joint goal may jog them)."""
+    compensate: a path plan holds them at home (a joint goal may jog them). With `midranging`
+    the coarse axes get offsets too, which move the fine stage's offset over to them."""
     coarse: tuple[str, ...]
     fine: tuple[str, ...]
     tracker: TrackerConfig | None = None
+    midranging: MidRangingConfig | None = None
 
 
 @dataclass(frozen=True)
@@ -456,6 +467,15 @@ class MachineConfig:
         coupling's."""
         cartesian = self.cartesian_dual_stage.fine if self.cartesian_dual_stage is not None else ()
         return tuple(p.fine for p in self.dual_stage) + cartesian
+
+    @property
+    def offset_axes(self) -> tuple[str, ...]:
+        """The axes whose reference the dual-stage coupling offsets each step, in the order of
+        its offsets (/dual_stage/offsets): the fine axes, then with mid-ranging the coarse axes
+        of the Cartesian coupling."""
+        cartesian = self.cartesian_dual_stage
+        midranged = cartesian.coarse if cartesian is not None and cartesian.midranging is not None else ()
+        return self.fine_axes + midranged
 
     @property
     def tracker(self) -> TrackerConfig | None:
@@ -893,6 +913,7 @@ def _cartesian_dual_stage(s: _Section, axes: list[AxisConfig], pairs) -> Cartesi
             s.fail('names an axis twice', role)
         roles[role] = tuple(raw)
     tracker = _read(s.section('tracker'), TrackerConfig) if 'tracker' in s.data else None
+    midranging = _read(s.section('midranging'), MidRangingConfig) if 'midranging' in s.data else None
     s.finish()
     if set(roles['coarse']) & set(roles['fine']):
         s.fail('an axis cannot be both coarse and fine')
@@ -903,7 +924,7 @@ def _cartesian_dual_stage(s: _Section, axes: list[AxisConfig], pairs) -> Cartesi
         s.fail(f'{len(roles["fine"])} fine axes: the tool-tip position has three coordinates', 'fine')
     if any(by_name[n].kind != 'linear' or by_name[n].stroke is None for n in roles['fine']):
         s.fail('fine axes must be linear with a stroke', 'fine')
-    return CartesianCoupling(roles['coarse'], roles['fine'], tracker)
+    return CartesianCoupling(roles['coarse'], roles['fine'], tracker, midranging)
 
 
 def _contour_control(s: _Section, axes: list[AxisConfig]) -> ContourControlConfig:

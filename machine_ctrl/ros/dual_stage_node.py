@@ -1,7 +1,8 @@
 """dual_stage_node: per step k, the fine-stage reference offsets of the dual-stage coupling
 (thesis section 4.4; a Cartesian coupling through the kinematics, control/dual_stage.py) from
 the coarse tracking errors, on /dual_stage/offsets
-(sensor_msgs/JointState: name = fine axes, position = offsets in m, stamp = step k).
+(sensor_msgs/JointState: name = the fine axes, then with mid-ranging the coarse axes;
+position = offsets in m or rad; stamp = step k).
 Inputs: /joint_states and the reference stream /reference (all coupled axes), and on a machine
 whose Cartesian coupling has a tracker the tracker's reading of each step (/hw_sim/tracker,
 geometry_msgs/PointStamped in the workpiece frame). Waits for a reference stream that never
@@ -44,7 +45,7 @@ class DualStageNode(StepNode):
         self.coupling = DualStageCoupling(self.machine, dual_stage=dual_stage)
         self.axes = self.machine.axis_names
         self.make_buffer(self.axes)
-        self.encoder = JointStateEncoder(self.coupling.fine_axes)
+        self.encoder = JointStateEncoder(self.coupling.offset_axes)
         self.pub = self.create_publisher(JointState, contract.DUAL_STAGE_OFFSETS.name, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
@@ -55,7 +56,7 @@ class DualStageNode(StepNode):
         self.start_stepping(self.machine, self.axes, self.pub, self.ready, self.compute, streaming=self.streaming)
         self.create_service(SetBool, contract.DUAL_STAGE_ENABLE.name, self.on_enable)
         wall_timer(self, 1.0, self.publish_diagnostics)
-        self.get_logger().info(f'ready: fine axes {" ".join(self.coupling.fine_axes)}')
+        self.get_logger().info(f'ready: offsets of {" ".join(self.coupling.offset_axes)}')
 
     def on_dual_stage(self, on: bool) -> None:
         self.coupling.enabled = on

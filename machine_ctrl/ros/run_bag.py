@@ -4,8 +4,8 @@ record: same topics, types, stamps and contents per step k (stamp t_k = k T):
 * /joint_states: measured position, velocity and the efforts applied over the period before;
 * /servo_commands: one message per servo node of the default graph (coarse, fine), effort =
   the commands computed at k;
-* /dual_stage/offsets: the fine-stage offsets (zero with the coupling off), if the machine
-  has a dual-stage coupling;
+* /dual_stage/offsets: the coupling's offsets (of MachineConfig.offset_axes; zero with the
+  coupling off), if the machine has a dual-stage coupling;
 * /reference: chunks of ``CHUNK_STEPS`` rows as reference_node sends them;
 * /clock every ``CLOCK_DECIMATION`` steps and the ground truth
   (/hw_sim/ground_truth/joint_states: true positions — the offline record keeps no true
@@ -91,7 +91,7 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
         put(contract.JOINT_STATES.full(), ros_io.joint_state(stamp, axes, record.measured[k],
                                                           record.measured_velocity[k], record.effort[k]), ns)
         if has_offsets:
-            put(contract.DUAL_STAGE_OFFSETS.full(), ros_io.joint_state(stamp, record.fine_axes, record.offsets[k]), ns)
+            put(contract.DUAL_STAGE_OFFSETS.full(), ros_io.joint_state(stamp, record.offset_axes, record.offsets[k]), ns)
         for names, index in groups:
             put(contract.SERVO_COMMANDS.full(), ros_io.joint_state(stamp, names, effort=record.commands[k, index]), ns)
     custom = {MACHINE_KEY: machine.name, MACHINE_FILE_KEY: str(machine.yaml_path)}

@@ -3,7 +3,8 @@ one per stage, or all), answering every /joint_states step with /servo_commands.
 
 Inputs per step k: the state (/joint_states), the reference row k of its axes (streamed
 ahead in chunks on /reference, trajectory_msgs/JointTrajectory on the control grid),
-for the fine axes of a dual-stage coupling the offsets of step k (/dual_stage/offsets) and, for
+for the axes a dual-stage coupling offsets (its fine axes; with mid-ranging its coarse axes
+too: MachineConfig.offset_axes) the offsets of step k (/dual_stage/offsets) and, for
 axes whose law closes the acceleration loop (pid with acceleration_gain > 0), the
 accelerometer readings of step k (/accelerometers, sensor_msgs/Imu by the axis's link). An
 input stream that has never delivered is waited for (reported on /diagnostics as
@@ -73,12 +74,12 @@ class ServoNode(StepNode):
             self.contour_ref_slots = [slot for slot, _ in self.contour_slots]
             self.own_columns = [self.machine_axes.index(a) for a in self.axes]
         self.declare_gains()
-        fine = set(self.machine.fine_axes)
-        self.fine_slots = [i for i, a in enumerate(self.axes) if a in fine]
-        self.fine_names = [self.axes[i] for i in self.fine_slots]
-        coupled = declare_parameters(self, parameters.SERVO, {'wait_for_offsets': bool(self.fine_slots)},
+        offset = set(self.machine.offset_axes)
+        self.offset_slots = [i for i, a in enumerate(self.axes) if a in offset]
+        self.offset_names = [self.axes[i] for i in self.offset_slots]
+        coupled = declare_parameters(self, parameters.SERVO, {'wait_for_offsets': bool(self.offset_slots)},
                                      names=('wait_for_offsets',)).wait_for_offsets
-        self.wait_for_offsets = coupled and bool(self.fine_slots)
+        self.wait_for_offsets = coupled and bool(self.offset_slots)
         self.offsets = StepInput(contract.DUAL_STAGE_OFFSETS.name)
         # the axes whose law reads its accelerometer, and their slots in the group
         self.accelerometer_axes = [self.machine.axis(a) for a in self.servo.uses_acceleration]
@@ -147,7 +148,7 @@ class ServoNode(StepNode):
 
     def on_offsets(self, msg: JointStateData) -> None:
         try:
-            self.offsets.put(self.clock.step_at(msg.sec, msg.nanosec), ros_io.select(msg, 'position', self.fine_names))
+            self.offsets.put(self.clock.step_at(msg.sec, msg.nanosec), ros_io.select(msg, 'position', self.offset_names))
         except ros_io.InvalidMessage as exc:
             self.rejections.add('offsets', str(exc))
             return
@@ -203,7 +204,7 @@ class ServoNode(StepNode):
         complete = not self.accelerometer_axes or self._accelerations_of(step)
         offsets, readings = self.offsets.take(step), self.accelerations.take(step)
         # the dual-stage node or hw_sim's accelerometer stream lost: no offsets or readings
-        # within input_timeout. A fine axis without its offsets has no setpoint, an acceleration
+        # within input_timeout. An axis without its offsets has no setpoint, an acceleration
         # loop without its reading no feedback: no answer, so hw_sim faults on the axes after
         # its command_timeout (README "Faults"); the inputs of this step sent again later (a
         # respawned dual_stage, hw_sim's re-send) are answered as usual
@@ -215,7 +216,7 @@ class ServoNode(StepNode):
             return None
         ref_pos, ref_vel, ref_acc, _ = self.buffer.take(step, position)
         if offsets is not None:
-            ref_pos = apply_offsets(ref_pos, self.fine_slots, offsets)
+            ref_pos = apply_offsets(ref_pos, self.offset_slots, offsets)
         if self.contour is not None:
             if not self.contour.has_rows_for(step):
                 self.contour_short += 1          # estimated from fewer rows than its block
