@@ -27,7 +27,8 @@ PROGRESS_STEPS = 10000       # progress(k, steps) after every this many steps
 class RunRecord:
     """Per step k (rows): reference, measured (position, velocity) and true positions at
     step k, the efforts applied over the period before it (what /joint_states carries), the
-    commands computed at k, and the dual-stage coupling's offsets (of `offset_axes`)."""
+    commands computed at k, the dual-stage coupling's offsets (of `offset_axes`) and, on a
+    machine with a tracker, its readings (x, y, z) of step k."""
     axis_names: tuple[str, ...]
     period: float
     reference: np.ndarray
@@ -40,6 +41,7 @@ class RunRecord:
     fault: str | None = None
     saturations: int = 0
     offset_axes: tuple[str, ...] = field(default_factory=tuple)     # MachineConfig.offset_axes
+    tracker: np.ndarray | None = None     # (steps, 3), m; None without a tracker
     contour_invalid: dict[str, int] | None = None    # with contour control: steps per channel without a valid estimate
     compiled: bool = False       # stepped by the compiled loop (hw_sim/compiled_loop.py), else the Python loop
 
@@ -85,7 +87,7 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
     names = ('reference', 'measured', 'measured_velocity', 'effort', 'true', 'commands')
     rows = [[] for _ in names]            # per step one tuple each; arrays at the end (cheaper per step)
     reference_rows, measured_rows, velocity_rows, effort_rows, true_rows, command_rows = rows
-    offsets_rows = []
+    offsets_rows, tracker_rows = [], []
     for k, (ref_pos, ref_vel, ref_acc) in enumerate(reference.rows(steps)):
         for axis, f in forces.items():
             simulator.set_force(axis, f[min(k, len(f) - 1)])
@@ -103,6 +105,7 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         true_rows.append(simulator.true_position)
         command_rows.append(commands)
         offsets_rows.append(offsets)
+        tracker_rows.append(measured.tracker)
         simulator.step(commands)
         if progress is not None and k % PROGRESS_STEPS == 0:
             progress(k, steps)
@@ -111,6 +114,7 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
                      offsets=np.array(offsets_rows, dtype=float).reshape(steps, len(offset_index)),
                      fault=simulator.fault, saturations=coupling.saturation_count,
                      offset_axes=coupling.offset_axes,
+                     tracker=np.array(tracker_rows, dtype=float).reshape(steps, 3) if machine.tracker else None,
                      contour_invalid=None if contour is None else dict(contour.invalid_steps), **rec)
 
 

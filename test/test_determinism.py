@@ -71,6 +71,7 @@ class Recorded:
 
     def __init__(self, bag_dir, machine):
         from diagnostic_msgs.msg import DiagnosticStatus
+        from geometry_msgs.msg import PointStamped
         from sensor_msgs.msg import JointState
         from trajectory_msgs.msg import JointTrajectory
 
@@ -84,11 +85,11 @@ class Recorded:
             assert ns % period_ns == 0, f'stamp {ns} ns off the control grid'
             return ns // period_ns
 
-        self.states, self.commands, self.offsets, self.reference = {}, {}, {}, {}
+        self.states, self.commands, self.offsets, self.reference, self.tracker = {}, {}, {}, {}, {}
         self.start_steps = set()
         per_step = {contract.JOINT_STATES.full(): self.states, contract.DUAL_STAGE_OFFSETS.full(): self.offsets}
         wanted = [topic.full() for topic in (contract.JOINT_STATES, contract.SERVO_COMMANDS, contract.DUAL_STAGE_OFFSETS,
-                                             contract.REFERENCE, contract.TRAJECTORY_STATUS)]
+                                             contract.REFERENCE, contract.TRAJECTORY_STATUS, contract.TRACKER)]
         with Bag(bag_dir) as bag:
             self.topics = set(bag.topics)
             for message in bag.messages(wanted):
@@ -107,6 +108,10 @@ class Recorded:
                     for i, point in enumerate(msg.points):      # a later chunk replaces rows from its first
                         self.reference[first + i] = (tuple(point.positions), tuple(point.velocities),
                                                      tuple(point.accelerations))
+                elif message.topic == contract.TRACKER.full():
+                    msg = deserialize(message.data, PointStamped)
+                    value = (msg.header.frame_id, msg.point.x, msg.point.y, msg.point.z)
+                    assert self.tracker.setdefault(step(msg.header.stamp), value) == value, 'a tracker re-sent differently'
                 elif message.topic == contract.TRAJECTORY_STATUS.full():
                     status = deserialize(message.data, DiagnosticStatus)
                     values = {kv.key: kv.value for kv in status.values}
@@ -185,12 +190,16 @@ def assert_joint_states_equal(a: Recorded, b: Recorded, steps: int):
 
 def assert_per_step_topics_equal(a: Recorded, b: Recorded, steps: int):
     """/servo_commands, /dual_stage/offsets (the answers to the states of steps 0..steps-2:
-    the last state a graph published may go unanswered when it is stopped) and /reference
-    (rows 0..steps-1)."""
+    the last state a graph published may go unanswered when it is stopped), /reference
+    (rows 0..steps-1) and, on a machine with a tracker, /hw_sim/tracker (steps 0..steps-1)."""
     assert a.names() == b.names()
+    assert bool(a.tracker) == bool(b.tracker)
     for topic, x, y, upto in (('/servo_commands', a.commands, b.commands, steps - 1),
                               ('/dual_stage/offsets', a.offsets, b.offsets, steps - 1),
-                              ('/reference', a.reference, b.reference, steps)):
+                              ('/reference', a.reference, b.reference, steps),
+                              ('/hw_sim/tracker', a.tracker, b.tracker, steps)):
+        if topic == '/hw_sim/tracker' and not a.tracker:
+            continue
         keys = sorted(key for key in x if (key[0] if isinstance(key, tuple) else key) < upto)
         assert keys, topic
         other = sorted(key for key in y if (key[0] if isinstance(key, tuple) else key) < upto)

@@ -4,7 +4,8 @@ milling path sent with `machine-ctrl send`, Ctrl-C, and `machine-ctrl analyze` o
 which learns the machine from its config; the arm deflects under the milling force where no
 encoder sees it, the coupling cancels it through the tracker (/hw_sim/tracker), and the recorded
 ground truth shows it cancelled; a rogue tracker's bad readings are refused with the reason;
-the bag equals the offline run of the goal bit for bit. Real nodes over real DDS; the coupling's effect (on
+the bag (the tracker's readings and, with the mid-ranging, the robot's offsets included)
+equals the offline run of the goal bit for bit. Real nodes over real DDS; the coupling's effect (on
 against off) is measured offline (test/test_robot_piezo.py), where the two runs cost seconds,
 not minutes."""
 import json

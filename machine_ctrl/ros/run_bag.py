@@ -6,6 +6,7 @@ record: same topics, types, stamps and contents per step k (stamp t_k = k T):
   the commands computed at k;
 * /dual_stage/offsets: the coupling's offsets (of MachineConfig.offset_axes; zero with the
   coupling off), if the machine has a dual-stage coupling;
+* /hw_sim/tracker: the tracker's reading of each step, if the machine has a tracker;
 * /reference: chunks of ``CHUNK_STEPS`` rows as reference_node sends them;
 * /clock every ``CLOCK_DECIMATION`` steps and the ground truth
   (/hw_sim/ground_truth/joint_states: true positions — the offline record keeps no true
@@ -49,7 +50,8 @@ def _offered(qos: contract.Qos) -> dict:
 # offers contract.CLOCK.qos)
 _TOPICS = [(topic, _offered(topic.qos if topic is not contract.CLOCK else contract.CLOCK_READER_QOS))
            for topic in (contract.JOINT_STATES, contract.SERVO_COMMANDS, contract.DUAL_STAGE_OFFSETS,
-                         contract.REFERENCE, contract.CLOCK, contract.TRUE_JOINT_STATES, contract.TRUE_TOOL_POSE)]
+                         contract.TRACKER, contract.REFERENCE, contract.CLOCK, contract.TRUE_JOINT_STATES,
+                         contract.TRUE_TOOL_POSE)]
 
 
 def servo_groups(machine: MachineConfig) -> list[list[str]]:
@@ -62,8 +64,9 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
     """Write `record` (offline.RunRecord of `reference`) as a bag; returns the counts."""
     writer = BagWriter(directory)
     has_offsets = bool(machine.fine_axes)
+    has_tracker = record.tracker is not None
     for topic, qos in _TOPICS:
-        if topic is not contract.DUAL_STAGE_OFFSETS or has_offsets:
+        if (topic is not contract.DUAL_STAGE_OFFSETS or has_offsets) and (topic is not contract.TRACKER or has_tracker):
             writer.add_topic(topic.full(), topic.type, [qos])
     clock = ros_io.StepClock.of(machine)
     axes = list(machine.axis_names)
@@ -88,6 +91,9 @@ def write_run_bag(directory, machine: MachineConfig, reference, record, label: s
             put(contract.TRUE_TOOL_POSE.full(), ros_io.pose_message(stamp, machine.workpiece_frame,
                                                                      deflected(true_tool_pose(record.true[k]),
                                                                                deflection[k])), ns)
+        if has_tracker:          # hw_sim publishes it before the step's state
+            put(contract.TRACKER.full(), ros_io.tracker_message(stamp, machine.workpiece_frame,
+                                                                record.tracker[k].tolist()), ns)
         put(contract.JOINT_STATES.full(), ros_io.joint_state(stamp, axes, record.measured[k],
                                                           record.measured_velocity[k], record.effort[k]), ns)
         if has_offsets:
