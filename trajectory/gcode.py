@@ -54,6 +54,7 @@ from typing import Callable
 
 import numpy as np
 
+from machine_ctrl.model.numeric import MAX_COORDINATE
 from trajectory import toolpath
 
 MM, INCH = 1e-3, 25.4e-3                 # m per program unit
@@ -68,10 +69,6 @@ MAX_SPACING = 0.1e-3                     # m
 MIN_SEGMENTS = 5                         # a block's fewest samples - 1 (toolpath.MIN_POINTS = 6)
 # a block shorter than this has no room for its samples (toolpath.MIN_SPACING apart): no motion
 MIN_MOVE = MIN_SEGMENTS * toolpath.MIN_SPACING
-# assumed: 2 m, beyond the reach of every shipped machine (the IRB 2400's 1.55 m the largest):
-# a coordinate, centre offset or radius farther out is a wrong number, refused before its
-# samples are made (a 100 m line would be a million of them)
-MAX_COORDINATE = 2.0                     # m
 # assumed: 0.1 deg. Two blocks whose tangents differ by more are a corner: the piece ends
 # there (an exact stop). A smaller kink is smoothed by the spline through the samples by
 # about spacing x angle / 8 <= 0.1 mm x 1.7e-3 / 8 = 0.02 µm.

@@ -18,6 +18,8 @@ from typing import Callable
 
 import numpy as np
 
+from machine_ctrl.model.numeric import MAX_COORDINATE
+
 # Fewest points a path may have: the quintic (degree k = 5) interpolating spline of
 # trajectory.spline needs k + 1 = 6 (with 6 points it is the one quintic polynomial through
 # them; scipy's make_interp_spline refuses fewer without end derivatives). Nothing after the
@@ -28,11 +30,6 @@ MIN_POINTS = 6
 # assumed: 1 nm, far below the 20 nm table sensors (CIRP seed 002 section 2) and far above
 # float rounding of coordinates of a 100 mm machine (~1e-17 m).
 MIN_SPACING = 1e-9
-
-# m. A tool-tip coordinate beyond +-this is refused before any arithmetic on it (a distance
-# between two such points would overflow a float). assumed: 1 km, far beyond any machine's
-# or robot's reach; the machine's own limits are checked later, on the joint path.
-MAX_COORDINATE = 1e3
 
 # A tool axis (or quaternion) shorter than this is zero-length.
 # assumed: 1e-9; shorter vectors are zero up to rounding of typical inputs.
@@ -140,8 +137,9 @@ def axes_from_quaternions(q_xyzw) -> np.ndarray:
     bad = np.flatnonzero(~np.isfinite(q).all(axis=1))
     if len(bad):
         raise CLDataError(f'pose {bad[0]}: orientation quaternion is not finite (NaN or inf)', int(bad[0]))
-    n = np.linalg.norm(q, axis=1)
-    bad = np.flatnonzero(~(np.abs(n * n - 1.0) < QUATERNION_TOLERANCE))
+    with np.errstate(over='ignore'):             # a norm beyond the float range is inf: refused below
+        n = np.linalg.norm(q, axis=1)
+        bad = np.flatnonzero(~(np.abs(n * n - 1.0) < QUATERNION_TOLERANCE))
     if len(bad):
         i = int(bad[0])
         what = 'zero length' if n[i] < MIN_AXIS_NORM else f'norm {n[i]:.6g}'

@@ -20,7 +20,7 @@ from nav_msgs.msg import Path
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, JointState
-from machine_ctrl.model.numeric import all_finite
+from machine_ctrl.model.numeric import MAX_COORDINATE, all_finite
 from trajectory_msgs.msg import JointTrajectory
 
 from machine_ctrl import contract
@@ -101,11 +101,14 @@ def tracker_message(stamp: Time, frame: str, reading) -> PointStamped:
 
 def tracker_reading(msg: PointStamped, frame: str) -> tuple[float, float, float]:
     """(x, y, z) of a tracker message; InvalidMessage when its frame is not `frame` or a
-    coordinate is NaN or inf."""
+    coordinate is NaN, inf or beyond MAX_COORDINATE (no tracker reads a tool tip 1 km away)."""
     if msg.header.frame_id != frame:
         raise InvalidMessage(f'tracker frame_id {msg.header.frame_id!r} is not the workpiece frame {frame!r}')
     p = msg.point
-    return tuple(_finite((p.x, p.y, p.z), 'point'))
+    reading = tuple(_finite((p.x, p.y, p.z), 'point'))
+    if max(map(abs, reading)) > MAX_COORDINATE:
+        raise InvalidMessage(f'tracker point {list(reading)} m is beyond +-{MAX_COORDINATE:g} m of the workpiece origin')
+    return reading
 
 
 def joint_state(stamp: Time, names, position=(), velocity=(), effort=()) -> JointState:
