@@ -350,8 +350,9 @@ SERVO = NodeParameters('servo_node', (
 
 DUAL_STAGE = NodeParameters('dual_stage_node', (
     MACHINE,
-    ParameterSpec('dual_stage', BOOL, True, description='dual-stage coupling on (off: zero offsets); live: from the '
-                  'next step, the fine reference moves by the coarse tracking error, inside the fine stroke; '
+    ParameterSpec('dual_stage', BOOL, True, description='dual-stage coupling on (off: every offset zero at once, '
+                  'the mid-ranging take-over too); live: from the next step, the fine reference moves by the coarse '
+                  'tracking error, inside the fine stroke; '
                   f'{contract.DUAL_STAGE_ENABLE.name} sets this parameter', live=True),
     INPUT_TIMEOUT,
 ), sim_time=True)

@@ -18,6 +18,7 @@ from hw_sim.simulator import MachineSimulator
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.model.kinematics import Kinematics
+from machine_ctrl.model.numeric import MAX_COORDINATE
 from machine_ctrl.ros import messages as ros_io
 import fuzz_cases as fc
 from test_config import edited_machine
@@ -106,6 +107,7 @@ def test_fuzzed_tracker_messages_are_refused_with_the_reason_or_kept_for_their_s
     node.on_tracker(ros_io.tracker_message(Time(sec=stamp[0], nanosec=stamp[1]), frame, point))
     step = fc.stamp_step(stamp)
     valid = frame == 'workpiece' and step is not None and all(math.isfinite(v) and abs(v) <= 2.0 for v in point)
+    assert MAX_COORDINATE == 2.0
     if valid:
         assert node.rejections.count == before[1] and node.tracker.pending[step] == point
     else:
@@ -121,7 +123,7 @@ def dual_stage_node(rclpy_context, robot_piezo):
     node = DualStageNode(context=rclpy_context,
                          parameter_overrides=[Parameter('machine', value=str(robot_piezo.yaml_path))])
     try:
-        assert node.coupling.uses_tracker
+        assert node.coupling.uses_tracker and node.clock.period_ns == fc.PERIOD_NS     # the stamps' grid
         yield node
     finally:
         node.destroy_node()

@@ -18,8 +18,6 @@ from typing import Callable
 
 import numpy as np
 
-from machine_ctrl.model.numeric import MAX_COORDINATE
-
 # Fewest points a path may have: the quintic (degree k = 5) interpolating spline of
 # trajectory.spline needs k + 1 = 6 (with 6 points it is the one quintic polynomial through
 # them; scipy's make_interp_spline refuses fewer without end derivatives). Nothing after the
@@ -34,9 +32,11 @@ MIN_SPACING = 1e-9
 # A tool axis (or quaternion) shorter than this is zero-length.
 # assumed: 1e-9; shorter vectors are zero up to rounding of typical inputs.
 MIN_AXIS_NORM = 1e-9
-# A tool axis with a component beyond this is scaled before its norm is taken (its square
-# would overflow a float: 1e154² > 1.8e308); shorter ones are normalized as they are.
-HUGE_AXIS = 1e150
+# A number beyond this has a square that overflows a float (1e154² > 1.8e308), so no distance
+# or norm can be taken of it: a tool tip with such a coordinate is refused at once (one within
+# it but out of the machine's reach is the planner's to refuse, naming the reach), a tool axis
+# with such a component is scaled before its norm is taken.
+HUGE = 1e150
 
 # An orientation quaternion (x, y, z, w) is unit when |x² + y² + z² + w² - 1| is below this:
 # tf2's QUATERNION_NORMALIZATION_TOLERANCE (ros2/geometry2, tf2/src/buffer_core.cpp, 10e-3 on
@@ -81,11 +81,11 @@ class CLData:
             bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
             if len(bad):
                 raise CLDataError(f'point {bad[0]}: {name} is not finite (NaN or inf)', int(bad[0]))
-        bad = np.flatnonzero((np.abs(p) > MAX_COORDINATE).any(axis=1))
+        bad = np.flatnonzero((np.abs(p) > HUGE).any(axis=1))
         if len(bad):
-            raise CLDataError(f'point {bad[0]}: position {p[bad[0]].tolist()} m is beyond +-{MAX_COORDINATE:g} m '
-                              f'of the workpiece origin', int(bad[0]))
-        huge = np.abs(o).max(axis=1) > HUGE_AXIS      # their squares would overflow the norm: scaled first
+            raise CLDataError(f'point {bad[0]}: position {p[bad[0]].tolist()} m has a coordinate beyond +-{HUGE:g} m, '
+                              f'no distance can be taken of it', int(bad[0]))
+        huge = np.abs(o).max(axis=1) > HUGE      # their squares would overflow the norm: scaled first
         o[huge] /= np.abs(o[huge]).max(axis=1)[:, None]
         norm = np.linalg.norm(o, axis=1)
         bad = np.flatnonzero(norm < MIN_AXIS_NORM)

@@ -34,8 +34,9 @@ reference fast compared with T, the coarse stage takes over 1/(T s + 1) of a dev
 fine stage keeps T s/(T s + 1) (after a step its offset decays with T): C_s' is a plain
 integrator, the PI of §3.2 "designed for the same desired closed loop" T_s = 1/(T s + 1) with
 the coarse loop taken as 1 (its proportional part is zero). The coarse move keeps the tool's
-orientation (the zero rows; exactly when the coarse axes span all six directions, else in the
-least-squares sense). The deviation is still taken against the unshifted reference: as the
+axis (J_O: the rows of the tool axis's direction, which a spin about the axis through the tip
+does not change, so the 6 x n matrix has rank 5 at most: that spin gets the minimum-norm
+solution, and singular values below PINV_RCOND of the largest count as zero). The deviation is still taken against the unshifted reference: as the
 coarse stage moves by Delta, the deviation it leaves (measured by the tracker, or by the
 encoders) shrinks by Delta, and so does the fine stage's offset; the tool tip stays on the path.
 This is VPC, not the adaptive IMC of Ch. 3 (machine_ctrl/control/midranging.py): the seed runs
@@ -53,7 +54,8 @@ operation (um-level coarse errors) neither limit is active.
 Same shape as a control law (machine_ctrl/control/law.py), over all axes at once:
 ``step(ref_pos, pos, tracker=None)`` -> offsets (in the order of MachineConfig.offset_axes:
 the fine axes, then with mid-ranging the coarse axes), ``reset()``, declared ``parameters``.
-Switched off (or reset), the offsets are zero at once, the mid-ranging's too.
+Switched off, every offset is zero at once (the mid-ranging's take-over too, which starts
+from zero when switched on again); a reset starts the take-over from zero as well.
 """
 from __future__ import annotations
 
@@ -93,8 +95,8 @@ class DualStageCoupling:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the last fine references (no slew limit on the next step) and the
-        saturation count; `enabled` stays as it is."""
+        """Forget the last fine references (no slew limit on the next step), the mid-ranging's
+        take-over and the saturation count; `enabled` stays as it is."""
         self.saturation_count = 0
         self.reset_motion()
 
@@ -144,6 +146,9 @@ class _CartesianDeviation:
     tip in as many independent directions as they are (at the machine's home)."""
 
     JACOBIAN_STEP = 1e-4         # m or rad, assumed: J's relative change over it is ~1e-4 at a 1 m reach
+    # assumed: far above rounding (the spin's singular value is ~1e-17 of the largest) and far
+    # below any direction the coarse axes really move the tool in
+    PINV_RCOND = 1e-9
 
     def __init__(self, machine: MachineConfig, index: dict[str, int]):
         from machine_ctrl.model.kinematics import Kinematics
@@ -176,7 +181,7 @@ class _CartesianDeviation:
             self._fine_pinv = np.linalg.pinv(self._fine_jacobian)
             self._map = self._fine_pinv @ jacobian[:, self.coarse]
             if self.midranging:
-                self._coarse_pinv = np.linalg.pinv(full[:, self.coarse])[:, :3]     # [Delta; 0]: the position columns
+                self._coarse_pinv = np.linalg.pinv(full[:, self.coarse], rcond=self.PINV_RCOND)[:, :3]   # [Delta; 0]
             self._at = ref.copy()
         if not self.uses_tracker:
             error = ref[self.coarse] - np.asarray(pos, float)[self.coarse]

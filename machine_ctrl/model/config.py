@@ -326,7 +326,8 @@ class MidRangingConfig:
     """Mid-ranging of a Cartesian coupling (Sörnmo Ch. 3, the VPC structure of Fig. 3.2): the
     coarse stage slowly takes over the fine stage's offset so that the fine stage returns to
     its home, the middle of its stroke (machine_ctrl/control/dual_stage.py).
-    `time_constant`: of the desired first-order take-over, T_s(s) = 1/(time_constant s + 1)."""
+    `time_constant`: of the desired first-order take-over, T_s(s) = 1/(time_constant s + 1);
+    above the control period (the discrete take-over h/T per step below 1)."""
     time_constant: float = _positive()     # s
 
 
@@ -759,7 +760,7 @@ def _build_machine(raw, path: Path) -> MachineConfig:
         home = tuple(home_section.number(a.name, 0.0) for a in axes)
         home_section.finish()
     dual_stage = _dual_stage(top, axes) if 'dual_stage' in top.data else ()
-    cartesian = _cartesian_dual_stage(top.section('cartesian_dual_stage'), axes, dual_stage) \
+    cartesian = _cartesian_dual_stage(top.section('cartesian_dual_stage'), axes, dual_stage, control_period) \
         if 'cartesian_dual_stage' in top.data else None
     simulation = _read(top.section('simulation'), SimulationConfig) if 'simulation' in top.data \
         else SimulationConfig()
@@ -899,7 +900,7 @@ def _dual_stage(top: _Section, axes: list[AxisConfig]) -> tuple[DualStagePair, .
     return tuple(pairs)
 
 
-def _cartesian_dual_stage(s: _Section, axes: list[AxisConfig], pairs) -> CartesianCoupling:
+def _cartesian_dual_stage(s: _Section, axes: list[AxisConfig], pairs, control_period: float) -> CartesianCoupling:
     by_name = {a.name: a for a in axes}
     roles = {}
     for role in ('coarse', 'fine'):
@@ -915,6 +916,10 @@ def _cartesian_dual_stage(s: _Section, axes: list[AxisConfig], pairs) -> Cartesi
     tracker = _read(s.section('tracker'), TrackerConfig) if 'tracker' in s.data else None
     midranging = _read(s.section('midranging'), MidRangingConfig) if 'midranging' in s.data else None
     s.finish()
+    if midranging is not None and not midranging.time_constant > control_period:
+        s.section('midranging').fail(f'{midranging.time_constant:g} s must be above the control period '
+                                     f'{control_period:g} s (the take-over h/T per step below 1: from 1 it rings, '
+                                     f'from 2 it diverges)', 'time_constant')
     if set(roles['coarse']) & set(roles['fine']):
         s.fail('an axis cannot be both coarse and fine')
     paired = {name for p in pairs for name in (p.coarse, p.fine)}

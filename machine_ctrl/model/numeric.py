@@ -3,9 +3,8 @@ from __future__ import annotations
 
 import math
 
-# m. A Cartesian coordinate (a tool path's point, a G-code word, a tracker's reading) farther
-# than this from the workpiece origin is a wrong number, refused where it enters, before any
-# arithmetic on it (a distance between two such points can overflow a float, a 100 m G-code
+# m. A Cartesian coordinate (a G-code word, a tracker's reading) beyond +-this in the workpiece
+# frame is a wrong number, refused where it enters, before any arithmetic on it (a 100 m G-code
 # line would be a million samples). assumed: 2 m, beyond the reach of every shipped machine
 # (the IRB 2400's 1.55 m the largest); the machine's own limits are checked where they apply.
 MAX_COORDINATE = 2.0

@@ -101,7 +101,7 @@ def tracker_message(stamp: Time, frame: str, reading) -> PointStamped:
 
 def tracker_reading(msg: PointStamped, frame: str) -> tuple[float, float, float]:
     """(x, y, z) of a tracker message; InvalidMessage when its frame is not `frame` or a
-    coordinate is NaN, inf or beyond MAX_COORDINATE (no tracker reads a tool tip 1 km away)."""
+    coordinate is NaN, inf or beyond +-MAX_COORDINATE (2 m: beyond every shipped machine's reach)."""
     if msg.header.frame_id != frame:
         raise InvalidMessage(f'tracker frame_id {msg.header.frame_id!r} is not the workpiece frame {frame!r}')
     p = msg.point

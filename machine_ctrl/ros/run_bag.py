@@ -63,7 +63,7 @@ def servo_groups(machine: MachineConfig) -> list[list[str]]:
 def write_run_bag(directory, machine: MachineConfig, reference, record, label: str = '') -> dict[str, int]:
     """Write `record` (offline.RunRecord of `reference`) as a bag; returns the counts."""
     writer = BagWriter(directory)
-    has_offsets = bool(machine.fine_axes)
+    has_offsets = bool(machine.offset_axes)
     has_tracker = record.tracker is not None
     for topic, qos in _TOPICS:
         if (topic is not contract.DUAL_STAGE_OFFSETS or has_offsets) and (topic is not contract.TRACKER or has_tracker):
