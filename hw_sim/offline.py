@@ -105,7 +105,8 @@ def run(machine: MachineConfig, reference: Reference, dual_stage: bool = True,
         true_rows.append(simulator.true_position)
         command_rows.append(commands)
         offsets_rows.append(offsets)
-        tracker_rows.append(measured.tracker)
+        if measured.tracker:
+            tracker_rows.append(measured.tracker)
         simulator.step(commands)
         if progress is not None and k % PROGRESS_STEPS == 0:
             progress(k, steps)

@@ -36,9 +36,10 @@ integrator, the PI of §3.2 "designed for the same desired closed loop" T_s = 1/
 the coarse loop taken as 1 (its proportional part is zero). The coarse move keeps the tool's
 axis (J_O: the rows of the tool axis's direction, which a spin about the axis through the tip
 does not change, so the 6 x n matrix has rank 5 at most: that spin gets the minimum-norm
-solution, and singular values below PINV_RCOND of the largest count as zero). The deviation is still taken against the unshifted reference: as the
-coarse stage moves by Delta, the deviation it leaves (measured by the tracker, or by the
-encoders) shrinks by Delta, and so does the fine stage's offset; the tool tip stays on the path.
+solution, and singular values below PINV_RCOND of the largest count as zero). The deviation
+is still taken against the unshifted reference: as the coarse stage moves by Delta, the
+deviation it leaves (measured by the tracker, or by the encoders) shrinks by Delta, and so
+does the fine stage's offset; the tool tip stays on the path.
 This is VPC, not the adaptive IMC of Ch. 3 (machine_ctrl/control/midranging.py): the seed runs
 its mid-ranging on two first-order loops in simulation and on two robots (§3.6, Fig. 3.8), not
 on the machining robot with the micro manipulator.
@@ -91,8 +92,21 @@ class DualStageCoupling:
             self.limits.append((lo + shrink, hi - shrink, machine.axis(name).limits.velocity * machine.control_period))
         cartesian = machine.cartesian_dual_stage
         self.cartesian = None if cartesian is None else _CartesianDeviation(machine, index)
+        self._off = CouplingResult((0.0,) * len(self.offset_axes), (False,) * len(self.fine))
         self.enabled = dual_stage
         self.reset()
+
+    @property
+    def enabled(self) -> bool:
+        return self._enabled
+
+    @enabled.setter
+    def enabled(self, on: bool) -> None:
+        """Switched off, the coupling forgets its motion at once: every offset is zero from the
+        next step, and when switched on again it starts afresh."""
+        self._enabled = bool(on)
+        if not on:
+            self.reset_motion()
 
     def reset(self) -> None:
         """Forget the last fine references (no slew limit on the next step), the mid-ranging's
@@ -114,9 +128,8 @@ class DualStageCoupling:
     def step(self, ref_pos, pos, tracker=None) -> CouplingResult:
         """ref_pos, pos: reference and measured position of every axis (machine order);
         `tracker`: the tracker's reading (x, y, z), required when :attr:`uses_tracker`."""
-        if not self.enabled:
-            self.reset_motion()
-            return CouplingResult((0.0,) * len(self.offset_axes), (False,) * len(self.fine))
+        if not self._enabled:
+            return self._off
         corrections = [sign * (ref_pos[coarse] - pos[coarse]) for coarse, sign in self.pairs]
         if self.cartesian is not None:
             corrections += self.cartesian.corrections(ref_pos, pos, tracker)
@@ -157,7 +170,6 @@ class _CartesianDeviation:
         self.fine = np.array([index[n] for n in machine.cartesian_dual_stage.fine])
         self.uses_tracker = machine.tracker is not None
         midranging = machine.cartesian_dual_stage.midranging
-        self.midranging = midranging is not None
         self._rate = None if midranging is None else machine.control_period / midranging.time_constant   # h / T
         self.fine_home = np.array(machine.home, float)[self.fine]
         at_home = self.kinematics.jacobian(np.array(machine.home))[:3, self.fine]
@@ -166,6 +178,10 @@ class _CartesianDeviation:
                              f'{", ".join(machine.cartesian_dual_stage.fine)} do not move the tool tip in '
                              f'{len(self.fine)} independent directions (at home)')
         self.reset()
+
+    @property
+    def midranging(self) -> bool:
+        return self._rate is not None
 
     def reset(self) -> None:
         """Forget the Jacobian and the mid-ranging's take-over (a reset coupling is a fresh one)."""
