@@ -152,3 +152,37 @@ def test_rejects_axis_flip():
     o[5:] = [0.0, 0.0, -1.0]
     with pytest.raises(ValueError, match='tool axis turns too far between points 4 and 5'):
         ArcLengthPath.fit(tp.from_arrays(p, o))
+
+
+def test_the_inversion_is_newtons_fixed_point_and_the_arc_length_to_rounding(fitted):
+    """parameter(s) ([5/8] speed: a Hermite start, each s stopped at rounding level) equals
+    plain Newton from the span's linear start, stepped until nothing moves, within two units
+    in the last place of the parameter length; and adaptive quadrature of |P'| (scipy's quad,
+    not the module's Gauss-Legendre) gives back s from it."""
+    from scipy.integrate import quad
+    _, path = fitted
+    s = np.linspace(0.0, path.length, 20001)
+    i = np.clip(np.searchsorted(path.knot_s, s, side='right') - 1, 0, len(path.knot_s) - 2)
+    u0, u1, s0 = path.knot_u[i], path.knot_u[i + 1], path.knot_s[i]
+    nodes, weights = np.polynomial.legendre.leggauss(16)
+    u = u0 + (s - s0) / (path.knot_s[i + 1] - s0) * (u1 - u0)
+    for _ in range(20):
+        half = (u - u0) / 2
+        arc = s0 + (np.linalg.norm(path.position_spline((u0 + half)[:, None] + half[:, None] * nodes, nu=1),
+                                   axis=-1) * weights).sum(axis=-1) * half
+        u = np.clip(u - (arc - s) / np.linalg.norm(path.position_spline(u, nu=1), axis=-1), u0, u1)
+    found = path.parameter(s)
+    assert np.abs(found - u).max() <= 2 * np.finfo(float).eps * path.knot_u[-1]
+    speed = lambda x: np.linalg.norm(path.position_spline(x, nu=1))  # noqa: E731
+    for k in range(0, len(s), 1000):
+        arc = s0[k] + quad(speed, u0[k], found[k], epsabs=0.0, epsrel=1e-13)[0]
+        assert abs(arc - s[k]) <= 1e-15 * path.length, k
+
+
+def test_the_hermite_start_reproduces_a_cubic():
+    from trajectory.spline import hermite_cubic
+    x = np.linspace(0.0, 1.0, 101)
+    cubic = lambda x: 1.0 + 2.0 * x - 3.0 * x**2 + 4.0 * x**3  # noqa: E731
+    slope = lambda x: 2.0 - 6.0 * x + 12.0 * x**2  # noqa: E731
+    np.testing.assert_allclose(hermite_cubic(x, cubic(0.0), cubic(1.0), slope(0.0), slope(1.0)), cubic(x),
+                               rtol=0, atol=1e-14)

@@ -17,8 +17,10 @@ differs:
 
   with + for a joint of the tool chain and - for one of the workpiece chain (a joint of
   both cancels);
-* small matrix products written out, LAPACK for the 5 x 5 determinant and inverse and the
-  SVD of a rank-deficient task.
+* small matrix products written out as loops summed in index order, and the chain walk in
+  place scalar by scalar (numba's ``@`` calls BLAS, whose per-call cost was most of a 3 x 3
+  product's: P, O and J took 8.7 µs a call with it, 1.0 µs without, on the micromill);
+  LAPACK for the 5 x 5 determinant and inverse and the SVD of a rank-deficient task.
 
 So the configurations differ from the Python loop's by rounding, grown along the path by
 the integration (tested against it: test/test_resolved_rate.py). Compiled once per
@@ -40,32 +42,74 @@ _CACHE = True          # numba's on-disk cache: compiled once, loaded by later p
 
 
 @njit(cache=_CACHE)
+def _mm(a, b):
+    """a @ b for small matrices, summed in index order (no BLAS call: its per-call cost is
+    most of a 3 x 3 product's, and its kernels may fuse multiply-adds)."""
+    out = np.empty((a.shape[0], b.shape[1]))
+    for i in range(a.shape[0]):
+        for j in range(b.shape[1]):
+            total = 0.0
+            for k in range(a.shape[1]):
+                total += a[i, k] * b[k, j]
+            out[i, j] = total
+    return out
+
+
+@njit(cache=_CACHE)
+def _mv(a, v):
+    """a @ v (matrix times vector), as :func:`_mm`."""
+    out = np.empty(a.shape[0])
+    for i in range(a.shape[0]):
+        total = 0.0
+        for k in range(a.shape[1]):
+            total += a[i, k] * v[k]
+        out[i] = total
+    return out
+
+
+@njit(cache=_CACHE)
+def _dot(a, b):
+    total = 0.0
+    for k in range(len(a)):
+        total += a[k] * b[k]
+    return total
+
+
+@njit(cache=_CACHE)
 def _walk(chains, c, q, axis_out, origin_out):
     """Base rotation and position of chain c's end frame at q; each joint's base axis and
-    origin into axis_out / origin_out (rows of the packed joint order)."""
+    origin into axis_out / origin_out (rows of the packed joint order). In place, scalar by
+    scalar: a joint's placement (p += R t, R = R R_j), then its motion along or about its
+    coordinate axis k (p += q a_k, or R's other two columns turned by q)."""
     rot, trans, prismatic, axis, column, chain_of, frame_rot, frame_trans = chains
     r = np.eye(3)
     p = np.zeros(3)
     for j in range(len(chain_of)):
         if chain_of[j] != c:
             continue
-        p = p + r @ trans[j]
-        r = r @ rot[j]
+        t, placement = trans[j], rot[j]
+        for i in range(3):
+            p[i] += r[i, 0] * t[0] + r[i, 1] * t[1] + r[i, 2] * t[2]
+        for i in range(3):
+            x0, x1, x2 = r[i, 0], r[i, 1], r[i, 2]
+            for m in range(3):
+                r[i, m] = x0 * placement[0, m] + x1 * placement[1, m] + x2 * placement[2, m]
         k = axis[j]
-        a = r[:, k].copy()
-        axis_out[j] = a
-        origin_out[j] = p
         value = q[column[j]]
+        for i in range(3):
+            axis_out[j, i] = r[i, k]
+            origin_out[j, i] = p[i]
         if prismatic[j]:
-            p = p + a * value
+            for i in range(3):
+                p[i] += r[i, k] * value
         else:
             i1, i2 = (k + 1) % 3, (k + 2) % 3
             cv, sv = math.cos(value), math.sin(value)
-            first = r[:, i1] * cv + r[:, i2] * sv
-            second = r[:, i2] * cv - r[:, i1] * sv
-            r[:, i1] = first
-            r[:, i2] = second
-    return r @ frame_rot[c], p + r @ frame_trans[c]
+            for i in range(3):
+                x, y = r[i, i1], r[i, i2]
+                r[i, i1] = x * cv + y * sv
+                r[i, i2] = y * cv - x * sv
+    return _mm(r, frame_rot[c]), p + _mv(r, frame_trans[c])
 
 
 @njit(cache=_CACHE)
@@ -80,20 +124,27 @@ def pose_jacobian(chains, q):
     axes, origins = np.empty((n_joints, 3)), np.empty((n_joints, 3))
     r_w, p_w = _walk(chains, 0, q, axes, origins)
     r_t, p_t = _walk(chains, 1, q, axes, origins)
-    inverse = np.ascontiguousarray(r_w.T)
-    position = inverse @ (p_t - p_w)
-    o = inverse @ np.ascontiguousarray(r_t[:, 2])
+    position = _mv(r_w.T, p_t - p_w)          # in workpiece axes: R_w^T (...)
+    o = _mv(r_w.T, r_t[:, 2])
     jac = np.zeros((6, len(q)))
     prismatic, column, chain_of = chains[2], chains[4], chains[5]
     for j in range(n_joints):
         sign = 1.0 if chain_of[j] == 1 else -1.0
-        a = inverse @ axes[j]
+        ax, ay, az = axes[j, 0], axes[j, 1], axes[j, 2]
         i = column[j]
         if prismatic[j]:
-            jac[:3, i] += sign * a
+            for m in range(3):
+                jac[m, i] += sign * (r_w[0, m] * ax + r_w[1, m] * ay + r_w[2, m] * az)
         else:
-            jac[:3, i] += sign * (inverse @ _cross(axes[j], p_t - origins[j]))
-            jac[3:, i] += sign * _cross(a, o)
+            dx, dy, dz = p_t[0] - origins[j, 0], p_t[1] - origins[j, 1], p_t[2] - origins[j, 2]
+            cx, cy, cz = ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx      # a x (p_t - r)
+            a = np.empty(3)
+            for m in range(3):
+                jac[m, i] += sign * (r_w[0, m] * cx + r_w[1, m] * cy + r_w[2, m] * cz)
+                a[m] = r_w[0, m] * ax + r_w[1, m] * ay + r_w[2, m] * az
+            jac[3, i] += sign * (a[1] * o[2] - a[2] * o[1])
+            jac[4, i] += sign * (a[2] * o[0] - a[0] * o[2])
+            jac[5, i] += sign * (a[0] * o[1] - a[1] * o[0])
     return position, o, jac
 
 
@@ -116,7 +167,7 @@ def _basis(o):
 @njit(cache=_CACHE)
 def _angle(a, b):
     c = _cross(a, b)
-    return math.atan2(math.sqrt(c @ c), a @ b)
+    return math.atan2(math.sqrt(_dot(c, c)), _dot(a, b))
 
 
 @njit(cache=_CACHE)
@@ -137,19 +188,19 @@ def _task(chains, active, q):
 def _damped_inverse(jt, rank, w0, damping_max):
     """J_t^# of Eq. 3.21 with mu of Eq. 3.22 (as _Resolver.damped_inverse)."""
     if rank == 5:
-        a = jt @ jt.T
+        a = _mm(jt, jt.T)
         w = math.sqrt(max(np.linalg.det(a), 0.0))
         if w < w0:
             for i in range(5):
                 a[i, i] += damping_max * (1.0 - w / w0) ** 2
-        return jt.T @ np.linalg.inv(a)
+        return _mm(jt.T, np.linalg.inv(a))
     u, sig, vt = np.linalg.svd(jt, full_matrices=False)
     sig = sig[:rank]
     w = 1.0
     for value in sig:
         w *= value
     mu = damping_max * (1.0 - w / w0) ** 2 if w < w0 else 0.0
-    return (vt[:rank].T * (sig / (sig * sig + mu))) @ np.ascontiguousarray(u[:, :rank].T)
+    return _mm(vt[:rank].T * (sig / (sig * sig + mu)), u[:, :rank].T)
 
 
 @njit(cache=_CACHE)
@@ -169,17 +220,18 @@ def _rate(chains, active, stroke, gains, rank, target, j, q, task):
     limited, centre, half = stroke
     beta, drift_gain, w0, damping_max = gains
     jsharp = _damped_inverse(jt, rank, w0, damping_max)
-    dqa = jsharp @ _task_rate(position_rates[j], axis_rates[j], b)
+    dqa = _mv(jsharp, _task_rate(position_rates[j], axis_rates[j], b))
     if beta:
         grad = np.zeros(len(active))
         for m in range(len(limited)):
             u = (q[active[limited[m]]] - centre[m]) / half[m]
             u = min(max(u, -1.0 + 1e-9), 1.0 - 1e-9)
             grad[limited[m]] = 2.0 * u / (half[m] * (1.0 - u * u) ** 2)
-        dqa -= beta * (grad - jsharp @ (jt @ grad))
+        dqa -= beta * (grad - _mv(jsharp, _mv(jt, grad)))
     g0 = np.zeros(len(q))
     g = np.zeros(len(q))
-    drift = jsharp @ (drift_gain * _task_rate(positions[j] - p, axes[j] - o, b)) if drift_gain else np.zeros(len(active))
+    drift = (_mv(jsharp, drift_gain * _task_rate(positions[j] - p, axes[j] - o, b)) if drift_gain
+             else np.zeros(len(active)))
     for k in range(len(active)):
         g0[active[k]] = dqa[k]
         g[active[k]] = dqa[k] + drift[k]
@@ -197,10 +249,10 @@ def _project(chains, active, gains, rank, target, j, q, iterations, tolerance):
     for it in range(iterations + 1):
         p, o, b, jt = task
         d = positions[j] - p
-        ep, eo = math.sqrt(d @ d), _angle(o, axes[j])
+        ep, eo = math.sqrt(_dot(d, d)), _angle(o, axes[j])
         if (ep <= tolerance and eo <= tolerance) or it == iterations:
             break
-        step = _damped_inverse(jt, rank, gains[2], gains[3]) @ _task_rate(d, axes[j] - o, b)
+        step = _mv(_damped_inverse(jt, rank, gains[2], gains[3]), _task_rate(d, axes[j] - o, b))
         for k in range(len(active)):
             q[active[k]] += step[k]
         task = _task(chains, active, q)

@@ -61,6 +61,7 @@ import numpy as np
 from machine_ctrl.model.reference import Reference
 from trajectory.blocks import BLOCK, in_blocks
 from trajectory.feedrate import FeedLimits, refine_feed
+from trajectory.spline import hermite_cubic
 
 # Eq. 3.40 with Δs = 1 (rows: q[n], q[n+1], q'[n], q'[n+1], q''[n], q''[n+1], q'''[n],
 # q'''[n+1]; columns: coefficients of u^7 ... u^0).
@@ -85,6 +86,11 @@ REFINE_WINDOW = 32
 # previous profile first); 8 (to the optimizer's 1e-3 convergence) cost circle_xy at F = 1
 # 9.6 s instead of 6.4 s for the same traversal time, helix and spiral within 0.2 %.
 REFINE_ITERATIONS = 3
+# TimeLaw.u_at: Newton's steps at most (one from its Hermite start for most entries), and
+# the relative step below which an entry has converged (Newton's error is then the rounding
+# of t(u)).
+_NEWTON_STEPS = 8
+_U_ROUNDING = np.finfo(float).eps
 
 
 class SepticInterpolant:
@@ -180,9 +186,12 @@ class TimeLaw:
 
     def rate(self, u) -> np.ndarray:
         """f(u) = du/dt at scale 1."""
-        p0, p1 = _p(u), _p(1.0 - u)
-        g = np.maximum(self.g(self.length * _h(u)), self.floor)
-        return self.length ** (-1.0 / 3.0) * (p0 * p1) ** (2.0 / 3.0) * np.sqrt(g) / 30.0
+        return self._rate(u, self.g(self.length * _h(u)))
+
+    def _rate(self, u, g) -> np.ndarray:
+        """f(u) from g at s(u)."""
+        g = np.maximum(g, self.floor)
+        return self.length ** (-1.0 / 3.0) * (_p(u) * _p(1.0 - u)) ** (2.0 / 3.0) * np.sqrt(g) / 30.0
 
     def _integral(self, a, b) -> np.ndarray:
         """∫_a^b du / f(u), elementwise (Gauss-Legendre, f smooth between feed nodes)."""
@@ -195,25 +204,49 @@ class TimeLaw:
 
     def u_at(self, t) -> np.ndarray:
         """u with t(u) = t (scale 1, t an array or a number: an array of u either way), by
-        Newton's method from the bracketing feed nodes."""
+        Newton's method within the bracketing feed nodes. It starts from the cubic Hermite
+        interpolant of u(t) between them (du/dt = f at both; error ~ their spacing^4). An
+        entry stops once its step is at most eps |u| (a unit or two in u's last place), or
+        once the error Newton's step leaves, |t''/2t'| step^2 = |f'/2f| step^2, is below a
+        sixteenth of that: one step for most entries. Either way u then solves t(u) = t to
+        the rounding of t(u) itself (relative 1e-16; more steps only move it within that)."""
         t = np.clip(np.atleast_1d(np.asarray(t, float)), 0.0, self.duration)
         i = np.clip(np.searchsorted(self.t_nodes, t, side='right') - 1, 0, len(self.t_nodes) - 2)
         lo, hi = self.u_nodes[i], self.u_nodes[i + 1]
-        frac = (t - self.t_nodes[i]) / (self.t_nodes[i + 1] - self.t_nodes[i])
-        u = lo + frac * (hi - lo)
+        u = np.clip(self._hermite(i, t), lo, hi)
         start = self.t_nodes[i]
-        moving = np.arange(len(u))          # an entry whose step left it unchanged is a fixed point:
-        for _ in range(8):                  # only the others are stepped again (the same numbers)
+        moving = np.arange(len(u))
+        for _ in range(_NEWTON_STEPS):
             now = u[moving]
             residual = start + self._integral(lo, now) - t
-            u_new = np.clip(now - residual * self.rate(now), lo, hi)
-            step = u_new - now
-            u[moving] = u_new
-            if np.max(np.abs(step)) <= 1e-16:
+            rate, slope = self._rate_and_log_slope(now)
+            step = residual * rate
+            new = now - step
+            u[moving] = np.clip(new, lo, hi)
+            rounding = _U_ROUNDING * np.abs(new)
+            left = (np.abs(step) > rounding) & ((np.abs(slope) / 2 * step * step > rounding / 16)
+                                                | (new < lo) | (new > hi))
+            if not left.any():
                 break
-            left = step != 0.0
             moving, lo, hi, t, start = moving[left], lo[left], hi[left], t[left], start[left]
         return u
+
+    def _rate_and_log_slope(self, u):
+        """f(u) (:meth:`rate`) and d ln f / du = 2/3 (p'(u)/p(u) - p'(1-u)/p(1-u)) + g'/2g
+        (g' = 0 where the floor holds g)."""
+        d = self.length * _h(u)
+        g = self.g(d)
+        dg = np.where(g > self.floor, self.g(d, 1) * self.length * 30.0 * (u * (1.0 - u)) ** 2, 0.0)
+        slope = ((2.0 / 3.0) * ((12.0 * u - 15.0) / _p(u) + (12.0 * u + 3.0) / _p(1.0 - u))
+                 + dg / (2.0 * np.maximum(g, self.floor)))
+        return self._rate(u, g), slope
+
+    def _hermite(self, i, t) -> np.ndarray:
+        """u(t)'s cubic Hermite interpolant on feed interval i (du/dt = f(u) at its ends)."""
+        f = self.rate(self.u_nodes)
+        dt = self.t_nodes[i + 1] - self.t_nodes[i]
+        return hermite_cubic((t - self.t_nodes[i]) / dt, self.u_nodes[i], self.u_nodes[i + 1],
+                             dt * f[i], dt * f[i + 1])
 
     def feed(self, s):
         """(sdot, sddot) at s (scale 1): sqrt(b) and b'/2."""

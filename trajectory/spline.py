@@ -15,8 +15,11 @@ Method (`ArcLengthPath.fit`):
    (|P'| is the square root of a degree-8 polynomial on a span and close to 1 in chord
    length: the quadrature error is at rounding level, ~1e-16 relative).
 5. s -> u is inverted exactly (not approximated by a second spline): the knot span is found
-   from the knot arc lengths and Newton's method solves s(u) = s within the span (converged
-   to ~1e-16 relative, a few iterations). Hence dP/ds = P'(u) / |P'(u)| is a unit vector to
+   from the knot arc lengths and Newton's method solves s(u) = s within the span. It starts
+   from the cubic Hermite interpolant of u(s) between the span's knots (du/ds = 1/|P'|
+   there) and stops for each s once its step, or the error the step leaves ((P'.P'')/(2
+   |P'|^2) step^2, Newton's a-posteriori estimate), is at rounding level (4e-16 of the
+   parameter length): one step for most s. Hence dP/ds = P'(u) / |P'(u)| is a unit vector to
    rounding (~1e-15), not merely to a fitting tolerance.
 6. d^kP/ds^k and d^kO/ds^k (k = 1, 2, 3) follow analytically from the u-derivatives by the
    chain rule (Faa di Bruno) with u' = 1/|P'|, u'' = -(P'.P'')/|P'|^4, ...; derivatives of
@@ -41,13 +44,23 @@ from trajectory.toolpath import MIN_SPACING, CLData
 
 DEGREE = 5  # quintic: C4 in u, so C3 (jerk-continuous) in s; thesis Eq. 3.12 asks for C3
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(16)  # assumed: 16 nodes, rounding-level on a span
-_NEWTON_ITERATIONS = 12  # upper bound; convergence is quadratic, typically 3-4
+_NEWTON_ITERATIONS = 12  # upper bound; convergence is quadratic, typically 1-2 from the Hermite start
 # assumed: |o(u)| below this between two points means consecutive tool axes turn so far
 # (towards opposite directions) that the interpolated axis is ill-defined.
 _MIN_AXIS_NORM = 0.5
 # assumed: |P'(u)| below this (chord length gives ~1) means the fitted curve nearly stops
 # (a cusp from wildly uneven point spacing): arc length would be ill-conditioned.
 _MIN_SPEED = 1e-3
+
+
+def hermite_cubic(x, y0, y1, m0, m1):
+    """The cubic with values y0, y1 and slopes m0, m1 at x = 0 and 1, at x (elementwise): the
+    start of the Newton inversions here and in sampling.TimeLaw (from an interval's ends and
+    their derivatives; its error ~ the interval^4)."""
+    x2 = x * x
+    x3 = x2 * x
+    return ((2.0 * x3 - 3.0 * x2 + 1.0) * y0 + (x3 - 2.0 * x2 + x) * m0
+            + (3.0 * x2 - 2.0 * x3) * y1 + (x3 - x2) * m1)
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -69,6 +82,7 @@ class ArcLengthPath:
     axis_spline: BSpline      # o(u), un-normalized tool axis
     knot_u: np.ndarray        # (N,) u of the input points
     knot_s: np.ndarray        # (N,) arc length s of the input points (knot_s[-1] = length)
+    knot_speed: np.ndarray    # (N,) |P'(u)| = ds/du at the input points
     closed: bool              # periodic spline (first point = last point)
 
     @property
@@ -100,9 +114,10 @@ class ArcLengthPath:
             raise ValueError(f'tool axis turns too far between points {bad[0]} and {bad[0] + 1} '
                              '(interpolated axis nearly zero)')
         s = np.concatenate(([0.0], np.cumsum((speed * _GL_W).sum(axis=1) * half)))
-        for a in (u, s):
+        knot_speed = _lengths(pos(u, nu=1))
+        for a in (u, s, knot_speed):
             a.setflags(write=False)
-        return cls(pos, axis, u, s, closed)
+        return cls(pos, axis, u, s, knot_speed, closed)
 
     # ------------------------------------------------------------ s -> u
 
@@ -121,21 +136,39 @@ class ArcLengthPath:
         i = np.clip(np.searchsorted(self.knot_s, s, side='right') - 1, 0, len(self.knot_s) - 2)
         u0, u1 = self.knot_u[i], self.knot_u[i + 1]
         s0 = self.knot_s[i]
-        u = u0 + (s - s0) / (self.knot_s[i + 1] - s0) * (u1 - u0)
+        u = np.clip(self._hermite(i, s), u0, u1)
+        rounding = 4e-16 * self.knot_u[-1]
 
         def newton_step(u0, u, s0, s):
+            """Newton's step for s(u) = s and the error left after it, (s''/2s') step^2."""
             half = (u - u0) / 2
             nodes = (u0 + half)[..., None] + half[..., None] * _GL_X
             f = s0 + (self._speed(nodes) * _GL_W).sum(axis=-1) * half - s
-            return f / self._speed(u)
+            p1, p2 = self.position_spline(u, nu=1), self.position_spline(u, nu=2)
+            speed2 = _dot(p1, p1)[..., 0]
+            step = f / np.sqrt(speed2)
+            return step, np.abs(_dot(p1, p2)[..., 0]) / (2 * speed2) * step * step
 
+        shape, u = u.shape, u.reshape(-1)
+        moving, u0, u1, s0, s = np.arange(u.size), u0.reshape(-1), u1.reshape(-1), s0.reshape(-1), s.reshape(-1)
         for _ in range(_NEWTON_ITERATIONS):
+            now = u[moving]
             # in blocks (trajectory/blocks.py): 16 nodes x 3 components per s
-            step = in_blocks(newton_step, u0, u, s0, s, size=BLOCK // 8)
-            u = np.clip(u - step, u0, u1)
-            if np.all(np.abs(step) <= 4e-16 * np.maximum(np.abs(u), self.knot_u[-1])):
+            step, error = in_blocks(newton_step, u0, now, s0, s, size=BLOCK // 8)
+            new = now - step
+            u[moving] = np.clip(new, u0, u1)
+            # converged: the step itself, or the error it leaves, at rounding level
+            left = (np.abs(step) > rounding) & ((error > rounding / 16) | (new < u0) | (new > u1))
+            if not left.any():
                 break
-        return u
+            moving, u0, u1, s0, s = moving[left], u0[left], u1[left], s0[left], s[left]
+        return u.reshape(shape)
+
+    def _hermite(self, i, s) -> np.ndarray:
+        """u(s)'s cubic Hermite interpolant on knot span i (du/ds = 1/|P'(u)| at its ends)."""
+        ds = self.knot_s[i + 1] - self.knot_s[i]
+        return hermite_cubic((s - self.knot_s[i]) / ds, self.knot_u[i], self.knot_u[i + 1],
+                             ds / self.knot_speed[i], ds / self.knot_speed[i + 1])
 
     # ------------------------------------------------------------ evaluation
 
