@@ -128,6 +128,13 @@ def test_paced_bringup_steps_on_the_wall_clock_moves_records_and_reports_its_tim
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
 
+    # the probe joins before the graph, so that it is discovered with it (run128: one made
+    # after the move, on a heavily loaded machine, heard none of hw_sim's 1 Hz diagnostics
+    # in 60 s, which the graph's recorder holds); its queue keeps the newest 10 meanwhile
+    node = ros_node('paced_probe')
+    heard = []                                     # hw_sim's values
+    node.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: heard.extend(
+        {kv.key: kv.value for kv in s.values} for s in msg.status if s.name == 'hw_sim'), 10)
     bag = tmp_path / 'bag'
     child = ros_supervisor.start('bringup', [EXE, 'bringup', 'trt_5axis', '--paced', '--real-time-factor', '0.2',
                                              '--single-process', '--record', str(bag)])
@@ -136,20 +143,17 @@ def test_paced_bringup_steps_on_the_wall_clock_moves_records_and_reports_its_tim
     done = client(ros_env, 'move', 'x=0.01', '--machine', 'trt_5axis')
     assert done.returncode == 0, done.stderr
 
-    node = ros_node('paced_probe')
-    heard = []                                     # hw_sim's values
-    node.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: heard.extend(
-        {kv.key: kv.value for kv in s.values} for s in msg.status if s.name == 'hw_sim'), 10)
     executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
+    def timed():        # hw_sim's reports with the latency of some steps (those after ready)
+        return [values for values in heard if int(values.get('step_latency_count', '0')) > 0]
     deadline = time.monotonic() + 60
-    while not heard and time.monotonic() < deadline:
+    while not timed() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.1)
     executor.shutdown()
-    assert heard, 'no diagnostics from hw_sim'
-    last = heard[-1]
-    assert last['mode'] == 'paced' and last['fault'] == ''
-    assert int(last['step_latency_count']) > 0
+    assert timed(), f'no diagnostics from hw_sim with step latencies ({len(heard)} without)'
+    assert all(values['mode'] == 'paced' and values['fault'] == '' for values in heard)
+    last = timed()[-1]
     p50, p99, top = (float(last[f'step_latency_{k}']) for k in ('p50', 'p99', 'max'))
     assert 0.0 < p50 <= p99 <= top
 

@@ -217,8 +217,11 @@ def test_the_global_stretch_meets_a_velocity_limit_below_the_feed():
 
 
 @pytest.mark.parametrize('feed_b', [0.5 + np.sin(np.linspace(0.0, 3.0, 40)) ** 2,
-                                    1e-3 + np.sin(np.linspace(0.0, 9.0, 40)) ** 2],   # dips 30x in feed
-                         ids=['varying', 'dips'])
+                                    1e-3 + np.sin(np.linspace(0.0, 9.0, 40)) ** 2,     # dips 30x in feed
+                                    # g tenfold within an interval: the quadrature's t(u) has a
+                                    # slope off 1/f by ~2e-3, Newton converges linearly there
+                                    np.abs(np.random.default_rng(0).normal(size=40)) ** 4],
+                         ids=['varying', 'dips', 'spiky'])
 def test_the_time_law_inverse_is_newtons_fixed_point_to_rounding(feed_b):
     """TimeLaw.u_at ([5/8] speed: a Hermite start, each entry stopped at rounding level or
     when its error estimate is) solves t(u) = t to the rounding of t, and equals plain

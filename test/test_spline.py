@@ -154,25 +154,36 @@ def test_rejects_axis_flip():
         ArcLengthPath.fit(tp.from_arrays(p, o))
 
 
-def test_the_inversion_is_newtons_fixed_point_and_the_arc_length_to_rounding(fitted):
+def random_walk():
+    """A path whose |P'| varies tenfold within a span: Gauss-Legendre's t(u) there has a
+    slope off |P'| by ~1e-5, so Newton converges only linearly (a review's case)."""
+    p = np.cumsum(np.random.default_rng(3).normal(size=(50, 3)) * 1e-3, axis=0)
+    return tp.from_arrays(p, np.tile([0.0, 0.0, 1.0], (50, 1)))
+
+
+@pytest.mark.parametrize('name', sorted(PATHS) + ['random_walk'])
+def test_the_inversion_is_newtons_fixed_point_and_the_arc_length_to_rounding(name):
     """parameter(s) ([5/8] speed: a Hermite start, each s stopped at rounding level) equals
-    plain Newton from the span's linear start, stepped until nothing moves, within two units
-    in the last place of the parameter length; and adaptive quadrature of |P'| (scipy's quad,
+    plain Newton from the span's linear start, stepped 40 times, within four units in the
+    last place of the parameter length (where Newton converges linearly, that one hops among
+    neighbouring floats); and adaptive quadrature of |P'| (scipy's quad,
     not the module's Gauss-Legendre) gives back s from it."""
     from scipy.integrate import quad
-    _, path = fitted
+    path = ArcLengthPath.fit(random_walk() if name == 'random_walk' else PATHS[name]())
     s = np.linspace(0.0, path.length, 20001)
     i = np.clip(np.searchsorted(path.knot_s, s, side='right') - 1, 0, len(path.knot_s) - 2)
     u0, u1, s0 = path.knot_u[i], path.knot_u[i + 1], path.knot_s[i]
     nodes, weights = np.polynomial.legendre.leggauss(16)
     u = u0 + (s - s0) / (path.knot_s[i + 1] - s0) * (u1 - u0)
-    for _ in range(20):
+    for _ in range(40):
         half = (u - u0) / 2
         arc = s0 + (np.linalg.norm(path.position_spline((u0 + half)[:, None] + half[:, None] * nodes, nu=1),
                                    axis=-1) * weights).sum(axis=-1) * half
         u = np.clip(u - (arc - s) / np.linalg.norm(path.position_spline(u, nu=1), axis=-1), u0, u1)
     found = path.parameter(s)
-    assert np.abs(found - u).max() <= 2 * np.finfo(float).eps * path.knot_u[-1]
+    assert np.abs(found - u).max() <= 4 * np.finfo(float).eps * path.knot_u[-1]
+    if name == 'random_walk':
+        return      # there the 16-point rule's arc length itself is off by up to ~1e-10 (module docstring)
     speed = lambda x: np.linalg.norm(path.position_spline(x, nu=1))  # noqa: E731
     for k in range(0, len(s), 1000):
         arc = s0[k] + quad(speed, u0[k], found[k], epsabs=0.0, epsrel=1e-13)[0]

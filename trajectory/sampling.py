@@ -207,14 +207,18 @@ class TimeLaw:
         Newton's method within the bracketing feed nodes. It starts from the cubic Hermite
         interpolant of u(t) between them (du/dt = f at both; error ~ their spacing^4). An
         entry stops once its step is at most eps |u| (a unit or two in u's last place), or
-        once the error Newton's step leaves, |t''/2t'| step^2 = |f'/2f| step^2, is below a
-        sixteenth of that: one step for most entries. Either way u then solves t(u) = t to
-        the rounding of t(u) itself (relative 1e-16; more steps only move it within that)."""
+        once the error the step leaves is estimated below a sixteenth of that: Newton's
+        a-posteriori error |t''/2t'| step^2 = |f'/2f| step^2, plus |step| times the feed
+        interval's :meth:`_quadrature_slip` (where the quadrature's t(u) has a slope other
+        than 1/f, Newton converges only linearly, at that rate). One step for most entries;
+        u then solves t(u) = t to the rounding of t(u) itself (more steps only move it within
+        that)."""
         t = np.clip(np.atleast_1d(np.asarray(t, float)), 0.0, self.duration)
         i = np.clip(np.searchsorted(self.t_nodes, t, side='right') - 1, 0, len(self.t_nodes) - 2)
         lo, hi = self.u_nodes[i], self.u_nodes[i + 1]
         u = np.clip(self._hermite(i, t), lo, hi)
         start = self.t_nodes[i]
+        slip = self._quadrature_slip()[i]
         moving = np.arange(len(u))
         for _ in range(_NEWTON_STEPS):
             now = u[moving]
@@ -224,12 +228,28 @@ class TimeLaw:
             new = now - step
             u[moving] = np.clip(new, lo, hi)
             rounding = _U_ROUNDING * np.abs(new)
-            left = (np.abs(step) > rounding) & ((np.abs(slope) / 2 * step * step > rounding / 16)
-                                                | (new < lo) | (new > hi))
+            error = (slip + np.abs(slope) / 2 * np.abs(step)) * np.abs(step)
+            left = (np.abs(step) > rounding) & ((error > rounding / 16) | (new < lo) | (new > hi))
             if not left.any():
                 break
-            moving, lo, hi, t, start = moving[left], lo[left], hi[left], t[left], start[left]
+            moving, lo, hi, t, start, slip = moving[left], lo[left], hi[left], t[left], start[left], slip[left]
         return u
+
+    def _quadrature_slip(self) -> np.ndarray:
+        """Per feed interval, how far the slope of the quadrature's t(u) (Gauss-Legendre from
+        the interval's start, :meth:`_integral`) strays from 1/f, relative: |t'(u) f(u) - 1|,
+        the largest at a quarter, half, three quarters and the whole of the interval, times 4
+        (assumed: a margin for the points between; Gauss-Legendre's error grows with the
+        length integrated). ~1e-16 where f is smooth over the interval; up to ~1e-3 where g
+        changes tenfold within it."""
+        lo, hi = self.u_nodes[:-1, None], self.u_nodes[1:, None]
+        u = lo + (hi - lo) * np.array([0.25, 0.5, 0.75, 1.0])                   # (intervals, 4)
+        half = (u - lo) / 2
+        x = (lo + half)[..., None] + half[..., None] * _GL_X                     # (intervals, 4, nodes)
+        rate, slope = self._rate_and_log_slope(x)
+        # d/du of half * sum(w / f(x)), x = lo + half (1 + xi): the quadrature's t'(u)
+        t1 = np.sum(_GL_W / rate, axis=-1) / 2 - half * np.sum(_GL_W * slope / rate * (1 + _GL_X) / 2, axis=-1)
+        return 4.0 * np.max(np.abs(t1 * self.rate(u) - 1.0), axis=-1)
 
     def _rate_and_log_slope(self, u):
         """f(u) (:meth:`rate`) and d ln f / du = 2/3 (p'(u)/p(u) - p'(1-u)/p(1-u)) + g'/2g
