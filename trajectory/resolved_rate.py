@@ -118,6 +118,20 @@ def _cross(a, b):
 
 
 @njit(cache=_CACHE)
+def _cross3(a0, a1, a2, b0, b1, b2):
+    """a x b of scalars, as a tuple (no array made)."""
+    return (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
+
+
+@njit(cache=_CACHE)
+def _transposed_times(r, x0, x1, x2):
+    """R^T x of a 3 x 3 R and scalars, as a tuple (no array made)."""
+    return (r[0, 0] * x0 + r[1, 0] * x1 + r[2, 0] * x2,
+            r[0, 1] * x0 + r[1, 1] * x1 + r[2, 1] * x2,
+            r[0, 2] * x0 + r[1, 2] * x1 + r[2, 2] * x2)
+
+
+@njit(cache=_CACHE)
 def pose_jacobian(chains, q):
     """P, O (workpiece frame) and the 6 x n Jacobian d[P; O]/dq at q (module docstring)."""
     n_joints = len(chains[5])
@@ -131,20 +145,18 @@ def pose_jacobian(chains, q):
     for j in range(n_joints):
         sign = 1.0 if chain_of[j] == 1 else -1.0
         ax, ay, az = axes[j, 0], axes[j, 1], axes[j, 2]
+        a = _transposed_times(r_w, ax, ay, az)
         i = column[j]
         if prismatic[j]:
             for m in range(3):
-                jac[m, i] += sign * (r_w[0, m] * ax + r_w[1, m] * ay + r_w[2, m] * az)
+                jac[m, i] += sign * a[m]
         else:
-            dx, dy, dz = p_t[0] - origins[j, 0], p_t[1] - origins[j, 1], p_t[2] - origins[j, 2]
-            cx, cy, cz = ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx      # a x (p_t - r)
-            a = np.empty(3)
+            c = _cross3(ax, ay, az, p_t[0] - origins[j, 0], p_t[1] - origins[j, 1], p_t[2] - origins[j, 2])
+            v = _transposed_times(r_w, c[0], c[1], c[2])
+            w = _cross3(a[0], a[1], a[2], o[0], o[1], o[2])
             for m in range(3):
-                jac[m, i] += sign * (r_w[0, m] * cx + r_w[1, m] * cy + r_w[2, m] * cz)
-                a[m] = r_w[0, m] * ax + r_w[1, m] * ay + r_w[2, m] * az
-            jac[3, i] += sign * (a[1] * o[2] - a[2] * o[1])
-            jac[4, i] += sign * (a[2] * o[0] - a[0] * o[2])
-            jac[5, i] += sign * (a[0] * o[1] - a[1] * o[0])
+                jac[m, i] += sign * v[m]
+                jac[3 + m, i] += sign * w[m]
     return position, o, jac
 
 
