@@ -4,18 +4,25 @@
 the same run, the bare rclpy ring of 3 hops (bench/ros_chain.py, a process per node, as
 many hops as the graph's critical path) as a real-time factor at the machine's period.
 
-    .venv/bin/python bench/helix_rtf.py [--runs 3] [--modes multi,single]
+    .venv/bin/python bench/helix_rtf.py [--runs 3] [--modes multi,single,single+record] [--baseline REV]
 
 The factor is taken over the send command's whole run (planning in the trajectory node
 included: the graph keeps stepping meanwhile) and, as "moving", from the trajectory node's
 status 'running' to its next state. The probe reads only /clock (every 10th step) and the
-status, so it takes little of the CPU the graph runs on.
+status, so it takes little of the CPU the graph runs on. `single+record` is
+`bringup --single-process --record`: the recorder, in its own process, reads every per-step
+stream from outside the graph's process (machine_ctrl/ros/local_bus.py: its writers then
+publish to DDS too). `--baseline REV` measures each mode with the nodes of that revision
+too (a git worktree, first on PYTHONPATH), alternating with this tree run by run.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,19 +33,31 @@ from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros
 from machine_ctrl.model.config import load_machine
 
 TOOL = str(Path(sys.executable).with_name('machine-ctrl'))
+# bringup's options per mode: a process per node, all in one, all in one with the recorder
+# beside it (its own process: it reads every per-step stream from outside the graph's; the
+# bag goes to a temporary directory)
+MODES = {'multi': [], 'single': ['--single-process'], 'single+record': ['--single-process', '--record']}
 
 
-def helix_rtf(single_process: bool) -> tuple[float, float, float]:
+def tree_env(tree: Path | None) -> dict | None:
+    """The environment whose Python imports machine_ctrl from `tree` (None: as installed)."""
+    return None if tree is None else dict(os.environ, PYTHONPATH=str(tree))
+
+
+def helix_rtf(mode: str, tree: Path | None = None) -> tuple[float, float, float]:
     """(factor over the whole send, factor while the trajectory node says 'running', wall
-    s of the send)."""
+    s of the send) of a bringup in `mode` (:data:`MODES`), its nodes from `tree` (default:
+    this one)."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticStatus
     from rosgraph_msgs.msg import Clock
 
     from machine_ctrl.ros.messages import qos
 
-    with reserve_ros_domain() as lease, Supervisor(isolated_ros_env(lease.domain_id), stop_timeout=5.0) as sup:
-        sup.start('bringup', [TOOL, 'bringup'] + (['--single-process'] if single_process else []))
+    options = MODES[mode]
+    with reserve_ros_domain() as lease, tempfile.TemporaryDirectory() as tmp, \
+            Supervisor(isolated_ros_env(lease.domain_id, tree_env(tree)), stop_timeout=5.0) as sup:
+        sup.start('bringup', [TOOL, 'bringup', *options] + ([f'{tmp}/bag'] if options[-1:] == ['--record'] else []))
         sup.wait_for_line('bringup', 'all nodes ready after', timeout=300)
         context = init_context(lease.domain_id)
         try:
@@ -78,25 +97,41 @@ def factor(clocks, start: float, end: float) -> float:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--runs', type=int, default=3)
-    parser.add_argument('--modes', default='multi,single')
+    parser.add_argument('--modes', default='multi,single', help=f'of {", ".join(MODES)}')
+    parser.add_argument('--baseline', metavar='REV', help='also each mode with the nodes of this git revision, '
+                        'alternating with this tree run by run')
     args = parser.parse_args(argv)
+    modes = args.modes.split(',')
+    unknown = set(modes) - set(MODES)
+    if unknown:
+        parser.error(f'unknown mode {", ".join(sorted(unknown))}')
     period = contract.StepClock.of(load_machine('micromill_9axis')).period_ns * 1e-9
-    results = {mode: [] for mode in args.modes.split(',')}
-    rings = []
-    for run in range(args.runs):
-        for mode in results:
-            whole, moving, wall = helix_rtf(mode == 'single')
-            results[mode].append((whole, moving))
-            print(f'run {run + 1} {mode}: factor {whole:.3f} over the send ({wall:.1f} s wall), {moving:.3f} moving',
-                  flush=True)
-        ring = bare_chain_rate(3, multiprocess=True, executor='events') * period
-        rings.append(ring)
-        print(f'run {run + 1} bare 3-hop ring (a process per node): factor {ring:.3f}', flush=True)
+    with contextlib.ExitStack() as stack:
+        trees = {'': None}
+        if args.baseline:
+            from baseline import ROOT, worktree
+            trees = {f' (baseline {args.baseline})': stack.enter_context(worktree(args.baseline)), ' (this tree)': ROOT}
+        results = {(mode, label): [] for mode in modes for label in trees}
+        rings = []
+        for run in range(args.runs):
+            for mode in modes:
+                for label, tree in trees.items():
+                    whole, moving, wall = helix_rtf(mode, tree)
+                    results[mode, label].append((whole, moving))
+                    print(f'run {run + 1} {mode}{label}: factor {whole:.3f} over the send ({wall:.1f} s wall), '
+                          f'{moving:.3f} moving', flush=True)
+            ring = bare_chain_rate(3, multiprocess=True, executor='events') * period
+            rings.append(ring)
+            print(f'run {run + 1} bare 3-hop ring (a process per node): factor {ring:.3f}', flush=True)
     print(f'\nmedians of {args.runs} runs (micromill_9axis, period {period * 1e6:g} µs):')
-    for mode, values in results.items():
-        print(f'  {mode}: {statistics.median(v[0] for v in values):.3f} over the send, '
+    for (mode, label), values in results.items():
+        print(f'  {mode}{label}: {statistics.median(v[0] for v in values):.3f} over the send, '
               f'{statistics.median(v[1] for v in values):.3f} moving')
     print(f'  bare 3-hop ring: {statistics.median(rings):.3f}')
+    if args.baseline:
+        for mode in modes:
+            base, this = (statistics.median(v[0] for v in results[mode, label]) for label in trees)
+            print(f'  {mode}: this tree {this / base:.2f}x the baseline')
 
 
 if __name__ == '__main__':

@@ -16,8 +16,11 @@ Modes:
   for a recorder (:class:`hw_sim.lockstep.RecorderGate`): once a recorder reports progress,
   the session does not advance from step k while k minus the reported step exceeds W, nor
   from step 0 while the recorder reports that it has written no state yet (step -1); a
-  recorder that leaves the graph releases the hold. Holding delays a run, it never changes
-  it.
+  recorder that leaves the graph releases the hold. `wait_for_recorder` also holds step 0
+  until a recorder has reported at all: the state subscribers counted for `min_subscribers`
+  may include one that is not the recorder's (run137: the trajectory node's reader of the
+  first state, which it drops after it, stood in for a recorder not yet discovered, and
+  the bag lacked the first 311 states). Holding delays a run, it never changes it.
 * paced (:class:`PacedSession`): a step each time the wall clock says one is due (one per
   control period / `real_time_factor`; hw_sim/pacing.py), applying the latest step-k command of each
   axis and, for an axis without one, the command applied before (zero-order hold), counting
@@ -211,10 +214,11 @@ class LockStepSession(Session):
     mode = 'lockstep'
 
     def __init__(self, sim: MachineSimulator, clock: StepClock, io: SessionIO, *, command_timeout: float = 2.0,
-                 republish_period: float = 0.2, min_subscribers: int = 0, recorder_window: int = 0, **common):
+                 republish_period: float = 0.2, min_subscribers: int = 0, recorder_window: int = 0,
+                 wait_for_recorder: bool = False, **common):
         super().__init__(sim, clock, io, **common)
         self.command_timeout, self.republish_period = command_timeout, republish_period
-        self.min_subscribers = min_subscribers
+        self.min_subscribers, self.wait_for_recorder = min_subscribers, wait_for_recorder
         self.gate = RecorderGate(recorder_window)
         self._start_announced = False
 
@@ -281,6 +285,8 @@ class LockStepSession(Session):
         if self.lockstep.step == 0 and not self._start_announced:
             if self.io.state_subscribers() < self.min_subscribers:
                 return                           # hold at step 0 until e.g. a recorder is matched
+            if self.wait_for_recorder and self.gate.recorded is None:
+                return                           # ... until a recorder has reported (bringup --record)
             if self.gate.recorded == NOTHING_RECORDED:
                 return                           # ... and until a recorder that is there has state 0
             self._start_announced = True

@@ -292,6 +292,12 @@ def _window_needs_lockstep(values):
     return None
 
 
+def _waiting_needs_a_window(values) -> str | None:
+    if values['wait_for_recorder'] and values['recorder_window'] <= 0:
+        return f'needs recorder_window > 0, got {values["recorder_window"]}'
+    return None
+
+
 HW_SIM = NodeParameters('hw_sim_node', (
     MACHINE,
     ParameterSpec('mode', STRING, 'lockstep', description='lockstep: step k -> k+1 once every axis has its '
@@ -315,7 +321,11 @@ HW_SIM = NodeParameters('hw_sim_node', (
                   'subscribers', low=0),
     ParameterSpec('recorder_window', INTEGER, 0, 'steps', 'lock-step: steps hw_sim may run ahead of a '
                   "recorder's progress (0: off)", low=0),
-), checks=(Check('recorder_window', ('recorder_window', 'mode'), _window_needs_lockstep, '0 unless mode is lockstep'),))
+    ParameterSpec('wait_for_recorder', BOOL, False, description='lock-step: hold at step 0 until a recorder has '
+                  'reported its progress (and then until it has state 0)'),
+), checks=(Check('recorder_window', ('recorder_window', 'mode'), _window_needs_lockstep, '0 unless mode is lockstep'),
+           Check('wait_for_recorder', ('wait_for_recorder', 'recorder_window'), _waiting_needs_a_window,
+                 'false unless recorder_window > 0')))
 
 SERVO = NodeParameters('servo_node', (
     MACHINE,

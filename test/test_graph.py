@@ -117,7 +117,12 @@ def test_multi_process_graph_equals_offline_runner(micromill, offline, ros_node,
 
 
 def test_single_process_graph_equals_offline_runner(micromill, offline, ros_node, ros_supervisor):
+    """Its per-step streams between its nodes through the local bus (machine_ctrl.ros.local_bus):
+    /servo_commands and the offsets only there, /joint_states there and, for this test's
+    reader, through DDS too."""
     assert_bit_identical(record_graph(micromill, ros_node, ros_supervisor, single_process=True), offline)
+    # hw_sim's commands, servo_coarse's, servo_fine's and dual_stage's states, servo_fine's offsets
+    assert 'local bus: 5 readers of the per-step streams' in ros_supervisor['graph'].log_path.read_text()
 
 
 def test_the_contour_control_in_servo_fine_equals_the_offline_runner(micromill, ros_node, ros_supervisor):

@@ -190,6 +190,7 @@ def test_paced_mode_steps_on_the_wall_clock_and_counts_missed_deadlines(paced_co
     (['-p', 'machine:=nosuch'], 'nosuch: unknown machine'),
     (['-p', 'recorder_window:=-1'], 'recorder_window: must be >= 0 steps, got -1'),
     (['-p', 'mode:=paced', '-p', 'recorder_window:=100'], 'recorder_window: needs mode lockstep'),
+    (['-p', 'wait_for_recorder:=true'], 'wait_for_recorder: needs recorder_window > 0, got 0'),
 ])
 def test_bad_parameters_stop_start_up_with_one_line(ros_env, args, message):
     import subprocess

@@ -529,6 +529,22 @@ def test_a_recorder_that_has_written_nothing_holds_step_0_until_it_has_state_0(m
     assert s.step == 1
 
 
+def test_waiting_for_a_recorder_holds_step_0_until_one_reports_whoever_else_subscribes(make):
+    """bringup --record: the state subscribers counted for min_subscribers may include one
+    that is not the recorder's (the trajectory node's reader of the first state, dropped
+    after it: run137's bag lacked states 0-310); the recorder's first report is waited for."""
+    s, io = make(min_subscribers=1, recorder_window=3, wait_for_recorder=True)
+    io.take()
+    io.subscribers = 1                            # enough readers, none of them the recorder's
+    command(s, 0)
+    s.on_timer(0.5)
+    assert s.step == 0 and ('state', 0) in io.take()      # held, state 0 re-sent
+    s.on_progress(-1, 999_900_000, 0.6)           # the recorder is here, nothing written yet
+    assert s.step == 0
+    s.on_progress(0, 0, 0.7)                      # state 0 is in the bag
+    assert s.step == 1
+
+
 def test_paced_mode_counts_nothing_before_the_graph_is_ready(make):
     s, _ = make(PacedSession, real_time_factor=0.1)          # 1 ms per step of wall time
     command(s, 0, COARSE)

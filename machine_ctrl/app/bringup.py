@@ -71,7 +71,8 @@ def graph_specs(machine: MachineConfig, dual_stage: bool = True, compensation: s
 def held_for_recorder(specs: list[NodeSpec], window: int) -> list[NodeSpec]:
     """`specs` with hw_sim waiting at step 0 for every joint-state reader and a recorder, and
     then running at most `window` steps ahead of the recorder's progress."""
-    hw = {'min_subscribers': sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1, 'recorder_window': window}
+    hw = {'min_subscribers': sum(spec.cls in JOINT_STATE_READERS for spec in specs) + 1, 'recorder_window': window,
+          'wait_for_recorder': True}
     return [NodeSpec(s.name, s.module, s.cls, {**s.parameters, **hw}, s.namespace) if s.name == 'hw_sim' else s
             for s in specs]
 

@@ -12,7 +12,11 @@ there (states of steps already done — hw_sim's re-sends — are ignored):
     /contour_error/orientation            geometry_msgs/Vector3Stamped  rad (small-angle vector), frame `workpiece`
     /contour_error/orientation_magnitude  std_msgs/Float64              rad
 
-published in that order, stamp = the state's stamp. A step whose estimate is not valid (its
+published in that order, stamp = the state's stamp, each while it has a subscriber (as
+hw_sim's ground truth; the estimate of every step is computed all the same: the estimator
+carries state from step to step, and the diagnostics count every step). In a
+single-process graph these messages are most of what the node adds to a step (bench/RESULTS.md
+"[5/8] One process: the per-step streams without DDS"). A step whose estimate is not valid (its
 bound on |estimate - true contour error| is above the tolerance: a join, a corner, a reversal,
 the last rows of a stop, a path end; machine_ctrl/contour/validity.py, README "Contour error")
 is published as NaN in all three components and in the magnitude, the convention of REP 117
@@ -119,8 +123,11 @@ class ContourErrorNode(Node):
             self.trajectory.drop_before(step - self.history)
             estimate = self.estimator.update(self.trajectory, step, q)
             self.invalid.add(step, estimate)
-            for pub, message in zip(self.pubs, self.messages(self.clock.stamp(step), estimate)):
-                pub.publish(message)
+            read = [pub.get_subscription_count() > 0 for pub in self.pubs]
+            if any(read):
+                for pub, message, wanted in zip(self.pubs, self.messages(self.clock.stamp(step), estimate), read):
+                    if wanted:
+                        pub.publish(message)
 
     def messages(self, stamp, estimate):
         out = []

@@ -27,6 +27,7 @@ from machine_ctrl import contract, parameters
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.control.dual_stage import DualStageCoupling
+from machine_ctrl.ros.local_bus import StepWriter
 from machine_ctrl.ros.node_common import main_for, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 from machine_ctrl.ros.step_node import StepInput, StepNode
@@ -46,7 +47,7 @@ class DualStageNode(StepNode):
         self.axes = self.machine.axis_names
         self.make_buffer(self.axes)
         self.encoder = JointStateEncoder(self.coupling.offset_axes)
-        self.pub = self.create_publisher(JointState, contract.DUAL_STAGE_OFFSETS.name, ros_io.STEP_QOS)
+        self.pub = StepWriter(self, JointState, contract.DUAL_STAGE_OFFSETS.name, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
         self.tracker = StepInput(contract.TRACKER.name)

@@ -37,7 +37,8 @@ session says:
   /recorder/progress (builtin_interfaces/Time: stamp of the newest state it has written):
   hw_sim does not advance from step k while k minus that step exceeds W, nor from step 0
   while the recorder reports step -1 (none written yet); a recorder that leaves the graph
-  releases the hold. Holding delays a run, it never changes it.
+  releases the hold. `wait_for_recorder` holds step 0 until a recorder has reported at
+  all (bringup --record). Holding delays a run, it never changes it.
 * paced: steps on the wall clock at `real_time_factor`, applying the latest command of
   each axis (zero-order hold) and counting missed deadlines, with the step latency and
   hw_sim's own tick lateness as percentiles on /diagnostics (hw_sim/pacing.py) — the
@@ -70,6 +71,7 @@ from machine_ctrl.model.numeric import all_finite
 from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder, encode_time
 from machine_ctrl.model.errors import ConfigError
+from machine_ctrl.ros.local_bus import StepWriter
 from machine_ctrl.ros.node_common import main_for, qos, subscribe_joint_states, wall_timer, watch_liveliness
 from machine_ctrl.ros.node_parameters import declare_parameters, machine_parameter
 
@@ -93,7 +95,8 @@ class HwSimNode(Node):
             self.session = LockStepSession(self.sim, self.clock, self, command_timeout=values.command_timeout,
                                            republish_period=values.republish_period,
                                            min_subscribers=values.min_subscribers,
-                                           recorder_window=values.recorder_window, **common)
+                                           recorder_window=values.recorder_window,
+                                           wait_for_recorder=values.wait_for_recorder, **common)
         else:
             self.session = PacedSession(self.sim, self.clock, self, real_time_factor=values.real_time_factor,
                                         command_timeout=values.command_timeout, **common)
@@ -102,7 +105,7 @@ class HwSimNode(Node):
         # per-step traffic when clock_decimation is 1; deep like the states, so a recorder
         # that hw_sim lets fall recorder_window steps behind loses no /clock either
         self.pub_clock = self.create_publisher(Clock, contract.CLOCK.name, ros_io.STEP_QOS)
-        self.pub_state = self.create_publisher(JointState, contract.JOINT_STATES.name, ros_io.STEP_QOS)
+        self.pub_state = StepWriter(self, JointState, contract.JOINT_STATES.name, ros_io.STEP_QOS)
         # one sensor_msgs/Imu per accelerometer and step, while subscribed (a servo with the
         # acceleration loop, a recorder; a lock-step re-send of the state re-sends them too)
         self.accelerometer_axes = [(self.machine.axes.index(a), a) for a in self.machine.accelerometer_axes]
@@ -207,7 +210,7 @@ class HwSimNode(Node):
         sec, nanosec = self.clock.split(step)
         m = self.sim.measurement
         if self.pub_acceleration is not None and self.pub_acceleration.get_subscription_count():
-            stamp = Time(sec=sec, nanosec=nanosec)      # before the state: a servo waiting for both has it first
+            stamp = Time(sec=sec, nanosec=nanosec)      # before the state (in one process the state may still come first)
             for i, axis in self.accelerometer_axes:
                 self.pub_acceleration.publish(ros_io.accelerometer_message(stamp, axis, m.acceleration[i]))
         if self.pub_tracker is not None and self.pub_tracker.get_subscription_count():

@@ -29,6 +29,7 @@ from machine_ctrl.control.stepping import StepAnswerer
 from machine_ctrl.diagnostics import Rejections
 from machine_ctrl.recording.cdr import ChunkDecoder, JointStateDecoder
 from machine_ctrl.ros import messages as ros_io
+from machine_ctrl.ros.local_bus import BUS, subscribe_raw
 from machine_ctrl.ros.messages import REFERENCE_QOS, STEP_QOS, InvalidMessage, parse_chunk_bytes
 
 # Events executor: several times faster than SingleThreadedExecutor here (bench/RESULTS.md).
@@ -94,7 +95,10 @@ def spin(nodes, executor=None) -> None:
     fires timers nor callbacks for other processes' messages. spin_until_future_complete on
     the stop future, with a finite timeout (:data:`SIGNAL_POLL`), dispatches events inside
     the executor without returning to Python per event; the signal handlers (run by Python
-    in the main thread, at the latest when that call returns) complete the future."""
+    in the main thread, at the latest when that call returns) complete the future.
+
+    Several nodes (a single-process graph): the per-step streams between them go through
+    this process's local bus (machine_ctrl.ros.local_bus), drained by `executor`."""
     executor = executor or DefaultExecutor()
     for node in nodes:
         executor.add_node(node)
@@ -117,6 +121,10 @@ def spin(nodes, executor=None) -> None:
     # long, bench/RESULTS.md "Paced"), now ~4 ms. The garbage of building them goes first.
     gc.collect()
     gc.freeze()
+    if len(nodes) > 1:        # nodes of one process exchange the per-step streams in it
+        readers = BUS.start(executor, nodes)
+        logger.info(f'local bus: {readers} readers of the per-step streams take what the nodes of this process '
+                    'send them without DDS')
     try:
         while rclpy.ok() and not stop.done():
             try:
@@ -131,6 +139,7 @@ def spin(nodes, executor=None) -> None:
         # while the interpreter exits: ignored from here to the end of the process.
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
+        BUS.stop()
         with bounded_teardown():
             executor.shutdown()
             for node in nodes:
@@ -197,7 +206,8 @@ def native_stacks_later(delay: float) -> subprocess.Popen | None:
 def subscribe_joint_states(node: Node, topic: str, on_state, refuse):
     """A raw subscription to a per-step JointState topic, decoded by machine_ctrl.recording.cdr (~4 us
     instead of rclpy's ~14 us a message, bench/wire_rate.py): `on_state(JointStateData)`
-    for each message, `refuse(reason)` for bytes that are not a JointState."""
+    for each message, `refuse(reason)` for bytes that are not a JointState. Those of a
+    writer in this process come through the local bus while it runs (local_bus.subscribe_raw)."""
     decoder = JointStateDecoder()
 
     def take(data: bytes) -> None:
@@ -207,7 +217,7 @@ def subscribe_joint_states(node: Node, topic: str, on_state, refuse):
             refuse(str(exc))
             return
         on_state(msg)
-    return node.create_subscription(JointState, topic, take, STEP_QOS, raw=True)
+    return subscribe_raw(node, JointState, topic, take, STEP_QOS)
 
 
 def subscribe_reference(node: Node, topic: str, clock, wanted, on_chunk, refuse):

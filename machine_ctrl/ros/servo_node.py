@@ -43,6 +43,7 @@ from machine_ctrl.ros import messages as ros_io
 from machine_ctrl.recording.cdr import JointStateData, JointStateEncoder
 from machine_ctrl.control.contour_coupling import ContourCoupling, coupled_slots
 from machine_ctrl.control.dual_stage import apply_offsets
+from machine_ctrl.ros.local_bus import StepWriter
 from machine_ctrl.ros.node_common import main_for, subscribe_joint_states, wall_timer
 from machine_ctrl.ros.node_parameters import declare_parameters, gain_parameters, machine_parameter
 from machine_ctrl.control.servo import ServoGroup
@@ -88,7 +89,7 @@ class ServoNode(StepNode):
 
         self.make_buffer(self.axes)
         self.encoder = JointStateEncoder(self.axes)
-        self.pub = self.create_publisher(JointState, contract.SERVO_COMMANDS.name, ros_io.STEP_QOS)
+        self.pub = StepWriter(self, JointState, contract.SERVO_COMMANDS.name, ros_io.STEP_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
         self.start_stepping(self.machine, self.machine_axes if self.contour else self.axes, self.pub,
