@@ -17,7 +17,7 @@ Modes:
   the session does not advance from step k while k minus the reported step exceeds W, nor
   from step 0 while the recorder reports that it has written no state yet (step -1); a
   recorder that leaves the graph releases the hold. `wait_for_recorder` also holds step 0
-  until a recorder has reported at all: the state subscribers counted for `min_subscribers`
+  until a recorder has reported at all (one that reports and leaves releases it too): the state subscribers counted for `min_subscribers`
   may include one that is not the recorder's (run137: the trajectory node's reader of the
   first state, which it drops after it, stood in for a recorder not yet discovered, and
   the bag lacked the first 311 states). Holding delays a run, it never changes it.
@@ -218,7 +218,8 @@ class LockStepSession(Session):
                  wait_for_recorder: bool = False, **common):
         super().__init__(sim, clock, io, **common)
         self.command_timeout, self.republish_period = command_timeout, republish_period
-        self.min_subscribers, self.wait_for_recorder = min_subscribers, wait_for_recorder
+        self.min_subscribers = min_subscribers
+        self.waiting_for_recorder = wait_for_recorder       # until a recorder's first report
         self.gate = RecorderGate(recorder_window)
         self._start_announced = False
 
@@ -240,6 +241,7 @@ class LockStepSession(Session):
         if self.gate.recorded is None:
             self.io.log_info(f'recorder reports progress: holding at most {self.gate.window} steps ahead')
         self.gate.recorded = step
+        self.waiting_for_recorder = False
         self.advance_if_ready(now)
 
     def watch(self, now: float) -> None:
@@ -285,7 +287,7 @@ class LockStepSession(Session):
         if self.lockstep.step == 0 and not self._start_announced:
             if self.io.state_subscribers() < self.min_subscribers:
                 return                           # hold at step 0 until e.g. a recorder is matched
-            if self.wait_for_recorder and self.gate.recorded is None:
+            if self.waiting_for_recorder:
                 return                           # ... until a recorder has reported (bringup --record)
             if self.gate.recorded == NOTHING_RECORDED:
                 return                           # ... and until a recorder that is there has state 0

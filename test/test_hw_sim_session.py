@@ -545,6 +545,16 @@ def test_waiting_for_a_recorder_holds_step_0_until_one_reports_whoever_else_subs
     assert s.step == 1
 
 
+def test_a_recorder_lost_after_its_first_report_releases_the_wait_for_it(make):
+    s, io = make(min_subscribers=1, recorder_window=3, wait_for_recorder=True)
+    io.subscribers = 1
+    s.on_progress(-1, 999_900_000, 0.1)
+    command(s, 0, now=0.2)
+    assert s.step == 0
+    s.recorder_alive(False, 0.3)
+    assert s.step == 1                            # the session goes on without a recording
+
+
 def test_paced_mode_counts_nothing_before_the_graph_is_ready(make):
     s, _ = make(PacedSession, real_time_factor=0.1)          # 1 ms per step of wall time
     command(s, 0, COARSE)
