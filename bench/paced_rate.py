@@ -30,7 +30,7 @@ import time
 from ros_chain import Chain, PacedHead
 
 from machine_ctrl import contract
-from machine_ctrl.app.bringup import client_session, listening
+from machine_ctrl.app.bringup import client_session
 from machine_ctrl.app.goals import follow_goal
 from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
 from machine_ctrl.model.config import load_machine
@@ -87,7 +87,7 @@ def paced_graph(machine, single_process: bool, seconds: float) -> dict:
                               *(['--single-process'] if single_process else [])])
         sup.wait_for_line('bringup', 'all nodes ready after', READY_TIMEOUT)
         client.wait_ready()
-        client.wait(lambda: listening(client, client.pub_goal), 'the trajectory node to hear goals', 60.0)
+        client.wait_listening(60.0, publishers=(client.pub_goal,))
         points = goal_points(machine)
         outcomes, start = [], time.monotonic()
         while time.monotonic() - start < seconds:
