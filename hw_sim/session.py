@@ -17,10 +17,11 @@ Modes:
   the session does not advance from step k while k minus the reported step exceeds W, nor
   from step 0 while the recorder reports that it has written no state yet (step -1); a
   recorder that leaves the graph releases the hold. `wait_for_recorder` also holds step 0
-  until a recorder has reported at all (one that reports and leaves releases it too): the state subscribers counted for `min_subscribers`
-  may include one that is not the recorder's (run137: the trajectory node's reader of the
-  first state, which it drops after it, stood in for a recorder not yet discovered, and
-  the bag lacked the first 311 states). Holding delays a run, it never changes it.
+  until a recorder has reported at all (one that reports and leaves releases it too): the
+  state subscribers counted for `min_subscribers` may include one that is not the
+  recorder's (run137: the trajectory node's reader of the first state, which it drops after
+  it, stood in for a recorder not yet discovered, and the bag lacked the first 311 states).
+  Holding delays a run, it never changes it.
 * paced (:class:`PacedSession`): a step each time the wall clock says one is due (one per
   control period / `real_time_factor`; hw_sim/pacing.py), applying the latest step-k command of each
   axis and, for an axis without one, the command applied before (zero-order hold), counting
