@@ -14,9 +14,10 @@ there (states of steps already done — hw_sim's re-sends — are ignored):
 
 published in that order, stamp = the state's stamp, each while it has a subscriber (as
 hw_sim's ground truth; the estimate of every step is computed all the same: the estimator
-carries state from step to step, and the diagnostics count every step). In a
-single-process graph these messages are most of what the node adds to a step (bench/RESULTS.md
-"[5/8] One process: the per-step streams without DDS"). A step whose estimate is not valid (its
+carries state from step to step, and the diagnostics count every step). Building and
+publishing these messages was about half of what the node added to a step of a
+single-process graph (bench/RESULTS.md "[5/8] One process: the per-step streams without
+DDS"). A step whose estimate is not valid (its
 bound on |estimate - true contour error| is above the tolerance: a join, a corner, a reversal,
 the last rows of a stop, a path end; machine_ctrl/contour/validity.py, README "Contour error")
 is published as NaN in all three components and in the magnitude, the convention of REP 117
