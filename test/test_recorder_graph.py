@@ -117,17 +117,27 @@ def _spin_until(executor, future, supervisor, log, timeout=300):
 
 def _pause_recorder(executor, supervisor, log, hw_sim):
     """Stop the recorder's process for PAUSE s while the graph is spun; the steps hw_sim took
-    meanwhile, and its hold count and fault after it."""
+    meanwhile, and its hold count and fault after it. The recorder is continued from a
+    thread of its own: a publish in the spinning thread can block inside Fast DDS while the
+    stopped reader holds its shared-memory port (stops 32, run12), and a SIGCONT sent by that
+    thread would then wait for it (run140: blocked 8.1 s, hw_sim faulted "stalled")."""
+    import threading
+
     from rclpy.task import Future
     first = log.newest
-    supervisor['recorder'].signal_group(signal.SIGSTOP)
+    recorder = supervisor['recorder']
+    recorder.signal_group(signal.SIGSTOP)
+    resume = threading.Timer(PAUSE, recorder.signal_group, (signal.SIGCONT,))
+    resume.start()
     try:
         end = time.monotonic() + PAUSE
         while time.monotonic() < end:
             executor.spin_until_future_complete(Future(), timeout_sec=min(0.2, end - time.monotonic()))
         taken = log.newest - first
     finally:
-        supervisor['recorder'].signal_group(signal.SIGCONT)
+        resume.cancel()                      # not due yet only if the loop above failed
+        recorder.signal_group(signal.SIGCONT)
+        resume.join()
     return {'steps': taken, 'holds': hw_sim.recorder_holds, 'fault': hw_sim.sim.fault}
 
 
