@@ -178,7 +178,5 @@ def subscribe_raw(node: Node, msg_type, topic: str, callback, qos):
     `callback(data)` once per message either way."""
     reader = LocalReader(callback, qos.depth, node.get_logger())
     subscription = node.create_subscription(msg_type, topic, reader.from_dds, qos, raw=True)
-    if not hasattr(node, _READERS):
-        setattr(node, _READERS, [])
-    getattr(node, _READERS).append((subscription.topic_name, reader))
+    vars(node).setdefault(_READERS, []).append((subscription.topic_name, reader))
     return subscription
