@@ -15,6 +15,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def tree_env(tree: Path | None) -> dict | None:
+    """The environment whose Python imports machine_ctrl from `tree` (None: as installed):
+    for a supervisor that starts nodes of either tree."""
+    return None if tree is None else dict(os.environ, PYTHONPATH=str(tree))
+
+
 @contextlib.contextmanager
 def worktree(revision: str):
     """The path of a temporary worktree of `revision`, removed on leaving (SystemExit naming

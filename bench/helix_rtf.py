@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from baseline import tree_env
 from ros_chain import bare_chain_rate, init_context
 
 from machine_ctrl import contract
@@ -37,11 +37,6 @@ TOOL = str(Path(sys.executable).with_name('machine-ctrl'))
 # beside it (its own process: it reads every per-step stream from outside the graph's; the
 # bag goes to a temporary directory)
 MODES = {'multi': [], 'single': ['--single-process'], 'single+record': ['--single-process', '--record']}
-
-
-def tree_env(tree: Path | None) -> dict | None:
-    """The environment whose Python imports machine_ctrl from `tree` (None: as installed)."""
-    return None if tree is None else dict(os.environ, PYTHONPATH=str(tree))
 
 
 def helix_rtf(mode: str, tree: Path | None = None) -> tuple[float, float, float]:

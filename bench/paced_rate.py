@@ -11,7 +11,11 @@ by a timer at the same period, in one process and in two — the transport's own
 with no computation.
 
     .venv/bin/python bench/paced_rate.py [--machine trt_5axis] [--seconds 600] [--bare-seconds 60]
-                                         [--modes single,multi]
+                                         [--modes single,multi] [--runs 1] [--baseline REV]
+
+`--baseline REV`: each mode's graph also with the nodes of that git revision (a worktree,
+first on PYTHONPATH; the bench's own client is this tree's), alternating with this tree run
+by run, so that both see the same machine load.
 
 The moves: joint goals between two points the bench picks inside the strokes (a quarter of
 each axis's stroke around its middle, or +-0.1 rad / +-0.01 m where there is no stroke),
@@ -21,12 +25,14 @@ succeed (exit status 1 otherwise).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import os
 import sys
 import tempfile
 import time
 
+from baseline import tree_env
 from ros_chain import Chain, PacedHead
 
 from machine_ctrl import contract
@@ -61,8 +67,9 @@ def bare(multiprocess: bool, period: float, seconds: float) -> dict:
             'max': latency.maximum}
 
 
-def paced_graph(machine, single_process: bool, seconds: float) -> dict:
-    """Bring the graph up paced, move for `seconds`, return hw_sim's diagnostics values after
+def paced_graph(machine, single_process: bool, seconds: float, tree=None) -> dict:
+    """Bring the graph up paced (its nodes from `tree`, default: as installed), move for
+    `seconds`, return hw_sim's diagnostics values after
     the last move and the goals' outcomes. The bench's client joins the ROS graph before the
     nodes start: a participant that joins a running graph costs every process discovery work
     (seen: hw_sim's tick 120-140 ms late in one process), which is not the steady state measured."""
@@ -70,7 +77,7 @@ def paced_graph(machine, single_process: bool, seconds: float) -> dict:
 
     from machine_ctrl.ros import messages as ros_io
     log_dir = tempfile.mkdtemp(prefix='paced_rate_')
-    with reserve_ros_domain() as lease, Supervisor(isolated_ros_env(lease.domain_id), log_dir=log_dir,
+    with reserve_ros_domain() as lease, Supervisor(isolated_ros_env(lease.domain_id, tree_env(tree)), log_dir=log_dir,
                                                    stop_timeout=30.0) as sup, \
             client_session(machine, 'paced_bench', lease.domain_id) as client:
         last: dict = {}
@@ -108,33 +115,46 @@ def ms(value) -> str:
     return '-' if value in (None, '') else f'{float(value) * 1e3:.3f}'
 
 
+def report(label: str, seconds: float, ours: dict) -> None:
+    print(f'  bringup --paced{label}, {seconds:g} s moving: {ours["goals"]} moves ({ours["goals_failed"]} failed), '
+          f'{ours.get("step")} steps, {ours.get("missed_deadlines")} missed deadlines (axis-steps), '
+          f'{ours.get("overruns")} overruns', flush=True)
+    print(f'  step latency over {ours.get("step_latency_count")} steps: p50 {ms(ours.get("step_latency_p50"))} ms, '
+          f'p99 {ms(ours.get("step_latency_p99"))} ms, max {ms(ours.get("step_latency_max"))} ms; tick lateness '
+          f'p99 {ms(ours.get("tick_lateness_p99"))} ms, max {ms(ours.get("tick_lateness_max"))} ms; '
+          f'fault: {ours.get("fault") or "none"}', flush=True)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--machine', default='trt_5axis')
-    parser.add_argument('--seconds', type=float, default=600.0, help='moving, per mode (default 600)')
+    parser.add_argument('--seconds', type=float, default=600.0, help='moving, per mode and run (default 600)')
     parser.add_argument('--bare-seconds', type=float, default=60.0, help='the bare ring, per mode (default 60)')
     parser.add_argument('--modes', default='single,multi', help='single (one process), multi (a process per node)')
+    parser.add_argument('--runs', type=int, default=1, help='graph runs per mode (and tree)')
+    parser.add_argument('--baseline', metavar='REV', help='also with the nodes of this git revision, alternating')
     args = parser.parse_args(argv)
     machine = load_machine(args.machine)
     period = machine.control_period
     print(f'{machine.name}: paced at {1 / period:g} Hz; {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f}',
           flush=True)
     status = 0
-    for mode in args.modes.split(','):
-        single = mode == 'single'
-        ring = bare(not single, period, args.bare_seconds)
-        print(f'\n{"one process" if single else "a process per node"}:', flush=True)
-        print(f'  bare 2-node ring, {args.bare_seconds:g} s: {ring["ticks"]} ticks, {ring["missed"]} missed; round trip '
-              f'p50 {ms(ring["p50"])} ms, p99 {ms(ring["p99"])} ms, max {ms(ring["max"])} ms', flush=True)
-        ours = paced_graph(machine, single, args.seconds)
-        print(f'  bringup --paced, {args.seconds:g} s moving: {ours["goals"]} moves ({ours["goals_failed"]} failed), '
-              f'{ours.get("step")} steps, {ours.get("missed_deadlines")} missed deadlines (axis-steps), '
-              f'{ours.get("overruns")} overruns', flush=True)
-        print(f'  step latency over {ours.get("step_latency_count")} steps: p50 {ms(ours.get("step_latency_p50"))} ms, '
-              f'p99 {ms(ours.get("step_latency_p99"))} ms, max {ms(ours.get("step_latency_max"))} ms; tick lateness '
-              f'p99 {ms(ours.get("tick_lateness_p99"))} ms, max {ms(ours.get("tick_lateness_max"))} ms; '
-              f'fault: {ours.get("fault") or "none"}', flush=True)
-        status |= bool(ours['goals_failed'])
+    with contextlib.ExitStack() as stack:
+        trees = {'': None}
+        if args.baseline:
+            from baseline import ROOT, worktree
+            trees = {f' (baseline {args.baseline})': stack.enter_context(worktree(args.baseline)), ' (this tree)': ROOT}
+        for mode in args.modes.split(','):
+            single = mode == 'single'
+            ring = bare(not single, period, args.bare_seconds)
+            print(f'\n{"one process" if single else "a process per node"}:', flush=True)
+            print(f'  bare 2-node ring, {args.bare_seconds:g} s: {ring["ticks"]} ticks, {ring["missed"]} missed; '
+                  f'round trip p50 {ms(ring["p50"])} ms, p99 {ms(ring["p99"])} ms, max {ms(ring["max"])} ms', flush=True)
+            for run in range(args.runs):
+                for label, tree in trees.items():
+                    ours = paced_graph(machine, single, args.seconds, tree)
+                    report(label + (f', run {run + 1}' if args.runs > 1 else ''), args.seconds, ours)
+                    status |= bool(ours['goals_failed'])
     print(f'\nload average at the end {os.getloadavg()[0]:.2f}')
     return status
 

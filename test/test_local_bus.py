@@ -3,8 +3,10 @@ DDS and the nodes' executor: each message reaches each reader once and in order,
 came through the bus, through DDS from another participant, or both ways (someone outside
 reads too, also joining and leaving mid-stream, with two writers on the topic and a message
 sent twice); nothing goes to DDS while nobody outside reads; a reader keeps the last `depth`
-like its DDS history; a stream that never pauses leaves the executor to others; a callback
-that raises is logged on its node. test_graph checks that a single-process graph runs it."""
+like its DDS history; a stream that never pauses leaves the executor to others; a reader
+outside the control loop comes after its answers, yet keeps up with a loop that never
+pauses; a callback that raises is logged on its node. test_graph checks that a
+single-process graph runs it."""
 import functools
 import time
 
@@ -41,8 +43,9 @@ class Nodes:
         writer.publisher.publish = lambda data: (writer.sent.append(data), to_dds(data))
         return writer
 
-    def reader(self, name: str, topic: str = TOPIC, depth: int = 200, take=None) -> list:
-        """What a reader got (`take(got, data)`: its callback, default: keep all)."""
+    def reader(self, name: str, topic: str = TOPIC, depth: int = 200, take=None, later: bool = False) -> list:
+        """What a reader got (`take(got, data)`: its callback, default: keep all; `later`: a
+        reader outside the control loop)."""
         from sensor_msgs.msg import JointState
 
         from machine_ctrl import contract
@@ -50,7 +53,7 @@ class Nodes:
         from machine_ctrl.ros.messages import qos
         got = []
         subscribe_raw(self.node(name), JointState, topic, got.append if take is None else (lambda d: take(got, d)),
-                      qos(contract.Qos(depth=depth)))
+                      qos(contract.Qos(depth=depth)), later)
         return got
 
     def start(self) -> None:
@@ -249,3 +252,56 @@ def test_a_stream_that_never_pauses_leaves_the_executor_to_timers(local):
     spin_until([local.executor], lambda: len(ticks) >= 5, 'five timer ticks')
     assert time.monotonic() < end, 'the timer ran only once the exchange had stopped'
     assert ticks[0] > 0 and ticks[-1] > ticks[0]       # it ran while messages went back and forth
+
+
+def test_a_reader_outside_the_loop_comes_after_the_loops_answer(local, monkeypatch):
+    """A state to a loop reader and to a reader outside the loop (contour_error's kind); the
+    loop reader answers on another topic: the answer is delivered before the state reaches
+    the reader outside, though the state was posted first. (One task delivers it all: the
+    slice is made longer than a descheduled thread could make it end early.)"""
+    from machine_ctrl.ros import local_bus
+    monkeypatch.setattr(local_bus, 'SLICE', GUARD)
+    order = []
+    answers = local.writer('bus_servo', TOPIC + '_back')
+
+    def servo(_got, data):
+        order.append(('servo', data))
+        answers.publish(data)
+    writer = local.writer('bus_hw_sim')
+    local.reader('bus_servo_reader', take=servo)
+    local.reader('bus_contour_reader', take=lambda _got, data: order.append(('contour', data)), later=True)
+    local.reader('bus_hw_sim_reader', TOPIC + '_back', take=lambda _got, data: order.append(('hw_sim', data)))
+    local.start()
+    writer.publish(message(0))
+    spin_until([local.executor], lambda: len(order) >= 3, 'the state and its answer delivered')
+    assert order == [('servo', message(0)), ('hw_sim', message(0)), ('contour', message(0))]
+
+
+def test_a_reader_outside_the_loop_keeps_up_with_a_loop_that_never_pauses(local):
+    """A lock-step loop through the bus (two nodes answering each other at once, each round a
+    new message) and a reader outside it on one of the loop's topics: that reader is served
+    while the loop runs (each task ends with what waits for it) and gets every message, in
+    order. Its depth is larger than the messages of one task here (a trivial loop makes far
+    more than the graph's ~10 steps per task): this checks the order of service, not the
+    depth."""
+    rounds = 3000
+    sent, served_while = [], []
+    there, back = local.writer('bus_ping', TOPIC), local.writer('bus_pong', TOPIC + '_back')
+
+    def ping(_got, _data):
+        if len(sent) < rounds:
+            sent.append(message(len(sent)))
+            there.publish(sent[-1])
+
+    def outside(got, data):
+        got.append(data)
+        served_while.append(len(sent) < rounds)
+    local.reader('bus_ping_reader', TOPIC + '_back', take=ping)                      # sends on TOPIC
+    local.reader('bus_pong_reader', TOPIC, take=lambda _got, data: back.publish(data))
+    got = local.reader('bus_outside_loop_reader', depth=100_000, take=outside, later=True)
+    local.start()
+    sent.append(message(0))
+    there.publish(sent[-1])
+    spin_until([local.executor], lambda: len(got) >= rounds, 'every message at the reader outside the loop')
+    assert got == sent
+    assert served_while[0], 'the reader outside the loop was served only once the loop had stopped'

@@ -94,7 +94,7 @@ class ContourErrorNode(Node):
         subscribe_reference(self, contract.REFERENCE.name, self.clock, self.machine.axis_names, self.on_reference,
                             lambda reason: self.rejections.add('reference', reason))
         subscribe_joint_states(self, contract.JOINT_STATES.name, self.on_state,
-                               lambda reason: self.rejections.add('state', reason))
+                               lambda reason: self.rejections.add('state', reason), later=True)   # not in the loop
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: {method} estimator')
 

@@ -27,8 +27,18 @@ DDS"). With it:
   push it out; meanwhile an equal payload from another process would be taken for the copy.
 * What waits for a reader is bounded like its DDS history: keep last `depth` (the topic's
   QoS); the oldest is dropped, as DDS would.
-* A task delivers for up to :data:`SLICE`; a paced hw_sim's timer (or anything else the
-  executor has) may wait that long behind it, where it waited one message before.
+* A task delivers for up to :data:`SLICE` (then what waits for readers outside the control
+  loop, below); a paced hw_sim's timer (or anything else the executor has) may wait that
+  long behind it, where it waited one message before.
+* The control loop first: a reader that is not part of it (``later=True``: contour_error's
+  states) gets its messages once no loop reader has one waiting, and at the end of each
+  task whatever is waiting for it, so that it keeps up with a lock-step loop that never
+  pauses (at most a task's worth behind, far less than its depth). Without that, a step's
+  commands waited behind the estimation of the state they answer (paced trt_5axis at 1 kHz:
+  step latency p50 ~0.2 ms, 0.11 ms without; bench/RESULTS.md). Each reader still gets its
+  messages in order; only the interleaving of readers within a task changes: the loop's
+  messages are as before (test_graph, test_determinism), and contour_error gets each state
+  within the task that posted it (before, entries left at a task's end waited for the next).
 
 Only while the bus runs (:meth:`LocalBus.start`, by node_common.spin for several nodes in
 one executor) and only for readers of the nodes it runs for; otherwise every writer
@@ -42,9 +52,11 @@ from collections import deque
 
 from rclpy.node import Node
 
-# assumed: 2 ms of per-step callbacks at a time. The 20 ms timers of the step nodes and
-# the 1 s diagnostics then run at most ~2 ms late; a task per ~10 steps of the micromill's
-# graph costs ~10 us (an executor task), nothing beside the ~2 ms of callbacks.
+# assumed: 2 ms of the control loop's callbacks at a time, then the readers outside it for
+# what those 2 ms posted (contour_error: its estimation of those states, about as long again
+# on the micromill). The 20 ms timers of the step nodes and the 1 s diagnostics then run at
+# most a few ms late; a task per ~10 steps of the micromill's graph costs ~10 us (an
+# executor task), nothing beside the callbacks.
 SLICE = 0.002              # s (wall)
 
 
@@ -53,10 +65,10 @@ class LocalReader:
     whichever way it came; :meth:`from_dds` is its DDS subscription's callback. `logger`:
     its node's, for a callback that raises on a message of the bus."""
 
-    __slots__ = ('callback', 'logger', 'pending', 'echoes')
+    __slots__ = ('callback', 'logger', 'pending', 'echoes', 'later')
 
-    def __init__(self, callback, depth: int, logger):
-        self.callback, self.logger = callback, logger
+    def __init__(self, callback, depth: int, logger, later: bool = False):
+        self.callback, self.logger, self.later = callback, logger, later
         self.pending = deque(maxlen=depth)      # messages of local writers not taken yet
         self.echoes = deque(maxlen=depth)       # payloads of local writers also sent to DDS
 
@@ -78,9 +90,11 @@ class LocalBus:
     def __init__(self):
         self.readers: dict[str, list[LocalReader]] = {}
         self.executor = None
-        # one entry per message posted, in order (a reader's message dropped by its keep-last
-        # leaves its entry, skipped when drained)
+        # one entry per message posted, in order, for the readers of the control loop and
+        # for the others (a reader's message dropped by its keep-last leaves its entry,
+        # skipped when drained)
         self.queue: deque[LocalReader] = deque()
+        self.later: deque[LocalReader] = deque()
         self.scheduled = False
 
     def start(self, executor, nodes: list[Node]) -> int:
@@ -101,6 +115,7 @@ class LocalBus:
                 reader.echoes.clear()
         self.readers, self.executor, self.scheduled = {}, None, False
         self.queue.clear()
+        self.later.clear()
 
     def readers_of(self, topic: str):
         """This process's readers of `topic` while the bus runs (else none)."""
@@ -109,37 +124,44 @@ class LocalBus:
     def post(self, readers, data: bytes) -> None:
         """`data` for each of `readers`, delivered by a task of the executor (one is made
         unless one is due already)."""
-        queue = self.queue
+        queue, later = self.queue, self.later
         for reader in readers:
             reader.pending.append(data)
-            queue.append(reader)
+            (later if reader.later else queue).append(reader)
         if not self.scheduled:
             self.scheduled = True
             self.executor.create_task(self.drain)
 
     def drain(self) -> None:
-        """One slice of deliveries (executor task); the next slice is another task, behind
-        whatever else the executor has by then. A callback that raises is logged on its
-        node's logger with the traceback (an executor task would keep the exception to
-        itself), and the next message is delivered as usual."""
-        queue = self.queue
+        """One slice of deliveries (executor task): the control loop's readers first, the
+        others when none of those has a message waiting; at the slice's end the others get
+        everything waiting for them (module docstring). The next slice is another task,
+        behind whatever else the executor has by then."""
+        queue, later = self.queue, self.later
         end = time.monotonic() + SLICE
         try:
-            while queue:
-                reader = queue.popleft()
-                if reader.pending:
-                    try:
-                        reader.callback(reader.pending.popleft())
-                    except Exception:  # noqa: BLE001 - a node never dies from a callback error
-                        reader.logger.error(f'callback failed: {traceback.format_exc()}',
-                                            throttle_duration_sec=1.0)
-                    if time.monotonic() > end:
-                        break
+            while queue or later:
+                self.deliver((queue or later).popleft())
+                if time.monotonic() > end:
+                    while later:
+                        self.deliver(later.popleft())
+                    break
         finally:
-            if queue and self.executor is not None:
+            if (queue or later) and self.executor is not None:
                 self.executor.create_task(self.drain)
             else:
                 self.scheduled = False
+
+    @staticmethod
+    def deliver(reader: LocalReader) -> None:
+        """The reader's oldest waiting message, if its keep-last left one. A callback that
+        raises is logged on its node's logger with the traceback (an executor task would keep
+        the exception to itself), and the next message is delivered as usual."""
+        if reader.pending:
+            try:
+                reader.callback(reader.pending.popleft())
+            except Exception:  # noqa: BLE001 - a node never dies from a callback error
+                reader.logger.error(f'callback failed: {traceback.format_exc()}', throttle_duration_sec=1.0)
 
 
 BUS = LocalBus()
@@ -172,11 +194,12 @@ class StepWriter:
 _READERS = '_machine_ctrl_local_readers'     # a node's [(topic, LocalReader)]: they live as long as it
 
 
-def subscribe_raw(node: Node, msg_type, topic: str, callback, qos):
+def subscribe_raw(node: Node, msg_type, topic: str, callback, qos, later: bool = False):
     """A raw subscription (the DDS one is returned; `qos` keep last) whose messages from
     writers of this process come through the bus while it runs for `node`:
-    `callback(data)` once per message either way."""
-    reader = LocalReader(callback, qos.depth, node.get_logger())
+    `callback(data)` once per message either way. `later`: a reader outside the control
+    loop, served after its readers (module docstring)."""
+    reader = LocalReader(callback, qos.depth, node.get_logger(), later)
     subscription = node.create_subscription(msg_type, topic, reader.from_dds, qos, raw=True)
     vars(node).setdefault(_READERS, []).append((subscription.topic_name, reader))
     return subscription

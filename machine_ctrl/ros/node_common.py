@@ -203,21 +203,36 @@ def native_stacks_later(delay: float) -> subprocess.Popen | None:
                             start_new_session=True)
 
 
-def subscribe_joint_states(node: Node, topic: str, on_state, refuse):
+# the newest (bytes, JointStateData) decoded by any subscribe_joint_states reader of this
+# process: the local bus hands one bytes object to every reader of a message, so readers
+# served one after another take the first one's decoding (an immutable named tuple of
+# tuples): the helix's state goes to the loop's three readers of /joint_states, decoded
+# once; contour_error, served after the loop's answers were decoded, decodes it again.
+# One tuple, assigned at once: a reader in another thread sees a matching pair or none.
+_last_decoded: tuple = (None, None)
+
+
+def subscribe_joint_states(node: Node, topic: str, on_state, refuse, later: bool = False):
     """A raw subscription to a per-step JointState topic, decoded by machine_ctrl.recording.cdr (~4 us
     instead of rclpy's ~14 us a message, bench/wire_rate.py): `on_state(JointStateData)`
     for each message, `refuse(reason)` for bytes that are not a JointState. Those of a
-    writer in this process come through the local bus while it runs (local_bus.subscribe_raw)."""
+    writer in this process come through the local bus while it runs (local_bus.subscribe_raw;
+    `later`: a reader outside the control loop), decoded once for the readers served one
+    after another (:data:`_last_decoded`)."""
     decoder = JointStateDecoder()
 
     def take(data: bytes) -> None:
-        try:
-            msg = decoder.decode(data)
-        except InvalidMessage as exc:
-            refuse(str(exc))
-            return
+        global _last_decoded
+        last_data, msg = _last_decoded
+        if data is not last_data:
+            try:
+                msg = decoder.decode(data)
+            except InvalidMessage as exc:
+                refuse(str(exc))
+                return
+            _last_decoded = (data, msg)
         on_state(msg)
-    return subscribe_raw(node, JointState, topic, take, STEP_QOS)
+    return subscribe_raw(node, JointState, topic, take, STEP_QOS, later)
 
 
 def subscribe_reference(node: Node, topic: str, clock, wanted, on_chunk, refuse):
