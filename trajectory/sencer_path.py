@@ -19,7 +19,7 @@ exceeding 1500 mm/s^2": the tangential feed rises as a cubic in time, F (3 tau^2
 whose peak acceleration 1.5 F / T_ramp equals 1500 mm/s^2 at T_ramp = 50 ms. On our
 trt_5axis that ramp would ask y for 7.2 m/s^2 at the end of the path (the a tilt swings
 the 0.21 m high tool tip; y can give 10 V / 1.74 V s^2/m = 5.7 m/s^2): the ramp is
-lengthened until every axis is within its acceleration and jerk limits (125 ms, 600
+lengthened until every axis is within its acceleration and jerk limits (122 ms, 617
 mm/s^2 tangential: still "not exceeding 1500 mm/s^2").
 
 The axes follow from the inverse kinematics (Eqs. 3 and 6, with the Eq. 6 erratum of
