@@ -5,11 +5,13 @@ ROS-free on purpose (README "Architecture"): it sits just above the machine mode
 cores that meet these names — the recorder and the bag analysis read topics by name, the
 simulator's lock-step core counts steps on the clock — need no ROS import, and the nodes
 (machine_ctrl/ros) turn :class:`Qos` into rclpy profiles in one place
-(:func:`machine_ctrl.ros.messages.qos`). No other module writes a topic or service name, nor
+(:func:`machine_ctrl.ros.messages.qos`; :func:`machine_ctrl.ros.node_common.qos` adds a
+liveliness lease). No other module writes a topic or service name, nor
 recomputes the control period in nanoseconds; `test/test_architecture.py` checks both.
 
-Units on every topic are SI (m, rad, s, N, N*m; REP 103); joint names are the machine's axis
-names.
+Units on every topic are SI (m, rad, s, m/s^2; REP 103), except the effort on /joint_states
+and /servo_commands, which is in the drive's command units (V, amplifier units); joint names
+are the machine's axis names.
 
 Names are relative (README "For ROS users", "Namespaces"): a node in namespace /mill1
 publishes `joint_states` as /mill1/joint_states, so several machines share a ROS domain,
@@ -277,8 +279,9 @@ PARAMETER_EVENTS = '/parameter_events'
 # The command API a user of the running graph sees (machine-ctrl bringup prints it).
 COMMAND_API = (PATH, JOINT_GOAL, PROGRAM, FEED_OVERRIDE, HOLD, RESUME, STOP, CANCEL, HOME, RESET, DUAL_STAGE_ENABLE,
                COMPENSATION_ENABLE, TRAJECTORY_STATUS, GOAL_STATUS, READY, ROBOT_DESCRIPTION, DIAGNOSTICS)
-# The per-step streams of the lock-step graph: each publisher of these answers every step,
-# so the recorder's progress is the minimum over them.
+# The per-step streams of the lock-step graph: each publisher publishes on the step grid
+# (every step, or every N-th: /clock and the ground truth are decimated), so the recorder's
+# progress is the minimum over them.
 PER_STEP_TOPICS = (JOINT_STATES, SERVO_COMMANDS, DUAL_STAGE_OFFSETS, CLOCK, ACCELEROMETERS, TRACKER, TRUE_JOINT_STATES,
                    TRUE_TOOL_POSE)
 # Of those, the answers of the step nodes to each state (one stream per publisher; the rest

@@ -10,7 +10,9 @@ fit-errors --out), `enabled` (live: on/off from the next chunk, ramped, see stre
 `input_topic`, `output_topic`. The service /compensation/enable (std_srvs/SetBool) sets
 `enabled`, so parameter, service and the status agree. A malformed chunk is refused (reason on /diagnostics and the log), nothing is
 forwarded for it and the node keeps running. /diagnostics (1 Hz wall): enabled, chunks,
-refused chunks, rows stopped by the iteration cap, largest predicted residual.
+refused chunks, rows stopped by the iteration cap, largest predicted residual. While it runs
+it publishes compensation/ready (std_msgs/Bool, latched, with a liveliness lease), which the
+trajectory node watches.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """contour_error_node: tool-tip and tool-orientation contour errors of every control step
-(Sencer Eqs. 17-28, core in machine_ctrl/contour/estimation.py), for anyone (recorder, contouring
-control of [6/7]).
+(Sencer Eqs. 17-28, core in machine_ctrl/contour/estimation.py), for anyone (recorder, views,
+analysis; the servo's contour control estimates its own).
 
 Inputs: /reference (trajectory_msgs/JointTrajectory chunks on the control grid, all axes of
 the machine), converted to the reference tool trajectory when a chunk arrives, and
@@ -27,7 +27,8 @@ good one. A consumer that needs estimates (a contouring controller) uses only fi
 `invalid_tool_tip_steps`, `invalid_orientation_steps` and the last one with its reason are on
 /diagnostics. The bound looks at the reference rows up to HORIZON (0.2 s) ahead of the step:
 the node computes what the offline core computes as long as the reference is streamed that far
-ahead of the states (the trajectory node: 3000 rows). Parameters: `machine`, `estimator`
+ahead of the states (the trajectory node's 3000 rows: 0.3 s at 10 kHz, not enough on
+fts_lathe's 5 us period). Parameters: `machine`, `estimator`
 (basic | shifted | compensated; live, from the next step). A state whose reference row has
 not arrived waits for it (so start-up timing cannot change what is published); after
 MAX_SHIFT worth of steps without it the oldest waiting state is given up. A refused message

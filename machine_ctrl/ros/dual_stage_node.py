@@ -3,7 +3,8 @@
 the coarse tracking errors, on /dual_stage/offsets
 (sensor_msgs/JointState: name = the fine axes, then with mid-ranging the coarse axes;
 position = offsets in m or rad; stamp = step k).
-Inputs: /joint_states and the reference stream /reference (all coupled axes), and on a machine
+Inputs: /joint_states and the reference stream /reference (every axis of the machine; a chunk
+without one is refused), and on a machine
 whose Cartesian coupling has a tracker the tracker's reading of each step (/hw_sim/tracker,
 geometry_msgs/PointStamped in the workpiece frame). Waits for a reference stream that never
 started; once it has, waits up to `input_timeout` s (wall) for a missing row, then holds (see

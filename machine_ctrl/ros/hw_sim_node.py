@@ -34,7 +34,7 @@ session says:
   command they already computed). `min_subscribers` > 0 holds at step 0 until that many
   /joint_states subscribers are matched (a recorder that must see every step).
   `recorder_window` W > 0 (steps) is flow control for a recorder that reports on
-  /recorder/progress (builtin_interfaces/Time: stamp of the newest state it has written):
+  /recorder/progress (builtin_interfaces/Time: the stamp up to which every per-step stream is written):
   hw_sim does not advance from step k while k minus that step exceeds W, nor from step 0
   while the recorder reports step -1 (none written yet); a recorder that leaves the graph
   releases the hold. `wait_for_recorder` holds step 0 until a recorder has reported at

@@ -1,5 +1,5 @@
 """Message conversion and validation shared by the nodes (the ROS edge of the functional
-core). Every parser raises :class:`InvalidMessage` with a one-line reason; nodes catch it,
+core). The message parsers raise :class:`InvalidMessage` (path_to_cl: ValueError) with a one-line reason; nodes catch it,
 report it on /diagnostics and keep running.
 
 Time: control step k of a machine with period T happens at sim time t_k = k*T, carried in

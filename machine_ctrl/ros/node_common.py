@@ -40,7 +40,8 @@ except ImportError:  # pragma: no cover - older rclpy
 
 
 def use_sim_time(node: Node) -> None:
-    """Every node runs on hw_sim's clock (design.md "Time")."""
+    """A node on the simulated clock (its parameter table's sim_time) runs on hw_sim's clock
+    (design.md "Time")."""
     if not node.has_parameter('use_sim_time'):
         node.declare_parameter('use_sim_time', True)
     node.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, True)])
@@ -52,8 +53,8 @@ def wall_timer(node: Node, period: float, callback):
 
 
 # assumed: 0.1 s between returns to Python bounds the reaction to SIGINT/SIGTERM while no
-# callback runs (a busy node reacts at its next callback), far inside the 2 s a launch file
-# gives; one return per 0.1 s costs nothing measurable beside the per-step callbacks.
+# callback runs (a busy node reacts at its next callback), far inside the 5 s launch waits
+# before it escalates; one return per 0.1 s costs nothing measurable beside the per-step callbacks.
 SIGNAL_POLL = 0.1          # s (wall)
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # assumed: a node's shutdown (executor, nodes, context, interpreter exit) takes well under 1 s

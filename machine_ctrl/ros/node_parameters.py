@@ -298,7 +298,7 @@ def params_document(machine: MachineConfig) -> dict:
     ``/**/<name>`` (any namespace): each node's table defaults, the graph's values, the
     machine by name, the servos' live gains from the machine config, use_sim_time for the
     nodes on the simulated clock. Required values without a default (compensation `model`,
-    recorder `output`) are left to the command line."""
+    recorder `output` and `session`) are left to the command line."""
     from machine_ctrl.ros.graph import default_graph
     nodes = []
     for spec in default_graph(machine, contour=None, contour_error=True):

@@ -3,8 +3,8 @@
 
 Parameters: ``output`` (bag directory, must not exist or be empty), ``topics`` (names, or
 ``NAME:pkg/msg/Type`` to subscribe before the topic exists; relative names are in the
-node's namespace; empty: every topic of the node's namespace but ``/rosout`` and
-``/parameter_events``), ``machine`` (name or YAML path, stored in the bag's
+node's namespace; empty: every topic of the node's namespace but ``/rosout``,
+``/parameter_events`` and its own recorder/progress), ``machine`` (name or YAML path, stored in the bag's
 custom_data for ``machine-ctrl analyze``), ``discovery_period`` (s, wall), ``duration``
 (s, wall; 0: until stopped), ``start_streams`` (bringup's recorder: /joint_states is
 subscribed only once that many step nodes have answered, :meth:`RecorderNode.start_states`),
@@ -12,7 +12,8 @@ subscribed only once that many step nodes have answered, :meth:`RecorderNode.sta
 machine_ctrl.session.KEY).
 
 Progress: when it records /joint_states, the node publishes on /recorder/progress
-(builtin_interfaces/Time, reliable, transient local, depth 1) a stamp up to which every
+(builtin_interfaces/Time, reliable, transient local, depth 1, a 5 s liveliness lease: hw_sim
+releases its hold when it lapses) a stamp up to which every
 per-step publisher's messages are written (:class:`machine_ctrl.recording.recorder.Progress`; at
 start the stamp of step -1, nothing written, when the machine is known), after every ``recorder.PROGRESS_EVERY``-th state and every
 ``recorder.PROGRESS_PERIOD`` s when newer. hw_sim's ``recorder_window`` uses it to hold the

@@ -1,4 +1,5 @@
-"""reference_node: a simple reference source until the trajectory generator ([3/7]) exists.
+"""reference_node: a simple reference source that plays a test contour (the trajectory node is
+the general one).
 Streams the references of a test contour (parameter `contour`: circle, square or hold) on
 /reference in chunks of `chunk_steps` control steps, keeping `lookahead_steps` ahead of the
 sim time it reads from /clock (like a CNC interpolator filling the servo buffer). After the

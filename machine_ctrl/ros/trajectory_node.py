@@ -43,11 +43,11 @@ Inputs (every one validated; a refused goal moves nothing and its reason is publ
 * `/trajectory/cancel` (action_msgs/CancelGoal): cancel the active goal by id (zero id:
   whatever goal is active; a stamp: only a goal stamped at or before it), as a stop.
 
-Goals (trajectory/goals.py): every path, joint goal and home gets an id (a UUID) and a
+Goals (trajectory/goals.py): every path, program, joint goal, home and freeform cut gets an id (a UUID) and a
 lifecycle — accepted, executing, canceling, succeeded, canceled, aborted (refused on
 receipt too) — published latched on `/trajectory/goal_status`
 (action_msgs/GoalStatusArray: the recent goals, GoalInfo.stamp = the request's
-header.stamp; for home the sim time it came) and, with the reason, as a /diagnostics entry
+header.stamp; for home, a program and a freeform cut the sim time it came) and, with the reason, as a /diagnostics entry
 named `<node>/goal` (values goal_id, status, status_code, reason, kind, label, stamp).
 Hold, resume, stop and cancel act on the active goal and answer truthfully: a hold or stop
 that cannot act before the motion ends is refused with the reason (trajectory/session.py).
@@ -71,7 +71,9 @@ stream holds the measured position. When hw_sim reports a fault (/diagnostics, l
 ERROR) the motion is dropped and the reference at the fault step is held; after hw_sim's
 reset the state returns to idle. hw_sim's loss (the liveliness lease of its latched `ready`
 runs out: killed, stopped, hung) is a fault too: the goal aborted naming hw_sim, the motion
-stopped (trajectory/session.py). `/trajectory/goal_status` is offered with a liveliness
+stopped (trajectory/session.py). With compensation (`output_topic` trajectory/reference) the
+loss of the compensation node (the lease of its latched compensation/ready) is treated alike:
+goals refused, `reference_lost` in the status. `/trajectory/goal_status` is offered with a liveliness
 lease, so a client learns within it that this node is gone (README "Faults"); its own
 process not run for longer than `stall_limit` (live, at most the lease) aborts the goal
 under way (contract.STALL_LIMIT).
