@@ -11,7 +11,7 @@ until |dP| < nu (Eq. 5.27: "converged") or `max_iterations` (the cap) is reached
 reports which, per row. J^c = dP_a/dq_f (3 x 6, Eq. 5.20) comes from the error-augmented
 model; J^c+ = J^cT (J^c J^cT)^-1 (Eq. 5.21). H^c = sum u^2/(1-u^2), u = (q - centre)/half
 stroke, over the fine axes with a stroke (trajectory/redundancy.py's cost and its exact
-gradient, seed-notes.md: Eq. 5.24 is not the gradient of Eq. 5.23; the unlimited c_f is left
+gradient: Eq. 5.24 is not the gradient of Eq. 5.23, as seed-notes.md notes for Eqs. 3.19/3.20; the unlimited c_f is left
 out), descended (-beta^c with beta^c > 0).
 
 Velocities and accelerations of the corrected rows: the correction c(q) = q* - q is a smooth

@@ -2,7 +2,7 @@
 §5.3, Eqs. 5.9-5.13): average the repeats at each position (Eq. 5.9), fit
 eps(q) = phi_A u^5 + ... + phi_F (Eq. 5.13) by least squares (Eqs. 5.10-5.12) in the
 normalized position u of error_map.py (the thesis's q^5...1 in metres would make Phi^T Phi
-condition-numbered ~1e30; in u it is ~10), and report the residuals. Solved with lstsq
+condition-numbered ~1e17 on an 80 mm range; in u it is ~2e3, cond Phi ~40), and report the residuals. Solved with lstsq
 (the minimizer of Eq. 5.11, as Eq. 5.12, without forming Phi^T Phi)."""
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ gives exactly the rows :meth:`Compensator.compensate` gives for the whole trajec
 
 Switching on or off never steps the reference: the correction c(t) is blended in or out with
 a weight w(k) going 0 -> 1 (or 1 -> 0) along the quintic smoothstep (trajectory/ramp.py)
-over RAMP_STEPS, starting at the first step of the next chunk transformed after the switch
+over RAMP_TIME (ramp_steps control steps), starting at the first step of the next chunk transformed after the switch
 (chunks run ahead of the machine, so that is up to the trajectory's lookahead later).
 Output rows:
     q + w c,   v + w c' + w' c,   a + w c'' + 2 w' c' + w'' c.
@@ -20,8 +20,8 @@ import numpy as np
 from compensation.compensate import Compensator
 from trajectory.ramp import smoothstep
 
-# assumed: 0.1 s blend (1000 steps at 10 kHz): the largest correction (~5 um) then needs
-# < 1 mm/s and ~0.2 m/s^2 of the fine stage, far inside its limits.
+# assumed: 0.1 s blend (1000 steps at 10 kHz): blending the largest correction (~5 um) in
+# then needs ~0.1 mm/s and ~0.003 m/s^2 of the fine stage, far inside its limits.
 RAMP_TIME = 0.1
 
 

@@ -1,7 +1,7 @@
 """Test contours of the Yuen thesis section 6.3 as axis references for two axes: the
 circle of Table 6.1 and the square of Table 6.2, at a constant tangential feed with smooth
-(quintic, acceleration-continuous) starts and stops. Until the trajectory generator of [3/7]
-exists, these are the servo references of the experiments and the reference node.
+(quintic, acceleration-continuous) starts and stops: the servo references of the contour
+experiments and the reference node.
 """
 from __future__ import annotations
 

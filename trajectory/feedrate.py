@@ -28,9 +28,9 @@ the axis jerk is q' sdddot): no profile starting from rest with |sdddot| <= j_t 
 Accuracy: the constraints hold at the grid points. Between them, and in the duration
 estimate near the rest ends, the grid costs a few percent: on a straight line the profile's
 duration is 3-5 % below Ruckig's time-optimal rest-to-rest move at 400-2000 nodes,
-approaching it as the grid is refined (test_feedrate.py). The time sampling ([3/7], next
-step) must therefore check the sampled references against the limits and slow the profile
-down where the grid was optimistic.
+approaching it as the grid is refined (test_feedrate.py). The time sampling (sampling.py)
+therefore checks the sampled references against the limits and re-solves or slows the profile
+where the grid was optimistic.
 
 Re-solve with tightened limits (:func:`refine_feed`). Where the sampled references exceed a
 limit, the sampler (sampling.resolve_rule) lowers that limit at the feed nodes around the

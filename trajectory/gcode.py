@@ -30,7 +30,7 @@ The subset (anything else is refused, ``file:line: reason``, and nothing is plan
   arc centres): accepted, no effect;
 * ``M0`` program stop (a pause after the block before it), ``M2`` / ``M30`` program end
   (the lines after it are not read); ``N`` line numbers, ``( ... )`` and ``;`` comments,
-  ``%`` delimiter lines (the second one ends the program).
+  ``%`` delimiter lines (a ``%`` after the first block, or the second one, ends the program).
 
 Also refused: two codes of one modal group in a block (``G20 G21``), a coordinate, centre
 offset or radius beyond ``MAX_COORDINATE``. A move shorter than ``MIN_MOVE`` is no motion,

@@ -2,12 +2,12 @@
 "Goal status"). The trajectory node publishes them as action_msgs/GoalStatusArray on
 contract.GOAL_STATUS and every change as a /diagnostics entry (GoalStatus has no text).
 
-Every goal the node receives — a tool path, a joint goal, home — gets an id, accepted or
-not. The id is a UUID (unique_identifier_msgs/UUID in action_msgs/GoalInfo) made
+Every goal the node receives — a tool path, a G-code program, a freeform cut, a joint goal,
+home — gets an id, accepted or not. The id is a UUID (unique_identifier_msgs/UUID in action_msgs/GoalInfo) made
 deterministically from the node's goal counter and the request's stamp (uuid5 in
 :data:`GOAL_NAMESPACE`), so lock-step runs stay reproducible; GoalInfo.stamp is the
-request's header.stamp as sent (for home, which has no request header: the sim time the
-node received it), so a client that stamps its request uniquely (``machine-ctrl
+request's header.stamp as sent (for home, a program and a freeform cut, which have no
+request header: the sim time the node received it), so a client that stamps its request uniquely (``machine-ctrl
 send|move`` use the wall clock) finds its goal by the stamp. The node does not schedule by
 the stamp: a goal starts as soon as it can.
 
@@ -19,7 +19,8 @@ Lifecycle (:class:`GoalState`: the action_msgs/GoalStatus codes):
 * canceling: a stop or cancel ramps it to rest; canceled once at rest;
 * succeeded: the motion has played out and stands at rest at its end;
 * aborted: refused on receipt (invalid, busy, faulted, no machine state yet), planning
-  failed, or the machine faulted under way; the reason goes with the change.
+  failed, the machine faulted under way, the node stalled, or the node carrying its
+  reference (compensation) was lost; the reason goes with the change.
 
 :class:`GoalBook` keeps the recent goals (the last :data:`KEEP`, the active one always) in
 the order they came.
@@ -60,7 +61,7 @@ class GoalState(IntEnum):
 class Goal:
     id: bytes                           # 16 bytes (unique_identifier_msgs/UUID)
     stamp: tuple[int, int]              # (sec, nanosec) of the request (GoalInfo.stamp)
-    kind: str                           # 'path', 'joint goal', 'home'
+    kind: str                           # 'path', 'program', 'freeform', 'joint goal', 'home'
     label: str                          # e.g. 'joint goal (2 points)'
     state: GoalState = GoalState.UNKNOWN
     reason: str = ''                    # why it was aborted or canceled

@@ -148,11 +148,12 @@ def _failure(machine: MachineConfig, s, qs, path=None) -> ResolutionFailed:
 class RedundancySettings:
     """Tuning of the resolution. Lengths in m, angles in rad."""
     # assumed: not stated in the thesis (seed-notes.md). 20 µm keeps the stiffest nullspace
-    # mode (rate beta/h_f² = 5e3 1/m for the 100 µm fine strokes) at 0.1 of RK4's real-axis
-    # stability limit 2.79, and gives 1257 points per turn of the 4 mm circle.
+    # mode (rate at least 2 beta/h_f² = 1e4 1/m for the 100 µm fine strokes; Δs rate 0.2 at
+    # the centre, ~1 where the axis settles) within a third of RK4's real-axis stability
+    # limit 2.79, and gives 1257 points per turn of the 4 mm circle.
     step: float = 20e-6
     # assumed: beta (m², because grad H is in 1/m). On a unit-speed path the fine axis settles
-    # where its gradient 2u/(h(1-u²)²) ~ 1/beta, i.e. |u| ~ 0.45 (45 µm of the 100 µm fine
+    # where its gradient 2u/(h(1-u²)²) ~ 1/beta, i.e. |u| ~ 0.5 (52 µm of the 100 µm fine
     # stroke) for beta = 5e-5; the nullspace time constant is h_f²/beta = 0.2 mm of path.
     beta: float = 5e-5
     # assumed: K_e (1/m). Task errors decay as exp(-K_e s): 1/e over 1 mm of path, and
@@ -170,7 +171,7 @@ class RedundancySettings:
     projection_iterations: int = 2
     projection_tolerance: float = 1e-13
     # assumed: scale (rad) of an unlimited axis in the stroke-weighted Newton solve for q0;
-    # comparable to 1/5 of a turn, so c_f is used only as much as the coarse axes.
+    # about 1/6 of a turn, so c_f is used only as much as the coarse axes.
     unlimited_scale: float = 1.0
     initial_iterations: int = 50
 

@@ -22,7 +22,8 @@ States (:class:`State`; the values are the message of the node's status):
 A motion that has played out returns the state to idle at the next :meth:`Session.tick`.
 Refused goals are counted and the last reason kept (`rejections`: machine_ctrl.diagnostics.Rejections).
 
-Goals (trajectory/goals.py): every goal received — path, joint goal, home — is entered in
+Goals (trajectory/goals.py): every goal received — path, program, freeform cut, joint goal,
+home — is entered in
 `goals` (a GoalBook) with its id and the request's stamp: aborted with the reason when
 refused; else accepted, executing once the sim time reaches its motion's first step,
 succeeded when the motion has played out, canceling / canceled on a stop or cancel,
@@ -324,8 +325,8 @@ class Session:
 
     # -- goals -----------------------------------------------------------------------------
     def planning(self, label: str, stamp: tuple[int, int] = ZERO_STAMP, kind: str = 'path') -> Goal:
-        """A tool path (or a freeform cut: `kind`), `label`, accepted (after may_accept) and
-        handed to the planner."""
+        """A tool path (or a program or a freeform cut: `kind`), `label`, accepted (after
+        may_accept) and handed to the planner."""
         self.planning_goal = self.goals.new(kind, label, stamp)
         self.goals.set(self.planning_goal, GoalState.ACCEPTED)
         self._set_state(State.PLANNING)

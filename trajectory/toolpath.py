@@ -295,7 +295,7 @@ def sinusoidal_surface(size: float = 10e-3, peak_to_peak: float = 500e-6,
     # assumed: wavelength L = 5 mm (not stated, seed-notes.md), the surface formula (a
     product of sines), tilt direction towards +x (only "constant tilt" is stated), about
     0.25 mm mean point spacing along a row, 5 points on each turn. With the default
-    stepover there are 1001 rows (~47k points): pass a larger stepover for a short path."""
+    stepover there are 1001 rows (~46k points): pass a larger stepover for a short path."""
     radius = 0.397e-3 / 2  # m, thesis section 6.2: 1/64" (397 um) ball end mill
     tilt = math.radians(0.15)  # thesis section 6.2: constant tilt 0.15 deg
     amplitude = peak_to_peak / 2

@@ -263,7 +263,7 @@ class Supervisor:
         """Stop every child: each signal goes to the groups in reverse start order (the
         last started, usually the one depending on the others, first), and the escalation
         runs for all of them together, so the whole stop takes at most about
-        2 * timeout + KILL_TIMEOUT. Returns the exit codes by name."""
+        2 * timeout + STACKS_WAIT + KILL_TIMEOUT. Returns the exit codes by name."""
         atexit.unregister(self.stop_all)
         self._atexit = False
         return self._stop(list(reversed(self.children.values())), timeout)

@@ -7,14 +7,15 @@ stable outputs documented in the module:
 
 * machine.py: ``info [MACHINE] [--json]``, ``fk [MACHINE]``;
 * experiment.py: ``experiment circle|square|frf|contour|geometric ...`` (geometric is
-  registered by errors.py);
+  registered by errors.py) and the seed-table experiments (midrange, piezo-milling,
+  deflection, feed-force, fts-*);
 * plan.py: ``plan PATH --machine M --out DIR [--json] [--feed F]``;
 * recording.py: ``record DIR ...``, ``replay BAG ...``, ``analyze BAG [BAG2] ...``;
-* graph.py: ``bringup [MACHINE] ...``, ``send PATH ...``, ``move AXIS=VALUE ...``, ``demo``;
+* graph.py: ``bringup [MACHINE] ...``, ``send PATH ...``, ``move AXIS=VALUE ...``, ``freeform``, ``demo``;
 * view.py: ``view [--bag BAG --out FILE]`` (Foxglove);
 * errors.py: ``fit-errors CSV ...`` (the geometric error model);
-* identify.py: ``identify AXIS [--machine M] [--out FILE] [--json]`` (a feed drive's rigid
-  body and friction, offline on hw_sim).
+* identify.py: ``identify AXIS [--machine M] [--out FILE] [--json] [--jobs N]`` (by the axis's
+  drive: a feed drive, a flexure stage or a piezo stage, offline on hw_sim).
 
 A group sets on each of its subparsers ``run`` (the handler: args -> exit status), and
 optionally ``validate`` (args -> problem text or None; a problem is a usage error) and
@@ -23,7 +24,7 @@ default: the root parser, as argparse does). Handlers import heavy modules (nump
 Pinocchio, rclpy, the cores) inside the handler, so that building the parser stays cheap
 and ``machine-ctrl info`` fast. The group modules import one another only through
 common.py (and experiment.py -> errors.py); nothing imports this package but the entry
-points.
+points (and the launch file, common.py).
 
 MACHINE is a machine name (``config/machines/<name>.yaml``) or a path to such a YAML file;
 the default is micromill_9axis. Bad arguments print the usage and one line

@@ -4,19 +4,23 @@ runner, machine_ctrl.experiments and compensation/), one subcommand each; progre
 * ``midrange [--json] [--plots DIR]`` (Sörnmo Table 3.1), ``piezo-milling [--json] [--plots DIR]`` (Sörnmo
   Tables 2.1/2.2), ``deflection [--json] [--plots DIR]`` (Sörnmo Table 4.1), ``feed-force [--json]
   [--plots DIR]`` (Sörnmo Ch. 5), ``fts-budget [--json]
-  [--plots DIR]`` (Ding section 5.7), ``fts-freeform [--json] [--plots DIR]`` (Ding Ch. 8 on fts_lathe) and ``fts-identify
-  [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / piezo_milling / deflection /
-  feed_force / fts_budget / fts_freeform / fts_identify, seed | ours | ratio (feed-force: the seed
+  [--plots DIR]`` (Ding section 5.7), ``fts-freeform [--json] [--plots DIR]`` (Ding Ch. 8 on fts_lathe),
+  ``fts-h2``, ``fts-accel`` [--json] [--plots DIR] (Ding Ch. 6/7), ``fts-flexure [--json]`` (Ding 6.5.2) and
+  ``fts-identify [--json]`` (Ding section 5.5): machine_ctrl.experiments.midrange / piezo_milling /
+  deflection / feed_force / fts_budget / fts_freeform / fts_h2 / fts_accel / fts_flexure / fts_identify, seed | ours | ratio (feed-force: the seed
   prints no table, its figures' statements beside our measurements).
-* ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR] [--steps N]``: thesis section 6.3 /
+* ``circle|square|frf [MACHINE] [--json] [--quiet] [--record DIR] [--steps N] [--sensitivity]
+  [--identified FILE]... [--jobs N]``: thesis section 6.3 /
   Fig. 4.10. ``--json``: circle/square print ``{"smc": {...}, "dsfd": {...}, "measured":
-  {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "encoder_count_um": ...,
-  "steps": ..., "notes": [...]}``; "smc"/"dsfd" hold mean_x_tracking, mean_y_tracking,
+  {...}, "true": {...}, "at_rest": {...}, "noise_floor": {...}, "command_use": {...},
+  "encoder_count_um": ..., "steps": ..., "identified": ..., "notes": [...]}`` (and "ccc" where
+  the machine has contour control); "smc"/"dsfd" hold mean_x_tracking, mean_y_tracking,
   mean_contour, max_x_tracking, max_y_tracking, max_contour in um, null where the figure is
   the noise floor (no larger than at rest: tracking.noise_floor), which the table prints as
   "floor"; "measured" has every encoder figure, "true" the same against the simulator's
   true positions; frf prints ``{"bandwidth_hz": {"x_c": ..., "x_f": ..., "x_dual": ...,
-  ...}, "frequencies_hz": [...], "gain": {...}}``. circle/square ``--record DIR`` also
+  ...}, "crossover_hz": {...}, "design_hz": {...}, "frequencies_hz": [...], "gain": {...},
+  "identified": ...}``. circle/square ``--record DIR`` also
   write each run as a bag, DIR/smc and DIR/dsfd, and their at-rest twins DIR/smc_at_rest and
   DIR/dsfd_at_rest (machine_ctrl.ros.run_bag, called here: the experiments layer is ROS-free).
   circle/square ``--steps N``: only the first N control steps of each run (a quick look).
@@ -26,7 +30,7 @@ runner, machine_ctrl.experiments and compensation/), one subcommand each; progre
 * ``contour [--json] [--plots DIR] [--quiet] [--no-helix] [--sensitivity [--jobs N]]``: Sencer Figs. 9-10
   (machine_ctrl.experiments.contour), and the Eq. (35) run uncoupled vs with the
   cross-coupled contour control.
-* ``geometric [MACHINE] [--out DIR] [--json] [--quiet]``: thesis Tables 6.3/6.4, registered
+* ``geometric [MACHINE] [--out DIR] [--json] [--quiet] [--servo-stride K]``: thesis Tables 6.3/6.4, registered
   by the error-model group (errors.py).
 """
 from __future__ import annotations
