@@ -1,1 +1,2 @@
-"""Plant models and the simulated hardware node (issue [2/7])."""
+"""Plant models, the simulator, its lock-step and paced session logic and the offline runner
+(issue [2/7]); the node is machine_ctrl/ros/hw_sim_node.py."""

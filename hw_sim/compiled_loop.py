@@ -16,7 +16,7 @@ What it covers (:func:`pack` returns None for anything else, and the Python loop
 * faults: a non-finite command or a stroke violation stops the machine as
   :meth:`MachineSimulator.step` does (held, efforts zero), the laws keep stepping. A
   sensed position that is not finite (an axis without a stroke run away) ends the run
-  with a ValueError, where the Python loop's quantization raises too.
+  with a ValueError, where the Python loop's quantization raises too (OverflowError).
 
 Not covered: contour control, external forces, the other plants and laws. The objects are
 read when packed and not written back: the runner builds them for one run.

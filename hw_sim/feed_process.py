@@ -7,7 +7,8 @@ along the feed, the motor side of hw_sim/robot_compliance.py with its RobotConfi
 
     x'' = w_s^2 (q_r - x) + 2 zeta_s w_s (v_r - x'),   q_r' = v_r
 
-(ORCA sends the velocity reference v_r and its integral q_r, held over the period). The
+(ORCA sends the velocity reference v_r, held over the period, and its integral q_r, ramping
+with it). The
 arm's compliance is not a state of its own here: §5.5 reads K_f as the interaction stiffness
 of workpiece, tool and robot "as determined from the robot position measurements", so the
 penetration rate of Eq. (5.3) is the robot's measured feed velocity v = x'.
@@ -70,7 +71,7 @@ class RemovalProfile:
 class FeedProcess:
     """The plant of the module doc in a material of interaction stiffness `stiffness` (K_f,
     N/m) and removal `removal` (a RemovalProfile), the tool in contact from t = 0. Per ORCA
-    period k (time k h): read :meth:`force_reading` and :meth:`velocity_reading`, then
+    period k (time k times the 4 ms period): read :meth:`force_reading` and :meth:`velocity_reading`, then
     :meth:`step` with v_r for the period. `removal` None: no material (the identification
     runs in the air: f = 0, the JR3 reads its noise)."""
 
@@ -118,7 +119,8 @@ class FeedProcess:
 
     # --- one ORCA period --------------------------------------------------------------------
     def step(self, velocity_reference: float) -> None:
-        """Hold v_r (and its integral q_r) over period k, integrate at 8 kHz (module doc), k += 1."""
+        """Hold v_r over period k (its integral q_r ramps with it), integrate at 8 kHz (module doc),
+        k += 1."""
         robot, h = self.robot, self._h
         ws = 2.0 * math.pi * robot.servo_bandwidth
         ws2, dws = ws * ws, 2.0 * robot.servo_damping * ws

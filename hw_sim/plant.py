@@ -1,5 +1,5 @@
 """Plant models of one axis each, stepped once per control period with a zero-order-held
-command. Scalar Python floats on purpose: for a handful of axes this is several times
+command. Scalar Python floats on purpose (PiezoDriveAxis aside: its stage is numpy): for a handful of axes this is several times
 cheaper than numpy on tiny arrays, and results do not depend on how axes are grouped.
 
 * :class:`FrictionAxis` — linear-motor axis (Yuen thesis Eqs. 4.1/4.46): m a = K_a K_t u
@@ -7,7 +7,7 @@ cheaper than numpy on tiny arrays, and results do not depend on how axes are gro
   whose steady state is the asymmetric Stribeck curve of Eq. (4.41), its magnitude varying
   along the stroke. Integrated with `substeps` semi-implicit Euler steps per period (the
   bristle deflection by its exact exponential for the frozen velocity, so it never
-  overshoots); the substep count is chosen so that halving it changes results < 1 %
+  overshoots); the substep count is chosen so that doubling it changes results < 1 %
   (test/test_plant.py; circle statistics: README "Simulation").
 * :class:`LinearAxis` — any linear axis: the free-floating maglev table (Eqs. 4.69-4.72) with
   an optional lightly damped resonance / anti-resonance pair (the flexibility the notch
@@ -19,7 +19,8 @@ cheaper than numpy on tiny arrays, and results do not depend on how axes are gro
   resolution, velocity by differentiating the quantized position (thesis Eq. 4.34).
 
 Command path for every axis: saturation to +-command_limit, then quantization to
-command_resolution (thesis section 4.2.2), then the actuator gain.
+command_resolution (thesis section 4.2.2), then the actuator gain (force and voltage
+drives; a position_servo or piezo drive takes the command as its position).
 """
 from __future__ import annotations
 

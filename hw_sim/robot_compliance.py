@@ -118,7 +118,7 @@ class MillingConfig:
 class MillingRobot:
     """The plant of the module doc over one pass: `lead_in` seconds at rest before the tool
     touches the block, the pass, `lead_out` seconds after it leaves. Per ORCA period k (time
-    k h): read the sensors, then :meth:`step` with the references for the period."""
+    k times the 4 ms period): read the sensors, then :meth:`step` with the references for the period."""
 
     def __init__(self, robot: RobotConfig, milling: MillingConfig, seed: int,
                  lead_in: float = 1.0, lead_out: float = 0.5):

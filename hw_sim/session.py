@@ -379,8 +379,8 @@ class PacedSession(Session):
         return super().reset(now)
 
     def on_timer(self, now: float) -> None:
-        """Take the next step once due, with the commands in hand, holding the previous
-        command of each axis without one."""
+        """Take the next step once due, with the commands in hand, holding the command applied
+        over the last period (sim.applied) for each axis without one."""
         step = self.lockstep.step
         slipped = self.pacer.due(now) - step - 1
         if slipped < 0:

@@ -5,8 +5,8 @@ A machine with ``simulation.tool_compliance`` (a robot arm) also deflects under 
 force (hw_sim/tool_deflection.py): :attr:`MachineSimulator.deflection` moves the true tool tip
 (:meth:`MachineSimulator.true_tool_pose`), not the axes, so no encoder sees it.
 
-Faults (the machine stops and stays stopped until :meth:`reset`): a non-finite command, a
-true position outside its stroke after a step, or (raised by the lock-step layer) a
+Faults (the machine stops and stays stopped until :meth:`reset`): a non-finite command or a
+wrong number of them, a true position outside its stroke after a step, or (raised by the lock-step layer) a
 missing command. "Stopped" means drives disabled and axes held where they are: the state is
 frozen (the deflection too), velocities read zero. Sensor noise is seeded from the machine config
 (simulation.seed), one stream per axis, so a run is reproducible bit for bit.

@@ -3,8 +3,8 @@
 Input: /joint_states (measured axis positions, stamp = step k * T) and /reference (chunks
 on the control grid: header.stamp = t of the first row, row i at step first + i; a later
 chunk replaces what earlier ones said from its first step on, as the servos' buffer does).
-Messages are decoded with the bag's own ``ros2msg`` schemas (mcap-ros2-support), so no ROS
-installation is needed. A /joint_states stamp seen twice (hw_sim re-sends a state while it
+/joint_states is decoded by machine_ctrl.recording.cdr, /reference and the ground truth with
+the bag's own ``ros2msg`` schemas (mcap-ros2-support), so no ROS installation is needed. A /joint_states stamp seen twice (hw_sim re-sends a state while it
 waits) counts once. The machine is the one named in the bag's custom_data (recorded by
 ``machine-ctrl record --machine`` and ``experiment --record``) unless given.
 
@@ -49,8 +49,8 @@ REQUIRED = (contract.JOINT_STATES, contract.REFERENCE)
 # assumed: the tool tip lags its reference by far less than 50 ms at the feeds we run
 # (10 mm/s: 0.5 mm of path), so the nearest reference point lies within this window.
 CONTOUR_WINDOW = 0.05      # s
-# points per block of contour_errors: 64 rows keep its (rows, 2 window) temporaries in the
-# cache (bench/contour_analysis.py: 512 rows took 1.5x as long on the lathe's 199.6 kHz bag)
+# assumed: points per block of contour_errors: 64 rows keep its (rows, 2 window) temporaries
+# in the cache (bench/contour_analysis.py measures the whole search, not the block size)
 CONTOUR_BLOCK = 64
 # assumed: 10 periods (1 ms on the micromill) resolve the drives' bandwidth (< 400 Hz) and
 # divide the encoder quantization in the differenced |a| and |j| by 10^2 and 10^3.

@@ -73,7 +73,7 @@ METADATA_VERSION = 9           # rosbag2 of ROS 2 Jazzy
 ROS_DISTRO = 'jazzy'
 LIBRARY = 'machine_ctrl bag writer (python mcap)'
 DURATION_INFINITE = {'sec': 9223372036, 'nsec': 854775807}   # RMW_DURATION_INFINITE
-CHUNK_SIZE = 1024 * 1024       # bytes of uncompressed messages per chunk (rosbag2's default)
+CHUNK_SIZE = 1024 * 1024       # bytes of uncompressed messages per chunk (the mcap package Writer's default)
 # assumed: a chunk per second is few enough that compression does not suffer (the graph
 # fills 1 MiB in well under a second; a quiet recording gets small chunks), and 1 s is the
 # loss a user accepts from a recorder killed outright (README "Recording")

@@ -1,6 +1,7 @@
 """PNG plots of analysis results (matplotlib, Agg backend: no display needed).
 
-* ``errors.png``: per-axis tracking errors and the tool-tip contour error over time.
+* ``errors.png``: the linear axes' tracking errors (axes without any left out) and the
+  tool-tip contour error over time.
 * ``path_xy.png``: the reference tool path in x-y and the measured one with its deviation
   magnified (factor in the title) so sub-um errors are visible on a mm path.
 * ``limits.png``: peak |v|, |a|, |j| over the limits per axis (reference and measured).

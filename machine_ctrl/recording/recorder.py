@@ -2,7 +2,8 @@
 bag they go to. :mod:`machine_ctrl.ros.recorder_node` wires it to the ROS graph.
 
 * Topics: every topic of the graph except ``/rosout`` and ``/parameter_events`` (ROS's log
-  and parameter traffic, noise for analysis; name them to record them), or the named ones.
+  and parameter traffic, noise for analysis; name them to record them) and the recorder's own
+  progress, or the named ones.
   A name may carry its type, ``/joint_states:sensor_msgs/msg/JointState``: such a topic is
   subscribed at once, before any publisher exists, so nothing its first publisher sends is
   missed; others are subscribed when discovery first sees a publisher.
