@@ -74,7 +74,7 @@ import numpy as np
 # assumed: below this the reference counts as at rest (1 nm/s; 1 nrad/s for the tool axis).
 SPEED_TOL = 1e-9            # m/s (and 1/s for the tool-axis rate)
 # assumed: the error of the directions V/|V|, W/|W| of tool_reference's rows: its rounding,
-# eps |x| / h (5.5e-12 1/s for the unit tool axis, 0.6e-12 m/s for |P| <= 0.05 m), doubled, over
+# eps |x| / (2h) (5.5e-12 1/s for the unit tool axis, 2.8e-13 m/s for |P| <= 0.05 m), doubled, over
 # |V|, plus 1e-8 rad for its O(h^2) truncation (1e-11 m/s at 10 mm/s there, 1e-9 relative, x10).
 RATE_ROUNDING = 1e-11       # m/s (1/s)
 DIRECTION_TRUNCATION = 1e-8  # rad

@@ -44,7 +44,7 @@ from machine_ctrl.control.filters import Biquad, tustin
 from machine_ctrl.model.numeric import all_finite
 
 PERIOD = 1.0 / 250.0                 # s, ORCA runs at 250 Hz, seed §4.3
-EIGENFREQUENCY = 9.0                 # Hz, the robot's first eigenfrequency, seed §2.6 / Fig. 2.15
+EIGENFREQUENCY = 9.0                 # Hz, the REIS RV40's first eigenfrequency (§2.6, Fig. 2.15), assumed for Ch. 4's IRB 2400
 CUTOFF = EIGENFREQUENCY / 10.0       # Hz, assumed: "a magnitude lower than the bandwidth" (module doc)
 GAIN = 2.0 * math.pi * CUTOFF / 4.0  # 1/s, assumed: "a low value": no overshoot (module doc)
 

@@ -21,7 +21,7 @@ with y the tracker's reading of the coarse stage's tool tip (the fine axes at ho
 forward kinematics' tool tip.
 
 Mid-ranging (config ``cartesian_dual_stage.midranging``; Sörnmo Ch. 3): the fine stage's
-stroke is small (§3.1: ~0.5 mm), and a lasting deviation (the arm's static deflection under the
+stroke is small (§2.2: ~0.5 mm), and a lasting deviation (the arm's static deflection under the
 milling force) would keep it off its middle for the whole cut. The valve-position-control
 structure of Fig. 3.2 moves such a deviation over to the coarse stage: C_s' acts on the fine
 stage's offset (the "valve position", its set point r_s = 0: the middle), and the coarse
@@ -32,7 +32,7 @@ stage's tool tip is moved by
 (h the control period, dq_f,k the fine offsets of step k). With the coarse stage following its
 reference fast compared with T, the coarse stage takes over 1/(T s + 1) of a deviation and the
 fine stage keeps T s/(T s + 1) (after a step its offset decays with T): C_s' is a plain
-integrator, the PI of §3.2 "designed for the same desired closed loop" T_s = 1/(T s + 1) with
+integrator, the PI of §3.2 "designed using the same desired closed-loop system" T_s = 1/(T s + 1) with
 the coarse loop taken as 1 (its proportional part is zero). The coarse move keeps the tool's
 axis (J_O: the rows of the tool axis's direction, which a spin about the axis through the tip
 does not change, so the 6 x n matrix has rank 5 at most: that spin gets the minimum-norm
@@ -41,7 +41,7 @@ is still taken against the unshifted reference: as the coarse stage moves by Del
 deviation it leaves (measured by the tracker, or by the encoders) shrinks by Delta, and so
 does the fine stage's offset; the tool tip stays on the path.
 This is VPC, not the adaptive IMC of Ch. 3 (machine_ctrl/control/midranging.py): the seed runs
-its mid-ranging on two first-order loops in simulation and on two robots (§3.6, Fig. 3.8), not
+its mid-ranging on two first-order loops in simulation and on two robots (§3.4, Fig. 3.8), not
 on the machining robot with the micro manipulator.
 
 Stroke: the fine axis must stay inside its stroke. The total fine reference is clipped to

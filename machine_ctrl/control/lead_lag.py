@@ -9,7 +9,8 @@ Discretization: each section separately by the bilinear (Tustin) transform with 
 pre-warping — the lead-lag at its centre frequency 1/(T sqrt(alpha)) (the designed
 crossover omega_m, where its phase lead must survive), each notch at its own omega (so the
 notch stays on the resonance), the integrator without pre-warping (its corner is far below
-Nyquist). At 10 kHz the crossover's phase is then exact and the gain error < 0.1 %.
+Nyquist). At 10 kHz the lead-lag section is then exact at omega_m; with the integrator and
+the notches |C| is off by <= 0.3 % and the phase by <= 0.1 deg there (the micromill's axes).
 
 No live gains: every gain is folded into the coefficients of the filter sections, whose
 states belong to those coefficients; new coefficients on old states would be a jump in the

@@ -5,14 +5,14 @@ machine_ctrl/identification/subspace.py), as plain numeric functions and one con
 * state feedback u_k = -L x^_k - l_i x_i,k + l_r r_k (Eq. 2.4, u_ff = l_r r_k), L_e = [L l_i]
   minimizing sum z'Qz + u'Ru (Eq. 2.5) over z = [x, x_i] with the integral state of Eq. (2.9)
   discretized by forward Euler, x_i,k+1 = x_i,k + h (r_k - y_k); the thesis's weights Q = I,
-  R = 2.5 (section 2.5);
+  R = 2.5 (section 2.6);
 * l_r such that the closed loop without the integral action has static gain 1 (section 2.4:
   "tuned such that the gain is 1");
 * the Kalman filter of Eqs. (2.6)-(2.7) with the constant disturbance state of Eq. (2.8) on
   the output (y = C x + D u + x^e), its gain the steady state of the identified noise
   covariances (the identification "provides the Kalman gain"); the disturbance state's own
   drift is assumed (:data:`DISTURBANCE_DRIFT`);
-* a notch on the reference at the axis's eigenfrequency (the y axis of section 2.5), a
+* a notch on the reference at the axis's eigenfrequency (the y axis of section 2.6), a
   biquad by the bilinear transform pre-warped at its centre.
 
 All of it is linear and deterministic; :class:`LqgController` runs it step by step, and
@@ -35,7 +35,7 @@ from machine_ctrl.identification.subspace import NoiseCovariance, StateSpaceMode
 from machine_ctrl.model import modal
 from machine_ctrl.model.config import AxisConfig, LqgGains
 
-Q_WEIGHT, R_WEIGHT = 1.0, 2.5          # Q = I, R = 2.5, Sörnmo section 2.5
+Q_WEIGHT, R_WEIGHT = 1.0, 2.5          # Q = I, R = 2.5, Sörnmo section 2.6
 # assumed: the disturbance state drifts with a variance per sample of 1 % of the measurement
 # noise's: slow against the noise (the thesis adds it for the static gain, not to track fast
 # disturbances) and still converging within a few hundred samples
@@ -182,7 +182,7 @@ class LqgLaw:
     (Eq. 2.5); the Kalman filter's noise: an input disturbance of
     `process_noise` per period and the sensor's noise (plant.sensor_noise: the truth, read as
     the sensor's data sheet would give it) plus its quantization; the
-    reference notch at `notch_frequency` (section 2.5). Nothing is live: a new design is a new law."""
+    reference notch at `notch_frequency` (section 2.6). Nothing is live: a new design is a new law."""
 
     parameters = (
         Parameter('state_weight', '1', 'Q = state_weight I on [x, x_i], Eq. (2.5)'),

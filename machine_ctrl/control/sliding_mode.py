@@ -15,8 +15,9 @@ depend on them; at the step of the change the command moves by (Delta K_s) sigma
 (Delta lambda) [m_e (v_r - v) + K_s (x_r - x)], i.e. in proportion to the tracking error. A new set
 must keep the discrete loop well inside its stability limit: T (K_s / m_e + lambda) < 1, the
 velocity-error pole 1 - T (K_s / m_e + lambda) of the sampled loop then stays in (0, 1)
-(the shipped gains: 0.03-0.05 on the micromill, 0.22-0.63 on trt_5axis; Sencer's printed
-K_s, 1.7-4.3 on three trt axes, diverged). The disturbance bounds stay as built: d_hat may
+(the shipped gains: 0.03-0.05 on the micromill, 0.22-0.63 on trt_5axis; with Sencer's printed
+K_s, T K_s/m_e = 4.3, 2.9, 1.7 on x, y, z chattered at the +-10 V limit and 1.85 on c
+diverged: trt_5axis.yaml). The disturbance bounds stay as built: d_hat may
 already lie outside new ones.
 """
 from __future__ import annotations

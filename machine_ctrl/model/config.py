@@ -125,8 +125,8 @@ class NoiseConfig:
     """A seeded stationary (or integrated) noise given by its one-sided amplitude spectrum
     |W(j w)| = density |(s + corner)/s| |peak(s)| (Ding thesis Eqs. 6-6..6-8 have this form):
     `density` per sqrt(Hz) of the signal's unit, `corner` (rad/s, 0: white) the corner of
-    an integrator that makes the low frequencies grow as 1/f, `peak` a resonance (the Eq. 4-76
-    form, zeta_num/zeta_den the gain at omega), `rolloff` (rad/s, 0: none) a first-order
+    an integrator that makes the low frequencies grow as 1/f, `peak` a resonance (Yuen Eq. 4.76's
+    form, as NotchConfig: zeta_num/zeta_den the gain at omega), `rolloff` (rad/s, 0: none) a first-order
     low-pass r/(s + r) above the fitted band (a displacement whose velocity must be finite)."""
     density: float = _positive()
     corner: float = _nonnegative(default=0.0)

@@ -99,8 +99,9 @@ def continuous_model(axis: AxisConfig, belief: bool = False) -> FlexureModel:
     """The module doc's system for `axis` (a voice_coil drive with its flexure and current loop):
     the stage's mechanics (m12, c2 and the flexure) as hw_sim simulates them (the plant's: the
     truth) or, with `belief`, as the controllers know them (the drive's mass, damping and
-    flexure; ValueError where the drive has no flexure). The current loop, K_T, the sensor, the
-    delay and the noises are the plant's either way: measured apart, as the thesis had them
+    flexure; ValueError where the drive has no flexure). The current loop, the sensor, the delay
+    and the noises are the plant's either way, K_T and the amplifier gain the drive's (shared
+    by truth and belief): measured apart, as the thesis had them
     (section 5.5: the grey-box fit takes them as known)."""
     drive, plant = axis.drive, axis.plant
     body = drive if belief else plant

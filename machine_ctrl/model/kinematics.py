@@ -184,8 +184,8 @@ class Kinematics:
 
 
 def orientation_basis(o: np.ndarray) -> np.ndarray:
-    """3 x 2 orthonormal basis of the plane normal to the unit vector o (continuous in o away
-    from the seam where o is anti-parallel to the helper axis)."""
+    """3 x 2 orthonormal basis of the plane normal to the unit vector o (continuous in o except
+    across the cone |o_x| = 0.9, where the helper axis switches from x to y)."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(o[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = np.cross(o, helper)
     e1 /= np.linalg.norm(e1)

@@ -64,8 +64,8 @@ class Reference:
 class ReferenceBuffer:
     """Streamed reference rows for some axes, keyed by control step (design.md "Time": the
     servo buffer a CNC interpolator fills ahead). A chunk replaces whatever the buffer held
-    from its first step on (a re-plan); a chunk that starts after the buffered end leaves
-    the steps between empty. An empty buffer holds the last reference position at rest —
+    from its first step on (a re-plan); a chunk that starts after the buffered end discards
+    everything buffered, the steps before it empty. An empty buffer holds the last reference position at rest —
     or, before any reference arrived, the given fallback (the measured position) — and
     counts an underrun; it never jumps."""
 
