@@ -57,7 +57,7 @@ NM, UM = fts_budget.NM, 1e-6       # m per nm, per um (figures are printed in nm
 
 THESIS = {
     'grid_edge_pv_ratio': 11.18 / 10.0,     # section 8.5.4: 11.18 um measured for 10 um nominal at the edge
-    'grid_20hz_following_nm': 25.0,         # section 8.5.4 / Ch. 9: within 25 nm at ~20 Hz
+    'grid_20hz_following_nm': 25.0,         # section 8.5.4 / 8.6: within 25 nm at ~20 Hz
     'lenslet_100hz_overshoot_db': 0.6,      # section 8.5.2: 0.6 dB at 100 Hz (5.2 um for 5 um)
     'beam_transition_overshoot_um': 0.4,    # section 8.5.3, Fig. 8-15: ~0.4 um at every transition corner
     'lenslet_force_deviation_nm': 295.0,    # section 5.7.5, Fig. 5-19: simulated from the measured force (calibration)

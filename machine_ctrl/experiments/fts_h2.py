@@ -10,7 +10,8 @@ the machine ``fts_lathe``, offline: W alone (as section 6.4 measured it) at the 
 * The PID of section 7.5.3 times a global gain K_g (section 7.4.1) at the same 20 kHz, put at
   the thesis's "similar bandwidth (1.5 kHz)" by the continuous loop of
   machine_ctrl/experiments/fts_budget.py, and a second one at the H2's measured bandwidth (the
-  comparison the thesis means: "tuned ... to the same bandwidth"): bandwidth, following RMS
+  comparison the thesis means: "tuned with the same sampling rate and a similar bandwidth",
+  its footnote 13: the bandwidth "is difficult to be tuned exactly same"): bandwidth, following RMS
   and p-v (1.19 nm, 7.65 nm).
 
 assumed: 4096 samples per record (section 5.7.3's record, also for Ch. 6), after 0.05 s at rest;

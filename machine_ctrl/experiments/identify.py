@@ -33,7 +33,7 @@ The result holds the identified values beside the simulator's true ones (hw_sim 
 the machine config's plant section) and the seed's (thesis Tables 4.1/4.2), and a YAML
 fragment of the controllers' belief in the machine-config format (:func:`yaml_fragment`).
 
-    machine-ctrl identify AXIS [--machine M] [--out FILE] [--json]
+    machine-ctrl identify AXIS [--machine M] [--out FILE] [--json] [--jobs N]
 """
 from __future__ import annotations
 
@@ -61,8 +61,8 @@ SWEEP = 0.25                # Hz, assumed: a slow sine of 40 % of the half strok
                             # friction is seen along the stroke (its variation, fit_rigid_body)
 DURATION = 8.0              # s, assumed: two periods of the sweep, four of the lowest tone
 RAMP = 0.5                  # s, raised-cosine fade in and out of the multisine
-MIN_SPEED = 5e-3            # m/s, assumed: 4x the largest Stribeck velocity w2 of Table 4.2 (1.79 mm/s)
-# m/s, assumed: from 1/20 of the smallest Stribeck velocity of Table 4.2 to 2/3 of the x_c limit
+MIN_SPEED = 5e-3            # m/s, assumed: ~2.8x x_c's largest Stribeck velocity w2+ of Table 4.2 (1.79 mm/s); inside y_c's and z_c's (up to 10 mm/s)
+# m/s, assumed: from ~1/7 of the smallest Stribeck velocity of Table 4.2 (0.34 mm/s) to 2/3 of the x_c limit
 SPEEDS = tuple(float(v) for v in np.geomspace(5e-5, 0.1, 10))
 # assumed: friction wavelengths from 5 to 100 mm looked for along the stroke (those longer than
 # the multisine's span are not tried: fit_rigid_body)
@@ -265,7 +265,7 @@ def observers(machine: MachineConfig, axis: str, mass: float, viscous: float, st
 
 def identify(machine: MachineConfig, axis: str, workers: int | None = None) -> dict:
     """The identification of `axis` (module docstring): {'status', 'reason', 'axis', 'rigid_body',
-    'steady', 'true', 'seed', 'speeds', 'forces', 'bristles', 'observer'} (the later ones where
+    'frf', 'steady', 'true', 'seed', 'speeds', 'forces', 'bristles', 'observer'} (the later ones where
     the identification got that far)."""
     config = machine.axis(axis)
     friction = config.plant.friction if config.plant is not None else None

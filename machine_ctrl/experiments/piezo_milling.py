@@ -49,7 +49,7 @@ PERIOD = 1.0e-4               # s, the dSPACE loop at 10 kHz, seed 004 section 2
 IDENT_PERIOD = 1.0e-3         # s, data acquired at 1 kHz, section 2.3
 DECIMATION = 6                # section 2.3: "decimated six times to ... approximately 167 Hz"
 CHIRP_HZ = (10.0, 60.0)       # section 2.3: "a suitable range of excitation is 10-60 Hz"
-CHIRP_TIME = 60.0             # s, assumed: 50 periods of the slowest excitation per 10 Hz of sweep
+CHIRP_TIME = 60.0             # s, assumed: 12 s per 10 Hz of sweep (>= 120 periods of its slowest tone)
 CHIRP_AMPLITUDE = 50.0e-6     # m, assumed: a tenth of the ~0.5 mm range (section 2.2), clear of the stroke
 STROKE = 0.25e-3              # m, half the "compensation range ... of approximately 0.5 mm", section 2.2
 SENSOR_NOISE = 20.0e-9        # m RMS per sample, assumed: a capacitive sensor of ~0.5 mm range (not stated)

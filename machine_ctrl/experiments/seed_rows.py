@@ -1,4 +1,5 @@
-"""The rows of the seed tables (``machine-ctrl experiment fts-*``): a reproduced figure, the
+"""The rows of the seed tables (``machine-ctrl experiment`` fts-*, piezo-milling, deflection,
+feed-force, midrange): a reproduced figure, the
 seed's value beside ours, their ratio, and the reason printed when they differ by more than
 the tolerance (30 % by default: the issues' rule for saying why)."""
 from __future__ import annotations

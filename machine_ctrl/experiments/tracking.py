@@ -114,10 +114,10 @@ def contouring(machine: MachineConfig, kind: str, progress=None, steps: int | No
     positions), 'at_rest' {'smc', 'dsfd'} (encoder-measured, machine holding the start point
     for as long, same mode and noise), 'noise_floor' {'smc': [keys], 'dsfd': [keys]} (the
     statistics no larger than their at-rest value, see noise_floor: not results),
-    'encoder_count_um' and 'steps'. The four runs — 'smc', 'smc_at_rest', 'dsfd',
+    'command_use', 'encoder_count_um' and 'steps'. The four runs — 'smc', 'smc_at_rest', 'dsfd',
     'dsfd_at_rest' (:data:`RUN_LABELS`) — go in up to `workers` processes (default: the
-    available CPUs; the same numbers, experiments/parallel.py); `progress(label, steps,
-    steps)` as each is done, in that order, and `on_run(label, reference, record)`, e.g. to
+    available CPUs; the same numbers, experiments/parallel.py); `progress('<kind> <run>',
+    steps, steps)` as each is done, in that order, and `on_run(label, reference, record)`, e.g. to
     write it as a bag (``machine-ctrl experiment circle|square --record DIR`` does).
     `coupled`: also 'ccc' and 'ccc_at_rest' (:data:`COUPLED_LABELS`), the dual stage with the
     machine's cross-coupled contour control on (machine_ctrl/control/contour_coupling.py)."""

@@ -1,5 +1,5 @@
 """A feed drive's rigid-body model and its friction curve from recorded motion (Yuen thesis
-section 4.2.1-4.2.2: the least-squares rigid-body model, Eq. 4.40, and the Stribeck curve
+section 4.2.1-4.2.2: the least-squares rigid-body model, Eqs. 4.1 and 4.15-4.18, and the Stribeck curve
 of the friction, Eq. 4.41). Plain numeric functions on arrays (no ROS, no simulator):
 machine_ctrl/experiments/identify.py makes the runs and calls them.
 
@@ -7,7 +7,7 @@ machine_ctrl/experiments/identify.py makes the runs and calls them.
 amplifier and motor constants of the data sheet, drive.gain) moves the mass m against
 viscous and Coulomb friction:
 
-    F = m a + b v + F_c+ [v > 0] - F_c- [v < 0]                    (Eq. 4.40, asymmetric F_c)
+    F = m a + b v + F_c+ [v > 0] - F_c- [v < 0]                    (Eqs. 4.1, 4.8; asymmetric F_c)
 
 Position, force and the direction indicators [v > 0], [v < 0] are low-passed by the same
 zero-phase filter, so the equation holds for the filtered signals (the filter is linear; a
@@ -36,7 +36,8 @@ against constant speeds, both directions at once,
 with s the friction's variation along the stroke averaged over the run (from the rigid-body
 fit). The fit is scipy.optimize.least_squares on log-spaced speeds, in relative terms (each
 point weighted by 1/|F|), with the parameters positive. b comes from here and not from the
-multisine: at speeds above 5 mm/s the viscous force is 2-5 % of the Coulomb level, and a fit
+multisine: the viscous force is under 1 % of the Coulomb level at 5 mm/s and 6-9 % at 0.1 m/s
+(x_c), and a fit
 over constant speeds sees it without the multisine's errors.
 
 Results carry a status and a one-line reason; data that cannot give an answer is refused,
@@ -255,7 +256,8 @@ def lugre_curve(steady: SteadyFrictionFit, speeds) -> LuGreCurve:
     """The feed-forward's curve from the two identified directions of `steady` (status OK): F_s
     and F_c the means of the directions' levels (Eqs. 4.60, 4.61), and Omega_s minimizing the
     squared difference (Eq. 4.45) to the mean of the two directions' curves (Eq. 4.41) at
-    `speeds` (m/s, > 0), searched on a log scale over three decades about them."""
+    `speeds` (m/s, > 0), searched on a log scale over their span widened by a factor e at each
+    end."""
     from scipy.optimize import minimize_scalar
     positive, negative = steady.curves
     static = 0.5 * (positive.static + negative.static)

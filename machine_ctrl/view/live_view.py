@@ -75,7 +75,7 @@ class ViewConfig:
     assumed: 0.01 s (100 Hz of sim time: a 10 kHz stream shown every 100th step, what a
     plot panel draws smoothly over a session of minutes). `trace_points`: the scene's path
     and trace keep this many points each. assumed: 5000 (50 s of motion at `period`; a
-    scene update of 2 x 5000 points is 120 kB). `scene_every`: a scene update every this
+    scene update of 2 x 5000 points is ~240-290 kB: three float64 each). `scene_every`: a scene update every this
     many forwarded joint states. assumed: 10 (5-10 Hz live, 10 Hz of sim time in a bag)."""
     period: float = 0.01
     trace_points: int = 5000
