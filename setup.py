@@ -66,7 +66,7 @@ REQUIRES = [
     'scipy>=1.17,<2',
     'pin>=4.1,<5',  # Pinocchio (import pinocchio)
     'ruckig>=0.19,<0.20',
-    'numba>=0.68.1,<0.69',  # trajectory/resolved_rate.py: Algorithm 1's inner loop compiled
+    'numba>=0.68.1,<0.69',  # compiled: Algorithm 1's inner loop, the offline runner's loop, the contour truth
     # recording and analysis
     'mcap>=1.6,<2',
     'mcap-ros2-support>=0.6,<0.7',  # import mcap_ros2
@@ -81,8 +81,8 @@ REQUIRES = [
 ]
 EXTRAS = {
     'test': ['pytest>=9.2', 'rosbags>=0.11.9,<0.12',  # rosbags: an independent bag reader for the tests
-             'pytest-xdist>=3.8,<4',  # dev/test: ROS-free tests in a second worker
-             'hypothesis>=6.170,<7',  # test/test_fuzz_graph.py: property-based fuzzing of the graph
+             'pytest-xdist>=3.8,<4',  # dev/test: two workers, one graph scope each (test/conftest.py)
+             'hypothesis>=6.170,<7',  # property-based tests: test_fuzz_graph.py (the graph), test_tracker.py
              'websockets>=17.4,<18',  # test/test_view.py: a Foxglove WebSocket client
              'py-spy>=0.4.3,<0.5'],  # node_common: a shutdown that hangs prints its native stacks
     'bench': ['toppra>=0.6.10,<0.7'],  # bench/feed_vs_toppra.py

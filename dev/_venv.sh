@@ -29,6 +29,6 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "$want" > "$stamp"
 fi
 "$VENV/bin/python" "$ROOT/dev/ament_layout.py" "$VENV"
-# Message definitions and the package index live under the venv prefix (design.md, "ROS specifics").
+# Message definitions and the package index live under the venv prefix (README "Quick start").
 export AMENT_PREFIX_PATH="$VENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 export PATH="$VENV/bin:$PATH"

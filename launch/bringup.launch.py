@@ -7,8 +7,11 @@ Arguments (``name:=value``):
   Every name is relative, the sim clock included, so machines in different namespaces share
   a ROS domain without cross-talk (README "For ROS users", "Namespaces").
 * ``record`` — bag directory to record the session into (absent or empty); default: no
-  recording. hw_sim then holds at step 0 until the recorder is there and keeps within its
-  window, as with ``machine-ctrl bringup --record``.
+  recording. In lock-step hw_sim then holds at step 0 until the recorder is there and keeps
+  within its window, as with ``machine-ctrl bringup --record``; paced, it waits for no one
+  (the recorder may miss states).
+* ``paced`` — a real-time factor in (0, 1]: hw_sim steps on the wall clock (README "Paced
+  mode"); default lock-step.
 * ``dual_stage`` — ``true``/``false``: the dual-stage coupling at start; default true.
 * ``compensation`` — geometric error model (YAML of ``machine-ctrl fit-errors``): the
   compensation node sits between the trajectory node and the servos; default none.
@@ -25,7 +28,8 @@ Arguments (``name:=value``):
 * ``respawn`` — ``true`` (default): a controller node that dies (servo, dual_stage, trajectory,
   compensation, contour_error; an exit status other than 0) is started again once its death
   has certainly been detected, + ``RESPAWN_MARGIN`` s: the longer of hw_sim's
-  ``command_timeout`` and the liveliness lease with its confirmation (8.5 s by default; a
+  ``command_timeout`` and the liveliness lease with its confirmation (7.5 s by default, so
+  8.5 s with the margin; a
   ``params_file``'s ``command_timeout`` is not read here), at most ``RESPAWN_MAX`` times; a node that exits 0 was asked to stop. hw_sim (the machine: its state would be lost) and the recorder (its
   bag directory is not empty any more) are not respawned. A dead servo or dual_stage node
   faults hw_sim (its commands stop); once the respawned node answers the held step,

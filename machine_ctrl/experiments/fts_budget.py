@@ -23,7 +23,7 @@ Levels: the thesis gives its disturbance spectra as the weighting filters of Eqs
 (6-6)-(6-8) (fits of Figs. 4-11, 4-24, 5-12) but not the sensor sensitivity S_capa (V/m)
 that turns the volt-valued ones into metres. S_capa is the ONE calibrated level: it is
 solved so that the following error at the 468 Hz setting (0.175 kg) is 0.83 nm RMS
-(section 5.7.3, Fig. 5-16). Everything else in `reproduce()` is predicted with it.
+(section 5.7.4, Fig. 5-16). Everything else in `reproduce()` is predicted with it.
 
 Gain scaling for the bandwidth settings (Fig. 5-14): section 5.7.3 says only that "the
 controller gains were adjusted from low to high"; the one scaling device the thesis names
@@ -156,9 +156,9 @@ def loop_of_axis(axis, period: float) -> tuple[FtsPlant, Pid]:
 
 
 THESIS = {   # seed 003 values reproduced by `reproduce()`
-    'following_rms_468_nm': 0.83,      # section 5.7.3, Fig. 5-16 (the calibration figure)
+    'following_rms_468_nm': 0.83,      # section 5.7.4, Fig. 5-16 (the calibration figure)
     'real_rms_468_nm': 0.23,           # section 5.7.3
-    'following_pv_468_nm': 6.0,        # section 5.7.3, Fig. 5-16 ("around 6 nm")
+    'following_pv_468_nm': 6.0,        # section 5.7.4, Fig. 5-16 ("around 6 nm")
     'real_pv_468_nm': (1.4, 2.3),      # section 5.7.3
     'optimum_heavy_hz': 468.0,         # section 5.7.3 (0.175 kg), Fig. 5-14 b)
     'optimum_light_hz': 874.0,         # section 5.7.3 (0.075 kg), Fig. 5-14 a)
