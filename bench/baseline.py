@@ -15,6 +15,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def labelled_trees(stack: contextlib.ExitStack, revision: str | None) -> dict[str, Path | None]:
+    """{label: tree} a bench measures: this tree as installed (label '', tree None), or with
+    `revision` the baseline's worktree (removed when `stack` closes) and this tree, in that
+    order, labelled for the bench's lines."""
+    if revision is None:
+        return {'': None}
+    return {f' (baseline {revision})': stack.enter_context(worktree(revision)), ' (this tree)': ROOT}
+
+
 def tree_env(tree: Path | None) -> dict | None:
     """The environment whose Python imports machine_ctrl from `tree` (None: as installed):
     for a supervisor that starts nodes of either tree."""

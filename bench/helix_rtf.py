@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from baseline import tree_env
+from baseline import labelled_trees, tree_env
 from ros_chain import bare_chain_rate, init_context
 
 from machine_ctrl import contract
@@ -102,10 +102,7 @@ def main(argv=None) -> None:
         parser.error(f'unknown mode {", ".join(sorted(unknown))}')
     period = contract.StepClock.of(load_machine('micromill_9axis')).period_ns * 1e-9
     with contextlib.ExitStack() as stack:
-        trees = {'': None}
-        if args.baseline:
-            from baseline import ROOT, worktree
-            trees = {f' (baseline {args.baseline})': stack.enter_context(worktree(args.baseline)), ' (this tree)': ROOT}
+        trees = labelled_trees(stack, args.baseline)
         results = {(mode, label): [] for mode in modes for label in trees}
         rings = []
         for run in range(args.runs):

@@ -32,7 +32,7 @@ import sys
 import tempfile
 import time
 
-from baseline import tree_env
+from baseline import labelled_trees, tree_env
 from ros_chain import Chain, PacedHead
 
 from machine_ctrl import contract
@@ -140,10 +140,7 @@ def main(argv=None) -> int:
           flush=True)
     status = 0
     with contextlib.ExitStack() as stack:
-        trees = {'': None}
-        if args.baseline:
-            from baseline import ROOT, worktree
-            trees = {f' (baseline {args.baseline})': stack.enter_context(worktree(args.baseline)), ' (this tree)': ROOT}
+        trees = labelled_trees(stack, args.baseline)
         for mode in args.modes.split(','):
             single = mode == 'single'
             ring = bare(not single, period, args.bare_seconds)
