@@ -196,7 +196,7 @@ class Service:
 
 CLOCK = Topic('clock', 'rosgraph_msgs/msg/Clock', STEP_QOS, "hw_sim's simulated time")
 JOINT_STATES = Topic('joint_states', 'sensor_msgs/msg/JointState', STEP_QOS,
-                     'measured position and velocity of every axis, one per control step')
+                     'measured position and velocity of every axis, and the effort applied, one per control step')
 SERVO_COMMANDS = Topic('servo_commands', 'sensor_msgs/msg/JointState', STEP_QOS,
                        'actuator commands (effort), stamped with the state they answer')
 REFERENCE = Topic('reference', 'trajectory_msgs/msg/JointTrajectory', REFERENCE_QOS,
@@ -214,7 +214,7 @@ TRACKER = Topic('hw_sim/tracker', 'geometry_msgs/msg/PointStamped', STEP_QOS,
                 'coarse stage\'s tool tip (fine axes at home, deflection included), m, frame workpiece; one per step, '
                 'before the state (published while subscribed)')
 TRUE_JOINT_STATES = Topic('hw_sim/ground_truth/joint_states', 'sensor_msgs/msg/JointState', STEP_QOS,
-                          'true axis positions (published only while subscribed)')
+                          'true axis positions and velocities (published only while subscribed)')
 TRUE_TOOL_POSE = Topic('hw_sim/ground_truth/tool_pose', 'geometry_msgs/msg/PoseStamped', STEP_QOS,
                        'true tool pose in the workpiece frame (published only while subscribed)')
 DIAGNOSTICS = Topic('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray', DIAGNOSTICS_QOS,
@@ -238,8 +238,9 @@ CONTOUR_ORIENTATION = Topic('contour_error/orientation', 'geometry_msgs/msg/Vect
 CONTOUR_ORIENTATION_MAGNITUDE = Topic('contour_error/orientation_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
                                       'tool-orientation contour error magnitude, rad')
 GOAL_STATUS = Topic('trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', GOAL_STATUS_QOS,
-                    'latched: every goal of the session with its id (UUID) and state: accepted, executing, '
-                    'succeeded, canceled, aborted (the reason on /diagnostics)')
+                    'latched: the recent goals (the last 100, the active one always) with id (UUID) and '
+                    'state: accepted, executing, canceling, succeeded, canceled, aborted (the reason on '
+                    '/diagnostics)')
 COMPENSATION_READY = Topic('compensation/ready', 'std_msgs/msg/Bool', READY_QOS,
                            'latched: true while the compensation node runs; with a liveliness lease, so the '
                            'trajectory node learns that its reference no longer reaches the servos (README "Faults")')

@@ -429,7 +429,7 @@ CONTOUR_ERROR = NodeParameters('contour_error_node', (
 RECORDER = NodeParameters('recorder_node', (
     ParameterSpec('output', STRING, '', description='bag directory to create (absent or empty)', required=True),
     ParameterSpec('topics', STRING_ARRAY, [''], description='topics (NAME or NAME:pkg/msg/Type); empty: all '
-                  f'but {contract.ROSOUT} and {contract.PARAMETER_EVENTS}'),
+                  f'but {contract.ROSOUT}, {contract.PARAMETER_EVENTS} and its own {contract.RECORDER_PROGRESS.name}'),
     ParameterSpec('machine', STRING, '', description='machine name or YAML path stored with the bag (empty: none)'),
     ParameterSpec('discovery_period', DOUBLE, 0.2, 's', 'wall time between topic discoveries',
                   low=0.0, low_open=True),
