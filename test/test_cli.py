@@ -158,3 +158,22 @@ def test_bringup_send_and_move_take_the_graph_namespace():
         assert parser.parse_args(command + ['--namespace', 'mill1']).namespace == '/mill1'
     result = run('move', 'x_c=0.001', '--namespace', '1bad')
     assert result.returncode == 2 and 'is not a ROS namespace' in result.stderr
+
+
+def test_a_seed_table_experiment_that_fails_exits_1_with_its_reason(monkeypatch, capsys):
+    """An experiment that ran and reports a failure is not a usage error (exit 2): exit 1 and
+    its reason on stderr, its table printed as usual."""
+    import argparse
+    import types
+
+    from machine_ctrl.app.cli.experiment import cmd_seed_table
+    failing = types.ModuleType('machine_ctrl.experiments.failing_for_test')
+    failing.reproduce = lambda: {'status': 'failed', 'reason': 'the loop went unstable'}
+    failing.format_table = lambda result: 'seed | ours | ratio'
+    monkeypatch.setitem(sys.modules, failing.__name__, failing)
+    status = cmd_seed_table(argparse.Namespace(module='failing_for_test', entry='reproduce', json=False,
+                                               name='failing', plots=None))
+    out, err = capsys.readouterr()
+    assert status == 1
+    assert out == 'seed | ours | ratio\n'
+    assert err == 'machine-ctrl: experiment failing: the loop went unstable\n'

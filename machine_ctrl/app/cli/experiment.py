@@ -334,9 +334,9 @@ def _scalars(value):
 
 
 def cmd_seed_table(args) -> int:
-    """midrange (machine_ctrl.experiments.midrange.table_3_1) and the fts-* experiments (their
-    reproduce()): the table seed | ours | ratio, or --json; exit 1 when the experiment reports
-    a failure (its reason on stderr)."""
+    """midrange (machine_ctrl.experiments.midrange.table_3_1), piezo-milling, deflection,
+    feed-force and the fts-* experiments (their reproduce()): the table seed | ours | ratio,
+    or --json; exit 1 when the experiment reports a failure (its reason on stderr)."""
     import importlib
     module = importlib.import_module(f'machine_ctrl.experiments.{args.module}')
     result = getattr(module, args.entry)()
@@ -346,6 +346,7 @@ def cmd_seed_table(args) -> int:
         print(module.format_table(result))
     for path in (module.plots(result, args.plots) if getattr(args, 'plots', None) else []):
         print(f'wrote {path}', file=sys.stderr)
-    if result['status'] != 'ok':
-        return error(f'experiment {args.name}', result['reason'])
+    if result['status'] != 'ok':       # the experiment ran and failed: 1, as a refused goal (2: bad arguments)
+        error(f'experiment {args.name}', result['reason'])
+        return 1
     return 0
