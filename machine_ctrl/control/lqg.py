@@ -188,7 +188,7 @@ class LqgLaw:
         Parameter('state_weight', '1', 'Q = state_weight I on [x, x_i], Eq. (2.5)'),
         Parameter('control_weight', '1', 'R, Eq. (2.5)'),
         Parameter('process_noise', 'm', "the model's input disturbance, std per control period (Kalman filter)"),
-        Parameter('notch_frequency', 'Hz', "the reference notch's centre, section 2.5 (0: none)"),
+        Parameter('notch_frequency', 'Hz', "the reference notch's centre, section 2.6 (0: none)"),
         Parameter('notch_width', '1', "2 zeta of the notch's poles"),
     )
 
