@@ -2,6 +2,7 @@
 variant sets up, goes round the ring and tears down (children included) without hanging.
 It leases its own ROS domain, so it needs no fixture."""
 import importlib.util
+import math
 from pathlib import Path
 
 import pytest
@@ -21,7 +22,7 @@ def ros_chain():
 @pytest.mark.parametrize('multiprocess', [False, True], ids=['one_process', 'process_per_node'])
 def test_bare_chain_runs_and_reports_a_rate(ros_chain, multiprocess, executor):
     rate = ros_chain.bare_chain_rate(hops=2, steps=100, multiprocess=multiprocess, executor=executor, warmup=10)
-    assert 10 < rate < 1e6
+    assert math.isfinite(rate) and rate > 0      # a rate, not a bound on it (no timed assertions)
 
 
 def test_the_relays_are_stopped_cleanly(ros_chain):

@@ -86,14 +86,14 @@ def test_the_integral_adds_k_i_T_eps_per_step_and_new_gains_take_over_without_a_
 
     k = ROWS // 2
     first, second = y_f(k), y_f(k + 1)
-    assert first == pytest.approx((kp * w(1) + gains.integral * period) * eps, rel=1e-6)
-    assert second - first == pytest.approx((kp * (w(2) - w(1)) + gains.integral * period) * eps, rel=1e-6)
+    assert first == pytest.approx((kp * w(1) + gains.integral * period) * eps, rel=1e-6, abs=0)
+    assert second - first == pytest.approx((kp * (w(2) - w(1)) + gains.integral * period) * eps, rel=1e-6, abs=0)
     coupling.retune(dataclasses.replace(micromill.contour_control, tool_tip=dataclasses.replace(gains, integral=500.0)))
     third = y_f(k + 2)
-    assert third - second == pytest.approx((kp * (w(3) - w(2)) + 500.0 * period) * eps, rel=1e-6)   # integral kept
+    assert third - second == pytest.approx((kp * (w(3) - w(2)) + 500.0 * period) * eps, rel=1e-6, abs=0)   # integral kept
     coupling.retune(dataclasses.replace(coupling.config, tool_tip=ContourChannelGains(3.0, 500.0)))
     fourth = y_f(k + 3)
-    assert fourth - third == pytest.approx((3.0 * w(4) - kp * w(3) + 500.0 * period) * eps, rel=1e-6)
+    assert fourth - third == pytest.approx((3.0 * w(4) - kp * w(3) + 500.0 * period) * eps, rel=1e-6, abs=0)
 
 
 def test_without_a_valid_estimate_the_correction_fades_and_resumes_from_there(micromill):

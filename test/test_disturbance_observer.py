@@ -41,8 +41,9 @@ def test_the_thesis_gains_come_back_from_its_own_model(axis):
 def test_the_noise_is_the_quantization_of_eqs_4_33_to_4_36():
     design = disturbance_observer(21.19, 25.05, 45.4, 1e-4, 40e-9, 0.025)
     r_x, r_v, r_u, r_wd = design.noise
-    assert r_x == pytest.approx(40e-9 ** 2 / 12) and r_v == pytest.approx((40e-9 / 1e-4) ** 2 / 12)
-    assert r_u == pytest.approx(0.025 ** 2 / 12) and r_wd == 1e-6
+    # abs=0: pytest's default absolute tolerance (1e-12) would accept anything near r_x's 1.3e-16
+    assert r_x == pytest.approx(40e-9 ** 2 / 12, rel=1e-9, abs=0) and r_v == pytest.approx((40e-9 / 1e-4) ** 2 / 12, rel=1e-9, abs=0)
+    assert r_u == pytest.approx(0.025 ** 2 / 12, rel=1e-9, abs=0) and r_wd == 1e-6
 
 
 @pytest.mark.parametrize('kwargs, named', [

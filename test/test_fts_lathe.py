@@ -235,7 +235,7 @@ def test_the_ground_moves_the_flexures_root_through_its_spring_and_damper(fts_la
     reading), times the YAML's assumed roll-off."""
     from machine_ctrl.model.flexure_model import continuous_model
     ground = fts_lathe.axis('w').plant.ground_vibration
-    assert ground.density == pytest.approx(W_G / S_CAPA, rel=1e-4)
+    assert ground.density == pytest.approx(W_G / S_CAPA, rel=1e-4, abs=0)    # ~1e-14: below approx's default abs
     assert ground.corner == pytest.approx(W_G_CORNER, rel=1e-9)
     model = continuous_model(fts_lathe.axis('w'))
     n4 = np.array([M4, C4, K4])
@@ -298,6 +298,7 @@ def test_a_stepped_sine_and_a_grey_box_fit_give_back_table_5_2_within_5_percent(
     result = fts_identify.reproduce(fts_lathe)
     assert result['status'] == 'ok', result['reason']
     table = {'m12': M12, 'c2': C2, 'k2': K2, 'm4': M4, 'c4': C4, 'k4': K4}
+    assert sorted(row['name'] for row in result['rows']) == sorted(table)      # every parameter, once
     for row in result['rows']:
         assert abs(row['start'] / table[row['name']] - 1) >= 0.33                 # it had to move
         assert row['ours'] == pytest.approx(table[row['name']], rel=0.05), row['name']

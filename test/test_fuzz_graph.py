@@ -486,6 +486,7 @@ def test_parameter_sets_are_refused_with_the_reason_or_taken_and_read_back(campa
         results = parameters.call(node, 'set', parameters.kinds['set'].Request(parameters=request)).results
         expects = [c.expect for c in cases]
     after = parameters.get(node, known)
+    assert len(results) == len(cases), (node, len(results), len(cases))
     for case, result, expect in zip(cases, results, expects):
         outcome = 'accepted' if result.successful else 'refused'
         campaign.parameters[(node, case.kind, outcome)] += 1

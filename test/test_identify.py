@@ -228,6 +228,7 @@ def test_one_command_identifies_the_flexure_stage_and_the_piezo_stage(fts_lathe,
     from machine_ctrl.experiments.identify import identify_axis, yaml_fragment
     flexure = identify_axis(fts_lathe, 'w')
     assert flexure['status'] == 'ok' and flexure['method'] == 'frf_grey_box', flexure['reason']
+    assert len(flexure['rows']) == 6, flexure['rows']          # Table 5-2's six parameters
     for name, _, true, value in flexure['rows']:
         assert value == pytest.approx(true, rel=0.05), name
     piezo = identify_axis(robot_piezo, 'px')

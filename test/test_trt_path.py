@@ -5,8 +5,10 @@ import math
 import numpy as np
 import pytest
 
+from limit_checks import assert_reference_within_limits, assert_within_limits
+
 from hw_sim.offline import run
-from trajectory.sencer_path import ACCELERATION, FEED, limit_ratios, sencer_reference
+from trajectory.sencer_path import ACCELERATION, FEED, sencer_reference
 
 
 @pytest.fixture(scope='module')
@@ -35,15 +37,16 @@ def test_feed_acceleration_and_axis_limits(trt, trt_kin, reference):
     speed = steps / trt.control_period
     assert speed.max() == pytest.approx(FEED, rel=1e-3)              # 50 mm/s cruise
     assert np.abs(np.diff(speed)).max() / trt.control_period <= ACCELERATION
-    for ratios in limit_ratios(trt, reference.velocity, reference.acceleration):
-        assert ratios.max() <= 1.0
+    # the axis limits checked apart from the generator's own limit_ratios (which tuned the ramp):
+    assert_within_limits(trt, reference.position)              # the positions, differenced
+    assert_reference_within_limits(trt, reference)             # the streamed velocity and acceleration
     fd = np.diff(reference.position, axis=0) / trt.control_period    # velocities are the positions' rates
     assert np.abs(fd - (reference.velocity[1:] + reference.velocity[:-1]) / 2).max() < 3e-4
 
 
 def test_trt_runs_the_path_with_error_peaks_at_rotary_reversals(trt, reference):
     """Coulomb friction on a and c: the tracking error of each rotary axis peaks within
-    0.15 s after one of its velocity reversals (Sencer section 4)."""
+    0.15 s after one of its velocity reversals (Sencer section 4): after, not before."""
     record = run(trt, reference)
     assert record.fault is None
     error = np.abs(reference.position - record.true)
@@ -53,5 +56,6 @@ def test_trt_runs_the_path_with_error_peaks_at_rotary_reversals(trt, reference):
         reversals = np.flatnonzero(np.sign(v[1:]) * np.sign(v[:-1]) < 0)
         peak = int(np.argmax(error[:, axis]))
         assert len(reversals) >= 3
-        assert np.min(np.abs(peak - reversals)) * trt.control_period < 0.15
+        after = peak - reversals
+        assert np.any((after >= 0) & (after * trt.control_period < 0.15)), (peak, reversals)
         assert error[peak, axis] > 5 * np.median(error[:, axis])
