@@ -41,6 +41,7 @@ def test_campaign_is_the_thesis_procedure(measured, truth):
 def test_campaign_is_seeded(truth, measured):
     again = campaign(*truth, 1)
     other = campaign(*truth, 2)
+    assert len(again) == len(measured) > 0
     assert all((a.values == b.values).all() for a, b in zip(measured, again))
     assert not (measured[0].values == other[0].values).all()
 
@@ -49,6 +50,7 @@ def test_csv_round_trip(tmp_path, measured, micromill):
     path = tmp_path / 'm.csv'
     write_csv(path, measured, 'a comment')
     back = read_csv(path, micromill.axis_names)
+    assert len(back) == len(measured) > 0
     for a, b in zip(measured, back):
         assert (a.axis, a.error) == (b.axis, b.error)
         assert (a.positions == b.positions).all() and (a.values == b.values).all()

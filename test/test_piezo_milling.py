@@ -133,6 +133,7 @@ def test_the_command_compensates_every_axis_better_than_none_and_writes_the_plot
     assert [seeds[f'{a}: e_m compensated'] for a in 'xyz'] == [14.0, 12.8, 24.5]
     assert [seeds[f'{a}: sigma_e uncompensated'] for a in 'xyz'] == [7.6, 5.6, 14.9]
     assert [seeds[f'{a}: VAF % (2.3)'] for a in 'xyz'] == [92.5, 99.5, 97.1]
+    assert set(data['axes']) == {'x', 'y', 'z'}
     for name, axis in data['axes'].items():
         assert axis['order'] == {'x': 4, 'y': 2, 'z': 5}[name]
         for key in ('e_m', 'sigma_e'):

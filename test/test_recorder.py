@@ -27,7 +27,6 @@ def test_stamp_is_read_from_either_byte_order_and_refused_when_short_or_not_cdr(
 
 
 def test_stamp_of_rclpy_serialized_messages():
-    pytest.importorskip('rclpy')
     from rclpy.serialization import serialize_message
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState

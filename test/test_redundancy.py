@@ -286,17 +286,17 @@ def test_initial_configuration_matches_path_start(micromill, micromill_kin, home
 
 def test_bad_inputs_are_rejected(micromill, micromill_kin, home_tip):
     path = circle(4e-3, home_tip)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match='step must be a positive finite number, got 0.0'):
         RedundancySettings(step=0.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match='beta must be a non-negative finite number, got -1.0'):
         RedundancySettings(beta=-1.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match='active_axes: unknown axis names'):
         resolve(path, micromill_kin, micromill, RedundancySettings(active_axes=('x_q',)))
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match='q0 must be 9 finite axis positions'):
         resolve(path, micromill_kin, micromill, q0=np.full(9, np.nan))
     # z cannot follow a path away from z with x, y only
     away = circle(4e-3, home_tip + np.array([0, 0, 1e-3]))
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match='cannot reach R\\(0\\) with the active axes'):
         resolve(away, micromill_kin, micromill, RedundancySettings(active_axes=XY))
 
 

@@ -275,7 +275,9 @@ def test_the_yaml_axes_are_the_experiments_axes(robot_piezo):
     identifies (piezo_milling.AXES): one model, written twice, kept equal here."""
     from hw_sim.piezo_stage import PiezoAxisModel
     from machine_ctrl.experiments import piezo_milling
-    for name, experiment_axis in zip(robot_piezo.fine_axes, piezo_milling.AXES.values()):
+    assert sorted(name[-1] for name in robot_piezo.fine_axes) == sorted(piezo_milling.AXES)    # px <-> x, ...
+    for name in robot_piezo.fine_axes:
+        experiment_axis = piezo_milling.AXES[name[-1]]
         ours = PiezoAxisModel.from_axis(robot_piezo.axis(name))
         assert np.allclose(np.ravel(ours.modes), np.ravel(experiment_axis.modes), rtol=1e-12, atol=0), name
         assert ours.real_pole == pytest.approx(experiment_axis.real_pole, rel=1e-12) if ours.real_pole else \
