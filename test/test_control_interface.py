@@ -211,8 +211,9 @@ def test_a_retune_takes_effect_from_the_next_step_and_keeps_the_state(micromill)
     d_hat = law.d_hat
     law.retune(new)
     assert law.d_hat == d_hat and law.gains == new          # the disturbance estimate is kept
-    assert law.step(*rows[200]) == pytest.approx(built.m_e * (150.0 * (rows[200][1] - rows[200][4]) + rows[200][2])
-                                                 + built.b_e * rows[200][4] + d_hat
+    m_e, b_e = axis.drive.mass / axis.drive.gain, axis.drive.damping / axis.drive.gain     # Eq. 4.46, from the config
+    assert law.step(*rows[200]) == pytest.approx(m_e * (150.0 * (rows[200][1] - rows[200][4]) + rows[200][2])
+                                                 + b_e * rows[200][4] + d_hat
                                                  + 60.0 * ((rows[200][1] - rows[200][4]) + 150.0 * (rows[200][0] - rows[200][3])),
                                                  rel=1e-12)
     assert law.d_hat == d_hat                                # adaptation 0: frozen

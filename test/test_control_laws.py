@@ -37,14 +37,16 @@ def test_sliding_mode_estimate_stops_at_its_bounds():
 
 
 def test_lugre_feedforward_reaches_the_friction_curve():
-    curve = StribeckCurve.symmetric(26.67, 29.15, 0.0243)
+    """Asymmetric (Eq. 4.41 by direction), so that a direction mix-up shows; the steady
+    force written out by hand."""
+    curve = StribeckCurve((29.15, 20.0), (26.67, 18.0), (0.0243, 0.01), (0.0243, 0.02))
     ff = LuGreFeedforward(curve, 9e5, 1500.0, gain=45.4, period=T)
     for _ in range(5000):
         u = ff.step(0.01)
     assert u * 45.4 == pytest.approx(26.67 + (29.15 - 26.67) * math.exp(-0.01 / 0.0243), rel=1e-6)
     for _ in range(5000):
         u = ff.step(-0.01)
-    assert u * 45.4 == pytest.approx(-curve(-0.01), rel=1e-6)
+    assert u * 45.4 == pytest.approx(-(20.0 * math.exp(-1.0) + 18.0 * (1.0 - math.exp(-0.5))), rel=1e-6)
 
 
 def test_ppi_is_p_cascaded_with_pi():

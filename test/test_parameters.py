@@ -154,6 +154,24 @@ def declared_specs(node, table):
     return out
 
 
+@pytest.mark.parametrize('spec, text', [
+    (ParameterSpec('t', 'double', 0.5, 's', low=0.0, low_open=True), '> 0'),
+    (ParameterSpec('n', 'integer', 10, low=1), '>= 1'),
+    (ParameterSpec('f', 'double', 0.5, low=0.0, high=1.0, low_open=True), '(0, 1]'),
+    (ParameterSpec('f', 'double', 0.5, low=0.0, high=1.0, high_open=True), '[0, 1)'),
+    (ParameterSpec('g', 'double', 1.0, high=2.5e-3), '<= 0.0025'),
+    (ParameterSpec('x', 'double', 1.0), 'finite'),
+    (ParameterSpec('m', 'string', 'a', choices=('a', 'b')), 'one of a, b'),
+    (ParameterSpec('p', 'string', '', required=True), 'non-empty'),
+    (ParameterSpec('s', 'string', '', constraint='a ROS namespace'), 'a ROS namespace'),
+    (ParameterSpec('b', 'bool', True), ''),
+])
+def test_the_range_column_in_words(spec, text):
+    """The words of the README's range column and of each descriptor's
+    additional_constraints (test_every_declared_parameter_has_its_descriptor compares the
+    nodes' descriptors with these), written out here."""
+    assert parameters.range_text(spec) == text
+
 @pytest.mark.parametrize('executable', list(NODES))
 def test_every_declared_parameter_has_its_descriptor(executable, rclpy_context, node_arguments):
     table = parameters.table(executable)
