@@ -309,7 +309,12 @@ def test_bad_chunks_are_refused_like_parse_chunk(msg, reason):
 def test_parse_chunk_bytes_equals_parse_chunk(wanted):
     uniform, mixed = grid_chunk(7), grid_chunk(7)
     mixed.points[5].velocities = []
+    # the values grid_chunk wrote, by its formula (the mixed chunk's bytes go through parse_chunk
+    # itself: these make the comparison not only one parser against the other)
+    columns = [AXES.index(name) for name in wanted]
+    positions = [[0.001 * i + j for j in columns] for i in range(7)]
     for msg in (uniform, mixed):
         expected = ros_io.parse_chunk(CLOCK, msg, wanted)
         assert ros_io.parse_chunk_bytes(CLOCK, ChunkDecoder(), serialize_message(msg), wanted) == expected
-        assert expected[0] == 40 and len(expected[1]) == 7
+        velocities = [[0.0 if (msg is mixed and i == 5) else 0.1 * i] * len(wanted) for i in range(7)]
+        assert expected == (40, positions, velocities, [[0.0] * len(wanted)] * 7)

@@ -410,15 +410,6 @@ def test_paced_mode_faults_on_a_non_finite_command_too(make):
     assert io.take() == [('fault', 'non-finite command for y_c'), ('state', 0)]
 
 
-@pytest.mark.parametrize('name', ['micromill_9axis', 'trt_5axis'])
-def test_the_urdf_hw_sim_publishes_names_the_axes_of_the_joint_states(name):
-    """hw_sim publishes its machine's URDF file as robot_description and the axis names as
-    the joint names of /joint_states: the URDF's movable joints are exactly those axes."""
-    from machine_ctrl.model import urdf
-    from machine_ctrl.model.config import load_machine
-    machine = load_machine(name)
-    assert set(urdf.read_joints(machine.urdf_path)) == set(machine.axis_names)
-
 
 def test_hw_sim_s_own_stall_faults_the_machine_from_step_1_on(make):
     """README "Faults": hw_sim's process not run (SIGSTOP, starved) for more than
