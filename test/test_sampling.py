@@ -216,6 +216,22 @@ def test_the_global_stretch_meets_a_velocity_limit_below_the_feed():
         sample(line, feed_s, feed_b, axis_limits(0.004), 1e-4, ('x',), max_passes=1)
 
 
+def test_the_time_law_integral_is_the_time_scipy_integrates():
+    """t(u) = the integral of du / f(u) (TimeLaw._integral, Gauss-Legendre) against scipy's
+    adaptive quad of the same rate, on the interior feed intervals of a varying profile: an
+    independent check of the quadrature the inversion below rests on."""
+    from scipy.integrate import quad
+
+    from trajectory.sampling import TimeLaw
+    law = TimeLaw.from_profile(np.linspace(0.0, 1.0, 40), 1.0 + 0.5 * np.sin(np.linspace(0.0, 6.0, 40)))
+    lo, hi = law.u_nodes[1:-2], law.u_nodes[2:-1]
+    ours = law._integral(lo, hi)
+    reference = [quad(lambda u: 1.0 / float(law.rate(np.array([u]))[0]), a, b, epsabs=0.0, epsrel=1e-13)[0]
+                 for a, b in zip(lo, hi)]
+    assert len(ours) == len(reference) == 37
+    np.testing.assert_allclose(ours, reference, rtol=1e-10, atol=0)
+
+
 @pytest.mark.parametrize('feed_b', [0.5 + np.sin(np.linspace(0.0, 3.0, 40)) ** 2,
                                     1e-3 + np.sin(np.linspace(0.0, 9.0, 40)) ** 2,     # dips 30x in feed
                                     # g tenfold within an interval: the quadrature's t(u) has a
