@@ -238,7 +238,7 @@ CONTOUR_ORIENTATION = Topic('contour_error/orientation', 'geometry_msgs/msg/Vect
 CONTOUR_ORIENTATION_MAGNITUDE = Topic('contour_error/orientation_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
                                       'tool-orientation contour error magnitude, rad')
 GOAL_STATUS = Topic('trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', GOAL_STATUS_QOS,
-                    'latched: the recent goals (the last 100, the active one always) with id (UUID) and '
+                    'latched: the recent goals (trajectory.goals.KEEP; the active one always) with id (UUID) and '
                     'state: accepted, executing, canceling, succeeded, canceled, aborted (the reason on '
                     '/diagnostics)')
 COMPENSATION_READY = Topic('compensation/ready', 'std_msgs/msg/Bool', READY_QOS,
