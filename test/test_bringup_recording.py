@@ -126,22 +126,20 @@ def test_stop_on_recording_loss_stops_everything_with_the_reason(stand_in):
         diagnosed.lose_recording('disk full (the recorder is still up)')     # what /diagnostics says
 
 
-def test_the_recorders_error_on_diagnostics_is_heard_once():
+def test_the_recorders_error_on_diagnostics_is_heard_once(ros_node):
     """The shell's RecorderStatus: a recorder that stays up reports its stopped recording on
-    /diagnostics (every second); other entries are not its business."""
+    /diagnostics (every second); other entries are not its business. On a real node: its
+    subscription is the one it makes (topic, type), its callback fed here directly."""
+    from types import SimpleNamespace
+
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     from machine_ctrl.app.bringup import RecorderStatus
-
-    class Node:
-        def create_subscription(self, _type, _topic, callback, _qos):
-            self.callback = callback
-
-    class Client:
-        node = Node()
-
-    status = RecorderStatus(Client())
-    hear = Client.node.callback
+    node = ros_node('recorder_status_test')
+    status = RecorderStatus(SimpleNamespace(node=node))
+    (subscription,) = node.subscriptions
+    assert (subscription.topic_name, subscription.msg_type) == ('/diagnostics', DiagnosticArray)
+    hear = subscription.callback
     hear(DiagnosticArray(status=[DiagnosticStatus(name='hw_sim', level=DiagnosticStatus.ERROR, message='FAULT: x')]))
     assert status.stopped is None
     for reason in ('writing failed: No space left on device (ENOSPC)', 'later'):
