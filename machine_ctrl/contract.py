@@ -237,8 +237,11 @@ CONTOUR_ORIENTATION = Topic('contour_error/orientation', 'geometry_msgs/msg/Vect
                             'tool-orientation contour error vector, rad')
 CONTOUR_ORIENTATION_MAGNITUDE = Topic('contour_error/orientation_magnitude', 'std_msgs/msg/Float64', STEP_QOS,
                                       'tool-orientation contour error magnitude, rad')
+# assumed: the goals each goal status array lists (the active one always): the recent ones a
+# client may still follow, a few kB of message
+GOAL_STATUS_KEEP = 100
 GOAL_STATUS = Topic('trajectory/goal_status', 'action_msgs/msg/GoalStatusArray', GOAL_STATUS_QOS,
-                    'latched: the recent goals (trajectory.goals.KEEP; the active one always) with id (UUID) and '
+                    f'latched: the last {GOAL_STATUS_KEEP} goals (the active one always) with id (UUID) and '
                     'state: accepted, executing, canceling, succeeded, canceled, aborted (the reason on '
                     '/diagnostics)')
 COMPENSATION_READY = Topic('compensation/ready', 'std_msgs/msg/Bool', READY_QOS,

@@ -64,7 +64,7 @@ def test_the_error_across_the_path_is_corrected_and_the_error_along_it_is_not(mi
     result = coupling.step(k, displaced(micromill, reference, k, x_c=-3e-6, y_f=0.2e-6))
     assert result.status is CouplingStatus.ACTIVE and result.reason == ''
     assert correction(micromill, coupling, result, 'y_f') == pytest.approx(
-        -(gains.proportional * (1 - d * d) + gains.integral * period) * 0.2e-6, rel=1e-6)
+        -(gains.proportional * (1 - d * d) + gains.integral * period) * 0.2e-6, rel=1e-6, abs=0)
     assert abs(correction(micromill, coupling, result, 'x_f')) < 1e-15
     assert abs(correction(micromill, coupling, result, 'z_f')) < 1e-15
 
@@ -151,7 +151,7 @@ def test_switched_off_it_fades_out_then_costs_nothing_and_switched_on_fades_in_f
     result = coupling.step(k, displaced(micromill, reference, k, y_f=eps))
     assert result.status is CouplingStatus.ACTIVE
     assert -correction(micromill, coupling, result, 'y_f') == pytest.approx(
-        (gains.proportional * (1 - decay) + gains.integral * micromill.control_period) * eps, rel=1e-5)
+        (gains.proportional * (1 - decay) + gains.integral * micromill.control_period) * eps, rel=1e-5, abs=0)
 
 
 def test_off_and_faded_out_its_steps_equal_those_that_ask_quiet_every_step(micromill):

@@ -364,7 +364,6 @@ def test_lockstep_takes_the_commands_in_axis_order():
     assert ls.take() == [1.0, 2.0, 3.0] and ls.step == 1 and ls.missing == ['a', 'b', 'c']
 
 
-
 def test_lockstep_checks_every_new_name_list_whatever_it_took_before():
     """Valid name lists are kept (checked once per list): a bad list is refused between good
     ones, a list and its reordering are each taken in their own order, ints taken as floats."""
@@ -408,7 +407,6 @@ def test_paced_mode_faults_on_a_non_finite_command_too(make):
     io.take()
     command(s, 0, ['y_c'], [math.inf])
     assert io.take() == [('fault', 'non-finite command for y_c'), ('state', 0)]
-
 
 
 def test_hw_sim_s_own_stall_faults_the_machine_from_step_1_on(make):

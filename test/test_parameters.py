@@ -172,6 +172,7 @@ def test_the_range_column_in_words(spec, text):
     nodes' descriptors with these), written out here."""
     assert parameters.range_text(spec) == text
 
+
 @pytest.mark.parametrize('executable', list(NODES))
 def test_every_declared_parameter_has_its_descriptor(executable, rclpy_context, node_arguments):
     table = parameters.table(executable)

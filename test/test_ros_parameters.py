@@ -11,6 +11,7 @@ Real node processes over real DDS, in this session's ROS domain, discovery on lo
 happened. Every wait is on a condition (a printed line, a status showing a value); the
 timeouts only bound a wait that would otherwise hang."""
 import importlib.util
+import itertools
 import shutil
 import signal
 import subprocess
@@ -39,6 +40,7 @@ READY = 120          # s: a node process up (imports, Pinocchio) on a loaded mac
 # What a `ros2` call that sent its request and never got the answer is doing when it is stopped:
 # waiting in rclpy's spin_until_future_complete (param set/get/dump, service call).
 ANSWER_WAIT = 'in spin_until_future_complete'
+RETRIES = itertools.count(1)      # the lost answers retried (numbered warnings)
 
 
 def ros2(env, *args, timeout=WAIT + 30) -> subprocess.CompletedProcess:
@@ -78,7 +80,9 @@ def ros2(env, *args, timeout=WAIT + 30) -> subprocess.CompletedProcess:
         if attempt == 1 and ANSWER_WAIT in stacks:
             # a warning, not a print: pytest's summary shows it for a test that then passes, so a
             # loaded run's log counts these losses (a print of a passing test is not shown)
-            warnings.warn(f'ros2 {" ".join(args)}: no answer within {timeout} s (lost: see ros2()); asked once more')
+            # numbered: Python reports one warning per text and line, and each loss must show
+            warnings.warn(f'ros2 {" ".join(args)}: no answer within {timeout} s (lost: see ros2()); asked once more '
+                          f'(retry {next(RETRIES)} of this session)')
             continue
         empty = [path.name for path, _ in empty_ports()]
         raise AssertionError(f'ros2 {" ".join(args)}: not ended within {timeout} s (attempt {attempt}); empty port '

@@ -39,7 +39,7 @@ def test_feed_acceleration_and_axis_limits(trt, trt_kin, reference):
     assert np.abs(np.diff(speed)).max() / trt.control_period <= ACCELERATION
     # the axis limits checked apart from the generator's own limit_ratios (which tuned the ramp):
     assert_within_limits(trt, reference.position)              # the positions, differenced
-    assert_reference_within_limits(trt, reference)             # the streamed velocity and acceleration
+    assert_reference_within_limits(trt, reference, tolerance=1.0)    # the streamed v, a: the generator keeps them <= 1
     fd = np.diff(reference.position, axis=0) / trt.control_period    # velocities are the positions' rates
     assert np.abs(fd - (reference.velocity[1:] + reference.velocity[:-1]) / 2).max() < 3e-4
 
@@ -56,6 +56,6 @@ def test_trt_runs_the_path_with_error_peaks_at_rotary_reversals(trt, reference):
         reversals = np.flatnonzero(np.sign(v[1:]) * np.sign(v[:-1]) < 0)
         peak = int(np.argmax(error[:, axis]))
         assert len(reversals) >= 3
-        after = peak - reversals
+        after = peak - (reversals + 1)           # reversals: the last sample before the sign changes
         assert np.any((after >= 0) & (after * trt.control_period < 0.15)), (peak, reversals)
         assert error[peak, axis] > 5 * np.median(error[:, axis])

@@ -32,10 +32,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
 
+from machine_ctrl import contract
+
 # assumed: a fixed namespace of our own for the goal ids (uuid5), so the same goals in the
 # same order give the same ids in every run
 GOAL_NAMESPACE = uuid.UUID('6d616368-696e-6563-7472-6c2d676f616c')
-KEEP = 100                      # goals kept in the status array (the active one always)
+KEEP = contract.GOAL_STATUS_KEEP    # goals kept in the status array (the active one always)
 
 
 class GoalState(IntEnum):
