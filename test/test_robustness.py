@@ -79,8 +79,12 @@ class Client(MachineClient):
         return self.diagnostics.get(node, {}).get(key, default)
 
     def publish(self, topic, msg):
-        self.wait(lambda: self.rogue[topic].get_subscription_count() > 0, f'a subscriber of {topic}', 30)
-        self.rogue[topic].publish(msg)
+        # every reader of the topic matched with this writer, not just one (run151: /joint_states
+        # went out once servo_coarse was matched, before contour_error, the reader the case was for)
+        writer = self.rogue[topic]
+        self.wait(lambda: 0 < writer.get_subscription_count() == self.node.count_subscribers(writer.topic_name),
+                  f'every subscriber of {topic} matched', 30)
+        writer.publish(msg)
 
 
 @pytest.fixture(scope='module')
