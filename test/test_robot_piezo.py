@@ -296,7 +296,7 @@ def test_a_law_for_another_kind_of_drive_is_refused_with_the_reason(robot_piezo,
                                                                   micromill.axis('x_c'), period)
 
 
-BASE = (MACHINES / 'robot_piezo.yaml').read_text()
+BASE = (MACHINES / 'robot_piezo.yaml').read_text()  # edits below anchor on data, never on a comment's words
 
 
 @pytest.mark.parametrize('edit, reason', [
@@ -314,10 +314,10 @@ BASE = (MACHINES / 'robot_piezo.yaml').read_text()
       '        []\n'), 'px.plant: a piezo drive needs modes'),
     (('        - {omega: 251.32741228718345, zeta: 0.03}', '        - {omega: 251.32741228718345, zeta: 1.2}'),
      'px.plant: modes: zeta must be below 1'),
-    (('      sensor_noise: 2.0e-8     # m RMS per sample, assumed (as piezo_milling.SENSOR_NOISE)',
-      '      sensor_noise: 2.0e-8\n      servo: {omega: 10.0, zeta: 0.5}'), 'px.plant: servo: only for position_servo'),
-    (('      command_limit: 3.1416    # rad, the joint\'s range (robot_piezo.urdf)',
-      '      command_limit: 3.1416\n      force_constant: 2.0'), 'j1.drive: a position_servo drive has no force_constant'),
+    (('      sensor_noise: 2.0e-8', '      servo: {omega: 10.0, zeta: 0.5}\n      sensor_noise: 2.0e-8'),
+     'px.plant: servo: only for position_servo'),
+    (('      command_limit: 3.1416', '      force_constant: 2.0\n      command_limit: 3.1416'),
+     'j1.drive: a position_servo drive has no force_constant'),
     (('  coarse: [j1, j2, j3, j4, j5, j6]\n  fine: [px, py, pz]', '  coarse: [j1, j2, j3, j4, j5]\n  fine: [px, py, pz, j6]'),
      'cartesian_dual_stage.fine: 4 fine axes'),
     (('  coarse: [j1, j2, j3, j4, j5, j6]\n  fine: [px, py, pz]', '  coarse: [j1, j2, j3, j4, j5]\n  fine: [px, py, j6]'),
