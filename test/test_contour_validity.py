@@ -141,8 +141,24 @@ def test_synthetic_joins_stops_reversal_corner(synthetic, method):
     assert len(at_joins) <= 170, len(at_joins)
     # basic and shifted are also invalid along the arc, where their first-order error kappa
     # lag^2 / 2 (0.45 um at 60 um of lag on 4 mm) is too close to the 25 % of the 2.3 um errors
+    # ('bound'), and only in its fast middle: its first-order bound kappa r (r + d) (r the 4 ms
+    # lag of arc, d ~2.2 um; validity.py) passes the 0.55 um tolerance at r ~46 um, 11.4 mm/s of
+    # the quintic's 14.7 mm/s peak, the middle 34 % of the arc's 800 steps; the full bound (the
+    # turning over its window, 1 / (1 - Theta ...)) is ~1.5x that, the middle half (basic 372
+    # steps, shifted 397). Held to the middle 60 %, where the speed is over 6 mm/s (at 24 um of
+    # lag the first-order bound, 0.16 um, is a third of the tolerance), and to 55 % of the arc.
+    # Every other step is valid: the estimates cover the path but for its joins and that arc.
+    steps = np.arange(len(valid))
+    arc_start, arc_end = joins[6], joins[7]
+    middle = (steps >= arc_start + 0.2 * (arc_end - arc_start)) & (steps <= arc_end - 0.2 * (arc_end - arc_start))
+    at_bound = ~valid & (reason == 'bound')
     if method == 'compensated':
-        assert valid[~near(np.arange(len(valid)), joins, 50, 80)].all()
+        assert not at_bound.any()
+        assert valid[~near(steps, joins, 50, 80)].all()
+    else:
+        assert not (at_bound & ~middle).any(), steps[at_bound & ~middle]
+        assert np.count_nonzero(at_bound) <= 0.55 * (arc_end - arc_start), np.count_nonzero(at_bound)
+        assert valid[~near(steps, joins, 50, 80) & ~middle].all()
     # valid steps are useful: compensated within 0.1 um of the 2.3 um errors, every one within
     # the tolerance, 25 % of the estimate
     assert deviation[valid].max() < 0.1e-6 or method != 'compensated'

@@ -114,10 +114,13 @@ def test_nan_command_stops_the_machine_and_reset_recovers(commander):
     commander.policy = policy
     commander.wait(commander.fault, what='fault')
     assert 'non-finite command for x_c' in commander.hw_diag[1]
-    stopped_at = max(commander.steps)
-    time.sleep(1.0)
-    assert max(commander.steps) == stopped_at == 20          # stopped, state still re-sent
-    assert commander.steps.count(20) > 2
+    # stopped: hw_sim reports every command of step 20 in hand (the finite answers to its
+    # re-sends) and still step 20; then a few more re-sends of step 20, nothing after it
+    commander.wait(lambda: commander.hw_diag[2]['waiting_for'] == '', what='the answers to step 20 in hand')
+    assert commander.hw_diag[2]['step'] == '20' and commander.fault(), commander.hw_diag
+    resent = commander.steps.count(20)
+    commander.wait(lambda: commander.steps.count(20) >= resent + 3, what='step 20 re-sent')
+    assert max(commander.steps) == 20
     response = commander.reset()
     assert response.success and 'non-finite' in response.message
     commander.wait(lambda: max(commander.steps) > 40, what='running again after reset')
@@ -158,12 +161,18 @@ def test_malformed_commands_are_refused_and_change_nothing(commander):
     assert not commander.fault(), commander.hw_diag
 
 
+PACED_FACTOR = 0.02
+PACED_PERIOD = 1e-4 / PACED_FACTOR      # s of wall time per step of 0.1 ms: 200 steps/s
+
+
 @pytest.fixture
 def paced_commander(micromill, ros_node, ros_supervisor):
+    launched = time.monotonic()         # hw_sim's pace starts after this (one monotonic clock for all processes)
     ros_supervisor.start('hw_sim', [sys.executable, '-m', 'machine_ctrl.ros.hw_sim_node', '--ros-args', '-p', 'mode:=paced',
-                                    '-p', 'real_time_factor:=0.02'])       # 200 steps/s of wall time
+                                    '-p', f'real_time_factor:={PACED_FACTOR}'])
     ros_supervisor.wait_for_line('hw_sim', 'ready', 60)
     c = Commander(ros_node('servos'), list(micromill.axis_names), micromill)
+    c.launched = launched
     yield c
     c.stop()
 
@@ -172,14 +181,17 @@ def test_paced_mode_steps_on_the_wall_clock_and_counts_missed_deadlines(paced_co
     c = paced_commander
     # the servos answer, except for steps 100-109: those miss their deadline (9 axes each)
     c.policy = lambda step, state: None if 100 <= step < 110 else c.servo_policy(step, state)
-    c.wait(lambda: len(c.steps) > 5, what='first states')
-    first, t0 = max(c.steps), time.monotonic()
-    time.sleep(2.0)
-    rate = (max(c.steps) - first) / (time.monotonic() - t0)
-    assert 50 < rate < 230          # 200 steps/s nominal; never faster, slower on a loaded machine
-    c.wait(lambda: max(c.steps) > 120 and c.hw_diag is not None
+    c.wait(lambda: c.steps and max(c.steps) > 120 and c.hw_diag is not None
            and int(c.hw_diag[2]['missed_deadlines']) >= 90, what='missed deadlines')
     assert not c.fault()            # paced mode holds the last command instead of faulting
+    # never faster than the pace (a loaded machine only makes it slower, so no lower bound):
+    # step k is due k periods after hw_sim's start, which came after `launched`, and a late
+    # step shifts the schedule later, never earlier (hw_sim/pacing.py); + 1: the due
+    # tolerance and the period's whole ns. Enough steps that the slack of hw_sim's start-up
+    # (0.6 s idle: ~130 steps) does not hide a pace 20 % too fast.
+    c.wait(lambda: max(c.steps) > 1000, timeout=120, what='1000 paced steps')
+    step = max(c.steps)
+    assert step < (time.monotonic() - c.launched) / PACED_PERIOD + 1
 
 
 @pytest.mark.parametrize('args, message', [
@@ -206,17 +218,6 @@ def gated_commander(micromill, ros_node, ros_supervisor):
     yield from _commanded_hw_sim(micromill, ros_node, ros_supervisor, 'recorder_window:=50')
 
 
-def _settled(c, quiet=0.6):
-    """The newest step once it has not changed for `quiet` s."""
-    last, since = None, time.monotonic()
-    while time.monotonic() - since < quiet:
-        now = max(c.steps)
-        if now != last:
-            last, since = now, time.monotonic()
-        time.sleep(0.05)
-    return last
-
-
 def test_recorder_window_holds_the_machine_without_a_fault_until_the_recorder_catches_up(gated_commander, ros_node):
     from builtin_interfaces.msg import Time
 
@@ -225,15 +226,23 @@ def test_recorder_window_holds_the_machine_without_a_fault_until_the_recorder_ca
     c, clock = gated_commander, StepClock(1e-4)
     c.wait(lambda: c.steps and max(c.steps) > 100, what='running without a recorder')
     progress = ros_node('recorder').create_publisher(Time, contract.RECORDER_PROGRESS.name, PROGRESS_QOS)
-    progress.publish(Time())                                   # a recorder: nothing written yet
-    held = _settled(c, quiet=1.0)                              # longer than command_timeout
-    # held: the state re-sent (every 0.1 s; waited for, not counted in a window: run101 saw 3
+    progress.publish(Time())                                   # a recorder at step 0: hold from step 51 on
+    # held, as hw_sim reports it, for longer than command_timeout (by hw_sim's clock) ...
+    c.wait(lambda: c.hw_diag is not None and c.hw_diag[2].get('holding_for_recorder') == 'True'
+           and float(c.hw_diag[2]['recorder_hold_time']) > 0.5, what='a hold longer than command_timeout')
+    held = int(c.hw_diag[2]['step'])
+    # ... the state re-sent (every 0.1 s; waited for, not counted in a window: run101 saw 3
     # re-sends in the second a loaded host gave), the step still the held one, no fault
     c.wait(lambda: c.steps.count(held) > 3, what='the held state re-sent')
     assert not c.fault() and max(c.steps) == held, c.hw_diag
-    c.wait(lambda: c.hw_diag[2].get('holding_for_recorder') == 'True', what='hold reported')
     progress.publish(clock.stamp(held - 40))                   # may run to held - 40 + 51
-    assert _settled(c) == held + 11 and not c.fault()
+    # the hold at `held` ends with this report (same callback): held again with it, hw_sim
+    # is at the step the window allows
+    c.wait(lambda: c.hw_diag[2]['recorder_step'] == str(held - 40) and c.hw_diag[2]['holding_for_recorder'] == 'True',
+           what='held again')
+    assert c.hw_diag[2]['step'] == str(held + 11), c.hw_diag
+    c.wait(lambda: c.steps.count(held + 11) > 3, what='the new held state re-sent')
+    assert max(c.steps) == held + 11 and not c.fault()
     reasons = ('not on the 100000 ns control grid', f'progress for step {held + 500}, but the published steps are',
                'nanosec 1500000000 is not in [0, 1e9)')
     for i, (bad, reason) in enumerate(zip((Time(sec=0, nanosec=1), clock.stamp(held + 500),
@@ -242,6 +251,7 @@ def test_recorder_window_holds_the_machine_without_a_fault_until_the_recorder_ca
         c.wait(lambda: int(c.hw_diag[2]['refused_progress']) == i + 1, what=f'refused progress {i}')
         assert reason in c.hw_diag[2]['last_progress_refusal']
     assert max(c.steps) == held + 11 and c.hw_diag[2]['recorder_step'] == str(held - 40)
+    assert c.hw_diag[2]['step'] == str(held + 11), c.hw_diag
     progress.destroy()                                         # the recorder leaves: no more holding
     c.wait(lambda: max(c.steps) > held + 200, what='running again once the recorder left')
     assert not c.fault()
