@@ -5,6 +5,7 @@ wall rate: each one the graph published, in order), the tracking errors and the 
 while `machine-ctrl move` runs; then `machine-ctrl view --bag` writes the recorded session with the same
 channels, one joint state every 10 ms of sim time, which every panel of the shipped layout
 finds. Real nodes over real DDS."""
+import itertools
 import json
 import re
 import signal
@@ -133,7 +134,7 @@ class FoxgloveClient:
 
 
 def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channels(ros_supervisor, ros_env,
-                                                                                  tmp_path, trt):
+                                                                                  ros_node, tmp_path, trt):
     bag = tmp_path / 'bag'
     ros_supervisor.start('bringup', [EXE, 'bringup', 'trt_5axis', '--single-process', '--record', str(bag),
                                      '--view', '0'])
@@ -148,6 +149,7 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
         client.until(lambda: all(t in client.channels for t in wanted + (status,)), 'the channels advertised')
         assert client.channels[joint_states]['encoding'] == 'cdr'
         assert client.channels[joint_states]['schemaName'] == 'sensor_msgs/msg/JointState'
+        before = view_samples(ros_node)      # at most the count when the client subscribes
         client.subscribe(wanted)
         moved = subprocess.run([EXE, 'move', 'x=0.004', '--machine', 'trt_5axis', '--timeout', '600'], env=ros_env,
                                capture_output=True, text=True, timeout=700)
@@ -155,11 +157,17 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
         client.until(lambda: len({step_of(trt, data) for _, data in client.received.get(joint_states, [])}) >= 30
                      and client.received.get(contract.VIEW_SCENE) and client.received.get(contract.VIEW_TRACKING_ERROR),
                      'messages of every subscribed channel (30 steps of the joint states)')
-    # The view takes the newest states sample_rate times a wall second: a wall-clock rate,
-    # which neither the stamps (sim time runs at whatever pace the graph manages) nor a count
-    # of the node's (its /diagnostics has no count of samples) can bound, so it is not timed
-    # here. What holds whatever the pace: each state sent is one the graph published (the
-    # bag's, below), in order.
+    # The view takes the newest states sample_rate times a wall second: a wall-clock rate
+    # the stamps cannot bound (sim time runs at whatever pace the graph manages). It counts
+    # its samples on /diagnostics: at most VIEW_STEP_QOS.depth states each, whatever the
+    # pace. The states the client got came from the samples after it subscribed: fewer than
+    # the count read after the last state came less the count read before subscribing. (Loose
+    # here: an idle run saw 30 states in 650 samples, the graph idle most of the time; it
+    # fails a view that forwards more than the depth per sample while the graph runs fast.)
+    samples = view_samples(ros_node) - before
+    assert 0 < len(client.received[joint_states]) <= contract.VIEW_STEP_QOS.depth * samples, \
+        (len(client.received[joint_states]), samples)
+    # each state sent is one the graph published (the bag's, below), in order
     steps = [step_of(trt, data) for _, data in client.received[joint_states]]
     # in order; a step may come again: hw_sim re-sends the state of a step it holds (a loaded
     # run saw 2221 nine times), and the view forwards what it reads
@@ -192,6 +200,35 @@ def test_the_live_view_serves_the_graph_decimated_and_a_bag_gets_the_same_channe
     # the derived channels at the recorded times of the states they come from
     assert set(times[contract.VIEW_TRACKING_ERROR]) <= set(times[joint_states]) and times[contract.VIEW_TRACKING_ERROR]
     assert set(times[contract.VIEW_SCENE]) <= set(times[joint_states]) and times[contract.VIEW_SCENE]
+
+
+READERS = itertools.count()
+
+
+def view_samples(ros_node) -> int:
+    """The view's count of samples, from its next status on /diagnostics."""
+    import time
+
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+
+    from machine_ctrl.ros.messages import qos
+    node = ros_node(f'view_status_reader_{next(READERS)}')
+    samples = []
+    node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name,
+                             lambda m: samples.extend(int(dict((v.key, v.value) for v in s.values)['samples'])
+                                                      for s in m.status if s.name == 'view'),
+                             qos(contract.DIAGNOSTICS_READER_QOS))
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    deadline = time.monotonic() + 120        # the status is 1 Hz
+    try:
+        while not samples:
+            assert time.monotonic() < deadline, 'no status of the view on /diagnostics'
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.shutdown()
+    return samples[0]
 
 
 def step_of(machine, data: bytes) -> int:

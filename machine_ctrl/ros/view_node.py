@@ -10,7 +10,8 @@ Open it in Foxglove: "Open connection", ws://HOST:PORT, then import the machine'
 config/foxglove/<machine>.json (machine_ctrl/view/layout.py; README "Live view"). What the
 view cannot read (a state without the machine's axes: the view started for another
 machine) is warned (throttled) and counted on /diagnostics (1 Hz: forwarded, taken, refused,
-the last refusal). The per-step streams are read best effort (contract.VIEW_STEP_QOS): a
+the last refusal, and the samples taken: at most VIEW_STEP_QOS.depth messages of a stream
+each). The per-step streams are read best effort (contract.VIEW_STEP_QOS): a
 slow view loses messages, it never holds up a writer; the latched ones as a late joiner
 gets them. The server sends to clients from its own threads
 (Rust), so a slow client does not hold up this node either.
@@ -63,6 +64,7 @@ class ViewNode(Node):
         self.sampler = Node(f'{name}_sampler', namespace=self.get_namespace(), context=self.context,
                             use_global_arguments=False, enable_rosout=False, start_parameter_services=False)
         self.sampled = []
+        self.samples = 0                            # sampling timer ticks so far
         for topic, qos in VIEWED:
             name_, type_name = self.resolve_topic_name(topic.name), topic.type
             if qos == contract.VIEW_STEP_QOS:
@@ -82,6 +84,7 @@ class ViewNode(Node):
 
     def sample(self) -> None:
         """What each per-step stream's reader holds (its newest messages), oldest first."""
+        self.samples += 1
         for subscription, name, type_name in self.sampled:
             with subscription.handle:
                 for _ in range(contract.VIEW_STEP_QOS.depth):
@@ -91,11 +94,11 @@ class ViewNode(Node):
                     self.view.take(name, type_name, taken[0])
 
     def publish_status(self) -> None:
-        """1 Hz on /diagnostics: messages forwarded and refused, the last refusal."""
+        """1 Hz on /diagnostics: messages forwarded and refused, the last refusal, samples taken."""
         view, refused = self.view, self.rejections
         level = DiagnosticStatus.WARN if refused.count else DiagnosticStatus.OK
         values = {'forwarded': sum(view.forwarded.values()), 'taken': sum(view.counts.values()),
-                  'refused': refused.count, 'last_refusal': refused.last}
+                  'refused': refused.count, 'last_refusal': refused.last, 'samples': self.samples}
         self.pub_diag.publish(ros_io.diagnostics(self.get_clock().now().to_msg(), self.get_name(), level,
                                                  f'serving ws://{self.server_address}', values))
 
