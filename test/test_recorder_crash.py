@@ -14,9 +14,7 @@
 
 Every wait is on a condition, with a generous deadline that only turns a hang into a
 failure."""
-import io
 import signal
-import struct
 import subprocess
 import sys
 import time
@@ -27,6 +25,7 @@ import pytest
 from machine_ctrl.recording import bag as bagmod
 from machine_ctrl.recording import recorder
 from machine_ctrl.recording.bag import Bag
+from ros_fixtures import on_disk
 
 EXE = str(Path(sys.executable).with_name('machine-ctrl'))
 PERIOD = 100_000           # ns, the micromill's control period
@@ -86,24 +85,6 @@ class Publisher:
         time.sleep(0.002)          # a graph's pace, not a flood: the recorder keeps up
 
 
-def in_complete_chunks(path) -> int:
-    """Messages in the complete chunks of a bag file being written, counted with the mcap
-    package's own stream reader, not with the salvage that `record --recover` (under test)
-    uses: the records in order up to the first one the file does not hold whole."""
-    from mcap.exceptions import EndOfFile
-    from mcap.records import Chunk, Message
-    from mcap.stream_reader import StreamReader, breakup_chunk
-    data = path.read_bytes() if path.exists() else b''
-    source, count = io.BytesIO(data), 0
-    try:
-        for record in StreamReader(source, emit_chunks=True).records:
-            if isinstance(record, Chunk):        # yielded only once its whole record is read
-                count += sum(isinstance(r, Message) for r in breakup_chunk(record, validate_crc=True))
-    except (EndOfFile, struct.error):            # a short read: what the file holds ends mid-record
-        assert source.tell() == len(data)        # nothing else is taken for the end
-    return count
-
-
 def recover(bag):
     done = subprocess.run([EXE, 'record', '--recover', str(bag)], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
@@ -120,9 +101,9 @@ def test_a_killed_recorder_leaves_a_bag_that_recover_makes_readable(ros_supervis
     publisher = Publisher(ros_node('crash_publisher'))
     wait_until(publisher.matched, 'the recorder to subscribe')
     file = bag / 'bag_0.mcap'
-    wait_until(lambda: in_complete_chunks(file) >= 3000, 'complete chunks on disk', spin=publisher.batch)
+    wait_until(lambda: on_disk(file) >= 3000, 'complete chunks on disk', spin=publisher.batch)
     publisher.batch()
-    flushed = in_complete_chunks(file)      # every complete chunk before the kill
+    flushed = on_disk(file)                 # every complete chunk before the kill
     ros_supervisor['recorder'].signal_group(signal.SIGKILL)
     assert ros_supervisor.wait('recorder', timeout=60) == -signal.SIGKILL
     published = publisher.step
