@@ -271,7 +271,7 @@ def test_two_machines_in_two_namespaces_run_side_by_side_one_records_and_both_st
         mill2.close()
     print(f'mill2 launch ended {seconds:.2f} s after Ctrl-C (status {status2})')
     assert_ended_cleanly(mill2, status2, 5)       # hw_sim, servo, trajectory, contour_error, recorder
-    assert status1 == 0, mill1.text()[-3000:]
+    assert_ended_cleanly(mill1, status1, 6)       # hw_sim, 2 servos, dual_stage, trajectory, contour_error
     with Bag(bag) as recorded:                        # the indexed reader: summary and metadata present
         assert recorded.topics['/mill2/joint_states'].count > 0
         assert recorded.custom_data['machine_ctrl.namespace'] == '/mill2'

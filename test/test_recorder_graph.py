@@ -359,7 +359,7 @@ def test_decoded_values_equal_what_was_published(readback):
 
 def test_bag_layout_is_rosbag2_mcap(live, readback, ros_node):
     import yaml
-    bag, _, _, _ = live
+    bag, published, _, _ = live
     header, summary, _, metadata, _, _, expected = readback
     assert header.profile == 'ros2'
     assert all(s.encoding == 'ros2msg' for s in summary.schemas.values())
@@ -375,9 +375,17 @@ def test_bag_layout_is_rosbag2_mcap(live, readback, ros_node):
         {'machine_ctrl.lost/joint_states': '0', 'machine_ctrl.lost/clock': '0'}
     counts = {t['topic_metadata']['name']: t['message_count'] for t in info['topics_with_message_count']}
     assert counts == {topic: len(msgs) for topic, msgs in expected.items()}
-    for channel in summary.channels.values():
-        offers = yaml.safe_load(channel.metadata['offered_qos_profiles'])
-        assert offers is None or all(o['reliability'] in ('reliable', 'best_effort') for o in offers)
+    # the offered QoS profiles: what the recorder learned of a topic's publishers when it
+    # subscribed. /reference, left to discovery (_recorder_argv), has one per publisher that
+    # sent on it (the reference node's: reliable, transient local, contract.REFERENCE_QOS).
+    # Every other topic was given with its type and subscribed before anyone published it:
+    # it joined the bag then, with no publisher to offer any (recorder_node: offers []).
+    offers = {c.topic: yaml.safe_load(c.metadata['offered_qos_profiles']) for c in summary.channels.values()}
+    senders = {publisher for publisher, _ in published['/reference']}
+    assert senders and len(offers['/reference'] or []) == len(senders), (offers['/reference'], len(senders))
+    assert all((o['reliability'], o['durability']) == ('reliable', 'transient_local') for o in offers['/reference'])
+    assert {topic: o for topic, o in offers.items() if topic != '/reference'} == \
+        dict.fromkeys(set(TOPICS) - {'/reference'}), offers
     # the type hash recorded is the one the ROS graph reports for the type
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import JointState
