@@ -213,9 +213,10 @@ def test_cli_plan_writes_references_and_json(short_csv, tmp_path, capsys, microm
     assert cli.main(['plan', str(short_csv), '--out', str(out), '--json']) == 0
     summary = json.loads(capsys.readouterr().out)
     for key in ('traversal_time', 'planning_time', 'max_position_deviation',
-                'max_orientation_deviation', 'peak_ratios'):
+                'max_orientation_deviation', 'peak_ratios', 'peak_feed_ratio'):
         assert key in summary
     assert list(summary['peak_ratios']) == list(micromill.axis_names)
+    assert 0.5 < summary['peak_feed_ratio'] <= 1.0 + 1e-12
     lines = (out / 'references.csv').read_text().splitlines()
     assert lines[0] == 'time,' + ','.join(micromill.axis_names)
     table = np.loadtxt(out / 'references.csv', delimiter=',', skiprows=1)

@@ -11,7 +11,9 @@ sdot = sqrt(b), sddot = b'/2 and sdddot = sqrt(b) b''/2 (chain rule):
     qddot  = q'' b + q' b'/2                         (linear in b)
     qdddot = sqrt(b) (q''' b + 3/2 q'' b' + 1/2 q' b'')
 
-Velocity (as b <= (v_max/|q'|)^2), feed (b <= F^2) and acceleration are linear in b;
+Velocity (as b <= (v_max/|q'|)^2), feed (b <= F^2, lowered near the rest ends so that the
+time law's b between the nodes keeps it too: feed_shape.feed_headroom) and acceleration are
+linear in b;
 the jerk constraint is linear once sqrt(b) is frozen at the previous iterate's value
 (sequential linear programming, as in jerk-limited TOPP formulations). Each iteration
 maximizes sum(b) (the usual linear surrogate of minimum time) with scipy's HiGHS LP;
@@ -54,6 +56,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
+
+from trajectory.feed_shape import feed_headroom
 
 
 @dataclass(frozen=True)
@@ -146,7 +150,8 @@ def optimize_feed(s, dq, ddq, dddq, limits: FeedLimits, iterations: int = 8,
 def refine_feed(s, b, dq, ddq, dddq, limits: FeedLimits, scales, changed, window: int,
                 iterations: int = 8, tolerance: float = 1e-3) -> FeedProfile:
     """The profile b on the uniform grid s re-solved with the limits scaled per node by
-    `scales` (N, 3: factors in (0, 1] on velocity, acceleration, jerk), free only within
+    `scales` (N, 3: factors in (0, 1] on velocity (the axes' and the tool's feed F),
+    acceleration, jerk), free only within
     `window` nodes of the nodes `changed`, the others held at b (module docstring, "Re-solve
     with tightened limits"); the window doubles while the LP is infeasible."""
     s, b, scales = (np.asarray(a, float) for a in (s, b, scales))
@@ -181,7 +186,8 @@ def _solve(s, dq, ddq, dddq, limits: FeedLimits, scales: np.ndarray, start: np.n
     speed = np.abs(dq)
     with np.errstate(divide='ignore'):
         vmax = np.min(np.where(speed > 0, (limits.velocity / speed) ** 2, np.inf), axis=1)
-    upper = np.minimum(np.minimum(vmax * v_scale ** 2, limits.feed ** 2),
+    feed = limits.feed ** 2 * feed_headroom(s)  # F^2 between the nodes too (feed_shape.py)
+    upper = np.minimum(np.minimum(vmax, feed) * v_scale ** 2,      # the velocity factor scales the feed too
                        _rest_envelope(s, dq, limits.jerk) * j_scale ** (2.0 / 3.0))
     upper[0] = upper[-1] = 0.0
     free = free | (start > upper)               # a node over its (new) bound cannot be held

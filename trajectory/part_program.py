@@ -65,7 +65,8 @@ class ProgramPlan:
                 'samples': sum(len(p.reference) for p in self.plans) - (len(self.plans) - 1),
                 'max_position_deviation': max(p.max_position_deviation for p in self.plans),
                 'max_orientation_deviation': max(p.max_orientation_deviation for p in self.plans),
-                'peak_ratios': peaks, 'pieces': per_piece, 'notes': list(self.notes)}
+                'peak_ratios': peaks, 'peak_feed_ratio': max(p.sampling.feed_ratio for p in self.plans),
+                'pieces': per_piece, 'notes': list(self.notes)}
 
 
 def _from_row(reference: Reference, first: int) -> Reference:

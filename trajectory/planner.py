@@ -87,7 +87,8 @@ class PlannedPath:
                 'max_position_deviation': self.max_position_deviation,
                 'max_orientation_deviation': self.max_orientation_deviation,
                 'samples': len(self.reference), 'control_period': self.reference.period,
-                'feed_scale': self.sampling.feed_scale, 'peak_ratios': self.peak_ratios}
+                'feed_scale': self.sampling.feed_scale, 'peak_ratios': self.peak_ratios,
+                'peak_feed_ratio': self.sampling.feed_ratio}
 
 
 @dataclass(frozen=True)

@@ -38,8 +38,13 @@ sdot(s) = sqrt(b(s)), b the feed profile:
 
 **Verification.** The feed optimizer only checks its grid. The sampled positions, padded
 with three rest samples on either side (the machine holds before and after), are
-differenced at the control period (velocity, acceleration, jerk) by `sample_profile`.
-Where a sample exceeds its limit, the profile is slowed down and sampled again: one loop,
+differenced at the control period (velocity, acceleration, jerk) by `sample_profile`, and
+the tool's feed sdot (exact: s is the tool's arc length) is held against the process feed
+limit F as one more velocity (the velocity column of the ratios; the factor a re-solve puts
+on the velocity limits it puts on F too). The feed bound's headroom (feed_shape.py) keeps
+b within F^2 between the nodes, so this check does not slow a plan down; without both, every
+feed-limited micromill plan ran 10 % over F near its rest ends. Where a sample exceeds its
+limit, the profile is slowed down and sampled again: one loop,
 :func:`sample_within`, with the slow-down rule as a parameter. :func:`resolve_rule` (the
 planner's first stage: planner.feed_and_sample) lowers the exceeded limit at the feed nodes
 around the offending samples (:func:`limit_scales`) and re-solves the feed LP in a window
@@ -59,7 +64,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from machine_ctrl.model.reference import Reference
-from trajectory.blocks import BLOCK, in_blocks
+from trajectory.blocks import in_blocks
+from trajectory.feed_shape import UniformCubic, profile_spline, rest_shape
 from trajectory.feedrate import FeedLimits, refine_feed
 from trajectory.spline import hermite_cubic
 
@@ -166,14 +172,10 @@ class TimeLaw:
             raise ValueError('the feed profile needs >= 4 finite nodes on increasing s')
         length = float(s[-1] - s[0])
         d = s - s[0]
-        e = _shape(d, length)
-        g = np.empty_like(b)
-        g[1:-1] = np.maximum(b[1:-1], 0.0) / e[1:-1]
-        g[0], g[-1] = g[1], g[-2]              # the rest ends: continue the neighbour's ratio
-        if not np.max(g) > 0:
+        spline = profile_spline(d, b)
+        if not np.max(spline.coefficients) > 0:
             raise ValueError('the feed profile is zero everywhere')
-        spline = _control_point_spline(d, g)
-        floor = 1e-9 * float(np.max(g))        # keeps f > 0: the path never stalls inside
+        floor = 1e-9 * float(np.max(spline.coefficients))   # keeps f > 0: the path never stalls inside
         u_nodes = _inverse_smoothstep(d / length)
         law = cls(length, spline, floor, u_nodes, np.zeros(len(d)))
         pieces = law._integral(u_nodes[:-1], u_nodes[1:])
@@ -271,67 +273,13 @@ class TimeLaw:
     def feed(self, s):
         """(sdot, sddot) at s (scale 1): sqrt(b) and b'/2."""
         d = np.asarray(s, float)
-        e = _shape(d, self.length)
+        e = rest_shape(d, self.length)
         g = self.g(d)
         dg = np.where(g > self.floor, self.g(d, 1), 0.0)
         g = np.maximum(g, self.floor)
         x = np.clip(d * (self.length - d) / self.length, 0.0, None)
         de = (4.0 / 3.0) * np.cbrt(x) * (self.length - 2.0 * d) / self.length
         return np.sqrt(e * g), 0.5 * (de * g + e * dg)
-
-
-class UniformCubic:
-    """A uniform cubic B-spline g(x) on [0, length] (h = length / spans; control points
-    `coefficients`, one more than the knots on either side), evaluated span by span with
-    the closed-form basis, in blocks (trajectory/blocks.py): scipy's BSpline (the same
-    curve, its numbers within rounding: tested) searches the knots for every point, ~15x
-    slower on the millions of points the time law evaluates."""
-
-    def __init__(self, length: float, coefficients):
-        self.length = float(length)
-        self.coefficients = np.asarray(coefficients, float)
-        self.spans = len(self.coefficients) - 3
-        self.h = self.length / self.spans
-
-    def __call__(self, x, nu: int = 0) -> np.ndarray:
-        """g(x), g'(x) or g''(x) (nu = 0, 1, 2) at x (any shape) in [0, length]."""
-        if nu not in (0, 1, 2):
-            raise ValueError(f'derivative order must be 0, 1 or 2, got {nu!r}')
-        x = np.asarray(x, float)
-        return in_blocks(lambda x: self._block(x, nu), x.reshape(-1), size=8 * BLOCK).reshape(x.shape)
-
-    def _block(self, x, nu: int) -> np.ndarray:
-        i = np.clip(np.floor(x / self.h).astype(np.intp), 0, self.spans - 1)
-        t = (x - i * self.h) / self.h            # from the span's knot i h: as exact as x
-        c0, c1, c2, c3 = (self.coefficients[i + k] for k in range(4))
-        r = 1.0 - t
-        if nu == 0:
-            t2 = t * t
-            return (r * r * r * c0 + (3.0 * t2 * t - 6.0 * t2 + 4.0) * c1
-                    + (((-3.0 * t + 3.0) * t + 3.0) * t + 1.0) * c2 + t2 * t * c3) / 6.0
-        if nu == 1:
-            return (-r * r * c0 + (3.0 * t - 4.0) * t * c1 + ((-3.0 * t + 2.0) * t + 1.0) * c2
-                    + t * t * c3) / (2.0 * self.h)
-        return (r * c0 + (3.0 * t - 2.0) * c1 + (1.0 - 3.0 * t) * c2 + t * c3) / (self.h * self.h)
-
-
-def _control_point_spline(d, c) -> UniformCubic:
-    """Uniform cubic B-spline on the nodes d (uniform, d[0] = 0) with control point c[n]
-    centred on node n, and ghost points 2 c[0] - c[1], 2 c[-1] - c[-2] (clipped >= 0) past
-    the ends, so its value at either end is c there. At node n its second derivative is
-    (c[n-1] - 2 c[n] + c[n+1]) / h², its first (c[n+1] - c[n-1]) / (2 h): the LP's central
-    differences; its value (c[n-1] + 4 c[n] + c[n+1]) / 6 lies within the control points."""
-    h = (d[-1] - d[0]) / (len(d) - 1)
-    if not np.allclose(np.diff(d), h, rtol=1e-9, atol=0.0):
-        raise ValueError('the feed profile needs uniformly spaced nodes')
-    ghosts = np.maximum([2.0 * c[0] - c[1], 2.0 * c[-1] - c[-2]], 0.0)
-    return UniformCubic(d[-1] - d[0], np.concatenate(([ghosts[0]], c, [ghosts[1]])))
-
-
-def _shape(d, length):
-    """E(s) = (s (L - s) / L)^(4/3)."""
-    x = np.clip(d * (length - d) / length, 0.0, None)
-    return x * np.cbrt(x)
 
 
 def _p(u):
@@ -381,11 +329,17 @@ class Sampling:
     feed_scale: float            # final global factor on b (1: the profile as given)
     passes: int                  # sampling passes made (1 + rescalings)
     peak_ratios: np.ndarray      # (axes, 3) finite-difference peak |v|, |a|, |j| / limit
-    ratios: np.ndarray           # (K+1, 3) per sample: worst |v|, |a|, |j| / limit over the axes
+    ratios: np.ndarray           # (K+1, 3) per sample: worst |v| (or sdot / F), |a|, |j| / limit over the axes
+    feed_ratio: float = 0.0      # peak sdot / the process feed limit F (0: limits without a feed)
 
     @property
     def duration(self) -> float:
         return (len(self.s) - 1) * self.reference.period
+
+    @property
+    def peak(self) -> float:
+        """The largest ratio to a limit: an axis's velocity, acceleration, jerk or the feed."""
+        return max(float(np.max(self.peak_ratios)), self.feed_ratio)
 
     @property
     def need(self) -> np.ndarray:
@@ -403,7 +357,8 @@ def sample_profile(interpolant: SepticInterpolant, feed_s, feed_b, limits, perio
     """One pass of Eq. 3.38 (module docstring): references at the control period `period` (s)
     along the interpolated path following the feed profile scale * b (= sdot², nodes
     feed_s, feed_b), with their finite-difference peak ratios to `limits` (velocity,
-    acceleration, jerk arrays, e.g. a feedrate.FeedLimits); no check against them."""
+    acceleration, jerk arrays, e.g. a feedrate.FeedLimits, and its process feed limit `feed`
+    on sdot where it has one); no check against them."""
     if not (period > 0 and math.isfinite(period)):
         raise ValueError(f'control period must be > 0 s, got {period!r}')
     feed_s = np.asarray(feed_s, float)
@@ -424,9 +379,13 @@ def sample_profile(interpolant: SepticInterpolant, feed_s, feed_b, limits, perio
     s = d + interpolant.s[0]
     q, dq, ddq = interpolant.evaluate_orders(s, (0, 1, 2))
     peaks, per_sample = _ratios(q, period, *_limit_arrays(limits))
+    feed = getattr(limits, 'feed', None)
+    feed_ratio = float(np.max(sdot) / feed) if feed else 0.0
+    if feed:        # s is the tool's arc length: sdot its speed, the exact feed of the time law
+        np.maximum(per_sample[:, 0], sdot / feed, out=per_sample[:, 0])
     reference = Reference(tuple(axis_names), period, q, dq * sdot[:, None],
                           ddq * sdot[:, None] ** 2 + dq * sddot[:, None])
-    return Sampling(reference, s, sdot, scale / stretch**2, 1, peaks, per_sample)
+    return Sampling(reference, s, sdot, scale / stretch**2, 1, peaks, per_sample, feed_ratio)
 
 
 class LimitsExceeded(ValueError):
@@ -455,7 +414,7 @@ def sample_within(interpolant: SepticInterpolant, feed_s, feed_b, limits, period
     for passes in range(1, max_passes + 1):
         result = replace(sample_profile(interpolant, feed_s, b, limits, period, axis_names, scale),
                          passes=passes)
-        if np.max(result.peak_ratios) <= tolerance:
+        if result.peak <= tolerance:
             return Refinement(result, True, b, scale)
         b, scale = slow_down(result, b, scale)
     return Refinement(result, False, b, scale)
@@ -517,11 +476,11 @@ def resolve_rule(feed_s, derivatives, limits: FeedLimits, margin: float = TIGHTE
 def sample(interpolant: SepticInterpolant, feed_s, feed_b, limits, period: float,
            axis_names, tolerance: float = 1.001, max_passes: int = 6) -> Sampling:
     """:func:`sample_profile` with b scaled down globally until every finite-difference
-    peak is within `tolerance` x its limit (module docstring, "Verification"); raises
+    peak and the feed are within `tolerance` x their limits (module docstring, "Verification"); raises
     LimitsExceeded (a ValueError) when no scaling within `max_passes` meets `tolerance`."""
     outcome = sample_within(interpolant, feed_s, feed_b, limits, period, axis_names, global_stretch,
                             tolerance, max_passes)
     if not outcome.within:
         raise LimitsExceeded(f'sampled references exceed the limits by '
-                             f'{np.max(outcome.sampling.peak_ratios):.4g}x after {max_passes} passes')
+                             f'{outcome.sampling.peak:.4g}x after {max_passes} passes')
     return outcome.sampling

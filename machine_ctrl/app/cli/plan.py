@@ -73,6 +73,7 @@ def cmd_plan(args) -> int:
     print(f"planning time    {summary['planning_time']:.3f} s")
     print(f"max deviation    {summary['max_position_deviation']:.3g} m, "
           f"{summary['max_orientation_deviation']:.3g} rad")
+    print(f"tool feed        {summary['peak_feed_ratio']:.4f} of the feed limit at its peak")
     print('axis  |v|/v_max  |a|/a_max  |j|/j_max')
     for name, r in summary['peak_ratios'].items():
         print(f"{name:5s} {r['velocity']:9.4f}  {r['acceleration']:9.4f}  {r['jerk']:9.4f}")
