@@ -9,7 +9,8 @@ planning_time (fit + resolve + feed + sampling) of the first plan in a fresh pro
 plan() call (planning_time plus the planner's final check of the sampled references against
 the path, which a caller waits for too) and planning_time of a second plan
 in the same process (what the trajectory node's planner process, warmed at its start, pays),
-resolve() alone, the local passes and the traversal of each run, the medians and this
+resolve() alone, the local passes, the traversal and the tool's peak speed over the feed
+limit (chords of the sent positions' forward kinematics over a period) of each run, the medians and this
 tree's speed-up; and the largest difference of the sampled references from the baseline's
 (0: bit-identical, as they must be where the algorithm did not change). No timing asserts.
 
@@ -35,7 +36,7 @@ import json, sys, time
 import numpy as np
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.kinematics import Kinematics
-from trajectory.planner import plan
+from trajectory.planner import DEFAULT_FEED, plan
 from trajectory.redundancy import resolve
 name, feed, out = sys.argv[1], (float(sys.argv[2]) if sys.argv[2] != 'None' else None), sys.argv[3]
 machine = load_machine('micromill_9axis')
@@ -48,9 +49,12 @@ t0 = time.perf_counter()
 resolve(result.path, kin, machine)
 resolve_time = time.perf_counter() - t0
 ref = result.reference
+tip, _ = kin.forward_many(ref.position)          # the tool's speed over each period, by its chords
+tool_feed = float(np.max(np.linalg.norm(np.diff(tip, axis=0), axis=1)) / ref.period / (feed or DEFAULT_FEED))
 np.savez(out, position=ref.position, velocity=ref.velocity, acceleration=ref.acceleration)
 print(json.dumps({'planning': result.planning_time, 'call': call, 'again': again, 'resolve': resolve_time,
-                  'passes': result.sampling.passes, 'traversal': result.traversal_time, 'samples': len(ref)}))
+                  'passes': result.sampling.passes, 'traversal': result.traversal_time, 'samples': len(ref),
+                  'tool_feed': tool_feed}))
 '''
 
 
@@ -83,7 +87,7 @@ def main():
                 print(f'{label} [{which}]: planning {r["planning"]:.3f} s (the call {r["call"]:.3f} s, again '
                       f'{r["again"]:.3f} s), resolve '
                       f'{r["resolve"]:.3f} s, {r["passes"]} passes, {r["samples"]} samples, traversal '
-                      f'{r["traversal"]:.4f} s', flush=True)
+                      f'{r["traversal"]:.4f} s, the tool at {r["tool_feed"]:.4f} of the feed limit at its peak', flush=True)
                 return r
             results = alternate(args.runs, base, measure)
             med = {w: {k: statistics.median(r[k] for r in rs) for k in ('planning', 'call', 'again', 'resolve')}
