@@ -37,6 +37,22 @@ def test_only_empty_old_unheld_port_files_are_removed(tmp_path):
     assert all(path.exists() for path in files.values())
 
 
+def test_a_port_sized_while_the_processes_are_looked_at_stays(tmp_path, monkeypatch):
+    """A creator that sizes its port after the file was found empty and old, before its open
+    files were looked at (its fd closed by then): the port is in use, and stays."""
+    port = tmp_path / 'fastrtps_port7012'
+    port.touch()
+    aged(port, stale_ports.STALE_AFTER + 5)
+    scan = stale_ports.open_files
+
+    def sized_meanwhile():
+        port.write_bytes(b'\0' * 64)
+        return scan()
+    monkeypatch.setattr(stale_ports, 'open_files', sized_meanwhile)
+    assert stale_ports.remove_stale_ports(tmp_path) == []
+    assert port.stat().st_size == 64
+
+
 def test_a_missing_directory_removes_nothing(tmp_path):
     assert stale_ports.remove_stale_ports(tmp_path / 'absent') == []
 

@@ -22,9 +22,13 @@ from pathlib import Path
 
 SHM_DIR = Path('/dev/shm')
 PORT_FILE = re.compile(r'fastrtps_port\d+')
-# assumed: Fast DDS sizes a port file right after creating it (microseconds apart); one still
-# empty this long after its last change was left by a process that died in between
-STALE_AFTER = 10.0          # s
+# assumed: Fast DDS sizes a port file right after creating it (microseconds apart), holding it
+# open in between. One empty this long after its last change, and open in no process when
+# looked at after that (remove_stale_ports stats first), was left by a process that died in
+# between: a live creator still holds it. Short, because a graph restarting a node it just
+# killed starts it within seconds (test_faults' contour_error, killed right after SIGCONT,
+# when Fast DDS re-creates its ports, left one that hung its restart; 10 s before 2026-12-07).
+STALE_AFTER = 1.0           # s
 
 
 def open_files(proc: Path = Path('/proc')) -> set[tuple[int, int]]:
@@ -79,6 +83,9 @@ def remove_stale_ports(directory: Path = SHM_DIR, now: float | None = None) -> l
         if key in held:
             continue
         try:
+            status = path.stat()        # still the same empty file (sized since: in use)
+            if status.st_size != 0 or (status.st_dev, status.st_ino) != key:
+                continue
             path.unlink()
         except OSError:
             continue
