@@ -27,16 +27,29 @@ def test_septic_interpolant_rejects_non_increasing_nodes():
         SepticInterpolant([0.0, 1.0, 1.0], q, q, q, q)
 
 
-@pytest.fixture(scope='module')
-def quarter_helix(micromill, micromill_kin):
+def sampled_quarter_helix(micromill, micromill_kin, feed):
+    """The quarter helix resolved, its feed optimized at `feed` and sampled."""
     path = ArcLengthPath.fit(toolpath.helix(turns=0.25))
     res = resolve(path, micromill_kin, micromill)
-    limits = FeedLimits.from_machine(micromill, 0.01)
+    limits = FeedLimits.from_machine(micromill, feed)
     idx = np.arange(0, len(res.s), 2) if (len(res.s) - 1) % 2 == 0 else np.arange(len(res.s))
     profile = optimize_feed(res.s[idx], res.dq[idx], res.ddq[idx], res.dddq[idx], limits)
     result = sample(SepticInterpolant.from_resolution(res), profile.s, profile.b, limits,
                     micromill.control_period, micromill.axis_names)
     return path, res, result
+
+
+@pytest.fixture(scope='module')
+def quarter_helix(micromill, micromill_kin):
+    return sampled_quarter_helix(micromill, micromill_kin, 0.01)
+
+
+def tool_speed(kinematics, result):
+    """The tool tip's speed over each control period, from the sent axis positions (forward
+    kinematics, not the sampler's sdot): a chord over T is at most the arc over T, the mean
+    feed over the period, never above the peak."""
+    tip, _ = kinematics.forward_many(result.reference.position)
+    return np.linalg.norm(np.diff(tip, axis=0), axis=1) / result.reference.period
 
 
 def test_sampled_positions_follow_the_path_exactly(quarter_helix, micromill_kin):
@@ -91,34 +104,22 @@ def test_velocity_reference_matches_the_position_differences(quarter_helix, micr
 
 
 def test_no_faster_than_the_process_feed_limit(quarter_helix, micromill_kin):
-    """The tool tip's speed over each control period, from the sent axis positions (forward
-    kinematics, not the sampler's sdot). A chord over T is at most the arc over T, the mean
-    feed over the period: never above the peak. The tips lie on the path within 1e-13 m, their
+    """The tool tip's speed (tool_speed). The tips lie on the path within 1e-13 m, their
     chords (<= 0.86 um) true to ~1e-8, and s is the path's arc length within 3e-10: 1e-6 holds
     them. (Here the jerk limit keeps the tip below the feed limit: peak 0.855 of it.)"""
     path, _, result = quarter_helix
     assert result.duration >= path.length / 0.01
-    tip, _ = micromill_kin.forward_many(result.reference.position)
-    speed = np.linalg.norm(np.diff(tip, axis=0), axis=1) / result.reference.period
-    assert speed.max() <= 0.01 * (1 + 1e-6)
+    assert tool_speed(micromill_kin, result).max() <= 0.01 * (1 + 1e-6)
 
 
 def test_where_the_feed_limit_binds_the_tool_keeps_it_between_the_nodes_too(micromill, micromill_kin):
     """At 4 mm/s the feed limit binds along the quarter helix (at 10 mm/s the jerk held it to
-    8.55 mm/s, the test above):
-    the tool's speed over every period, by forward kinematics of the sent positions (module
-    test above: chords never overstate it), stays within F and reaches it. Before the
+    8.55 mm/s, the test above): the tool's speed over every period (tool_speed) stays within F
+    and reaches it. Before the
     feed bound's headroom (feed_shape.py) and the sampler's feed check it read 1.031 F near
     the rest ends."""
-    path = ArcLengthPath.fit(toolpath.helix(turns=0.25))
-    res = resolve(path, micromill_kin, micromill)
-    limits = FeedLimits.from_machine(micromill, 0.004)
-    idx = np.arange(0, len(res.s), 2) if (len(res.s) - 1) % 2 == 0 else np.arange(len(res.s))
-    profile = optimize_feed(res.s[idx], res.dq[idx], res.ddq[idx], res.dddq[idx], limits)
-    result = sample(SepticInterpolant.from_resolution(res), profile.s, profile.b, limits,
-                    micromill.control_period, micromill.axis_names)
-    tip, _ = micromill_kin.forward_many(result.reference.position)
-    speed = np.linalg.norm(np.diff(tip, axis=0), axis=1) / result.reference.period
+    _, _, result = sampled_quarter_helix(micromill, micromill_kin, 0.004)
+    speed = tool_speed(micromill_kin, result)
     assert 0.999 * 0.004 <= speed.max() <= 0.004 * (1 + 1e-6)
     assert result.passes == 1 and result.feed_ratio <= 1.0 + 1e-12
 
