@@ -19,7 +19,7 @@ import pytest
 
 from machine_ctrl import contract
 from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
-from machine_ctrl.app.stale_ports import remove_stale_ports
+from machine_ctrl.app import shared_memory
 
 _ROS_VARIABLES = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS',
                   'ROS_LOCALHOST_ONLY', 'AMENT_PREFIX_PATH')
@@ -39,9 +39,9 @@ def ros_env():
     LOCALHOST and AMENT_PREFIX_PATH (default sys.prefix) into os.environ for the
     in-process nodes, and return the same environment as a dict for child processes.
     os.environ is restored and the lease released at the end of the session. Fast DDS port
-    files left empty (machine_ctrl.app.stale_ports) are removed first: this session's own
+    files left empty (machine_ctrl.app.shared_memory) are removed first: this session's own
     participants would wait on one forever."""
-    remove_stale_ports()
+    shared_memory.clean()
     if _rclpy_already_initialised():
         raise RuntimeError('rclpy was initialised before the ros_env fixture set ROS_DOMAIN_ID; '
                            'request ros_env (or rclpy_context) in every test that uses ROS')

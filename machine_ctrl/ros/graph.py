@@ -261,8 +261,7 @@ def main(argv=None) -> int:
     except SystemExit as exc:              # a node refused its parameters (one line logged)
         rclpy.try_shutdown()
         return int(exc.code or 1)
-    spin(nodes)
-    return 0
+    spin(nodes)             # ends the process
 
 
 if __name__ == '__main__':

@@ -7,6 +7,7 @@ import contextlib
 import faulthandler
 import gc
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -89,8 +90,9 @@ def spin(nodes, executor=None) -> None:
     """Spin until SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down, a supervisor) or the
     context's shutdown, then shut down cleanly: further signals ignored (for the rest of the
     process: spin is the end of a node process), executor shut down, nodes destroyed,
-    context shut down — no traceback, and the caller exits 0; a teardown that hangs is
-    reported and ended (:func:`bounded_teardown`).
+    context shut down — no traceback — and the process ends, exit 0 (:func:`end_process`:
+    spin does not return); a teardown that hangs is reported and ended
+    (:func:`bounded_teardown`).
 
     Not executor.spin(): with rclpy 7.1's EventsExecutor, spinning without a timeout never
     fires timers nor callbacks for other processes' messages. spin_until_future_complete on
@@ -143,9 +145,12 @@ def spin(nodes, executor=None) -> None:
         BUS.stop()
         with bounded_teardown():
             executor.shutdown()
+            if nodes[0].context.ok():       # not shut down from elsewhere (a node can be made)
+                keep_participant(nodes[0].context)
             for node in nodes:
                 node.destroy_node()
             rclpy.try_shutdown()
+        end_process(0)
 
 
 def log_runtime_warnings(logger) -> None:
@@ -164,6 +169,63 @@ def log_runtime_warnings(logger) -> None:
         else:
             shown(message, category, filename, lineno, file, line)
     warnings.showwarning = show
+
+
+EXIT_NODE = '_exiting_{pid}'    # hidden (leading underscore): `ros2 node list` leaves it out
+
+
+def keep_participant(context) -> Node:
+    """A node that is never destroyed, so that destroying the process's own nodes never deletes
+    its DDS participant: in Fast DDS 2.14.5 (the Jazzy wheels) deleting the participant first
+    waits for its discovery callbacks to end (DomainParticipantImpl::set_listener, no time
+    limit), and that wait, built against glibc 2.28, computes a negative deadline: its
+    pthread_cond_timedwait fails at once without releasing the mutex a callback running then
+    needs to finish, so the process spins for ever, holding the GIL (eProsima/Fast-DDS#6513;
+    seen when two graphs of ~11 processes stop at once: test_launch, run89, run107, 2026-12-07).
+    The nodes' own entities and the nodes themselves are still destroyed, and announced; the
+    participant ends with the process (:func:`end_process`), and other processes drop it when
+    its lease runs out (20 s), its endpoints already gone."""
+    return Node(EXIT_NODE.format(pid=os.getpid()), context=context, use_global_arguments=False,
+                enable_rosout=False, start_parameter_services=False,
+                parameter_overrides=[Parameter('start_type_description_service', Parameter.Type.BOOL, False)])
+
+
+SEGMENT_LOCK = re.compile(r'/dev/shm/fastrtps_[0-9a-f]{16}_el')
+
+
+def end_process(status: int):
+    """End the process now with `status`, its output flushed, without Python's or C++'s exit
+    handlers: they would delete the DDS participant that :func:`keep_participant` keeps (the
+    node's deleter, Fast DDS's DomainParticipantFactory destructor; the same wait). The
+    participant's shared-memory segment, ``/dev/shm/fastrtps_<16 hex>`` (~0.5 MB) with the
+    lock file ``<segment>_el`` this process holds for it, is removed first, as deleting the
+    participant would (readers that mapped it keep their mapping)."""
+    import ctypes
+    import logging
+    for lock in own_files(SEGMENT_LOCK):
+        for path in (lock[:-len('_el')], lock):
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    with contextlib.suppress(Exception):
+        ctypes.CDLL(None).fflush(None)          # C stdio (rcutils' console output)
+    os._exit(status)
+
+
+def own_files(pattern: re.Pattern) -> list[str]:
+    """Paths matching `pattern` that this process holds open."""
+    paths = []
+    for fd in os.listdir('/proc/self/fd'):
+        try:
+            target = os.readlink(f'/proc/self/fd/{fd}')
+        except OSError:                   # the listing's own descriptor, closed since
+            continue
+        if pattern.fullmatch(target):
+            paths.append(target)
+    return paths
 
 
 @contextlib.contextmanager
@@ -317,8 +379,7 @@ def main_for(node_class):
         except SystemExit as exc:
             rclpy.try_shutdown()
             return int(exc.code or 1)
-        spin([node])
-        return 0
+        spin([node])        # ends the process
     return main
 
 

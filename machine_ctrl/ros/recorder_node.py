@@ -67,8 +67,8 @@ from machine_ctrl.recording.bag import BagError, qos_profile
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.recording.msgdefs import DefinitionNotFound
-from machine_ctrl.ros.node_common import (DefaultExecutor, bounded_teardown, qos, report_stacks_on_signal,
-                                         wall_timer)
+from machine_ctrl.ros.node_common import (DefaultExecutor, bounded_teardown, end_process, keep_participant, qos,
+                                          report_stacks_on_signal, wall_timer)
 from machine_ctrl.ros.node_parameters import declare_parameters
 
 DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
@@ -290,8 +290,9 @@ class RecorderNode(Node):
 
 
 def run(node: RecorderNode) -> int:
-    """Spin until SIGINT/SIGTERM or the node's duration, drain, close, report; exit status
-    0, or 1 if the recording stopped early (a write failed)."""
+    """Spin until SIGINT/SIGTERM or the node's duration, drain, close, report, and end the
+    process (node_common.end_process: this does not return) with exit status 0, or 1 if the
+    recording stopped early (a write failed)."""
     executor = DefaultExecutor()
     executor.add_node(node)
     stop = Future()
@@ -311,9 +312,11 @@ def run(node: RecorderNode) -> int:
         print(node.finish(), flush=True)
         with bounded_teardown():      # the bag is closed: nothing is lost if this hangs
             executor.shutdown()
+            if node.context.ok():
+                keep_participant(node.context)
             node.destroy_node()
             rclpy.try_shutdown()
-    return 0 if node.stopped is None else 1
+    end_process(0 if node.stopped is None else 1)
 
 
 def main(args=None) -> int:

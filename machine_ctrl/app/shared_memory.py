@@ -1,5 +1,7 @@
-"""Fast DDS shared-memory ports left empty, and their removal.
+"""What Fast DDS leaves in shared memory when a process ends without deleting its participant,
+and its removal: ports left empty, and segments of participants that are gone.
 
+**Ports left empty.** 
 Fast DDS (the RMW of this project) gives each participant shared-memory ports, files
 ``/dev/shm/fastrtps_port<N>`` that it creates and then sizes and fills (boost.interprocess
 ``managed_open_or_create``). A process killed between the two steps leaves the file at 0
@@ -11,10 +13,19 @@ garbage: nothing can use it, and removing it lets the next participant create th
 afresh. A process already waiting on it stays stuck; so this runs before graphs start
 (:class:`machine_ctrl.app.processes.Supervisor`, the test session).
 
+**Segments of participants that are gone.** Each participant writes what it sends over shared
+memory into a segment of its own, ``/dev/shm/fastrtps_<16 hex digits>`` (~0.5 MB), and holds
+the lock file ``<segment>_el`` flock'ed for its life; deleting the participant removes both,
+and so does a node process that ends without deleting it (node_common.end_process). A
+process killed leaves them. A segment whose lock file no process holds, older than
+:data:`STALE_AFTER`, is garbage: :func:`remove_zombie_segments` (what Fast DDS's own
+``fastdds shm clean`` does), run where stale ports are.
+
 Standard library only; Linux (/proc).
 """
 from __future__ import annotations
 
+import fcntl
 import os
 import re
 import time
@@ -22,6 +33,7 @@ from pathlib import Path
 
 SHM_DIR = Path('/dev/shm')
 PORT_FILE = re.compile(r'fastrtps_port\d+')
+SEGMENT_LOCK = re.compile(r'fastrtps_[0-9a-f]{16}_el')
 # assumed: Fast DDS sizes a port file right after creating it (microseconds apart), holding it
 # open in between. One empty this long after its last change, and open in no process when
 # looked at after that (remove_stale_ports stats first), was left by a process that died in
@@ -91,3 +103,43 @@ def remove_stale_ports(directory: Path = SHM_DIR, now: float | None = None) -> l
             continue
         removed.append(path)
     return removed
+
+
+def remove_zombie_segments(directory: Path = SHM_DIR, now: float | None = None) -> list[Path]:
+    """Remove the participant segments of `directory` whose lock file no process holds (an
+    exclusive flock of it succeeds) and that are older than :data:`STALE_AFTER` (a creator
+    locks its new file within microseconds); returns the removed paths (segment, lock file).
+    Files of other names and held locks are left alone; an error on one file skips it."""
+    now = time.time() if now is None else now
+    try:
+        entries = [e for e in os.scandir(directory) if SEGMENT_LOCK.fullmatch(e.name)]
+    except OSError:
+        return []
+    removed = []
+    for entry in entries:
+        try:
+            if now - entry.stat().st_mtime <= STALE_AFTER:
+                continue
+            fd = os.open(entry.path, os.O_RDONLY)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)       # held: its participant lives
+        except OSError:
+            os.close(fd)
+            continue
+        try:
+            for path in (Path(directory) / entry.name[:-len('_el')], Path(entry.path)):
+                try:
+                    path.unlink()
+                except OSError:
+                    continue
+                removed.append(path)
+        finally:
+            os.close(fd)
+    return removed
+
+
+def clean(directory: Path = SHM_DIR) -> list[Path]:
+    """:func:`remove_stale_ports` and :func:`remove_zombie_segments`: the removed paths."""
+    return remove_stale_ports(directory) + remove_zombie_segments(directory)

@@ -1,10 +1,10 @@
-"""machine_ctrl.app.stale_ports: an empty Fast DDS port file that no process holds, unchanged
+"""machine_ctrl.app.shared_memory: an empty Fast DDS port file that no process holds, unchanged
 for longer than STALE_AFTER, is removed; every other file stays. Real files in a temporary
 directory, this process holding one of them open."""
 import os
 import time
 
-from machine_ctrl.app import stale_ports
+from machine_ctrl.app import shared_memory as stale_ports
 
 
 def aged(path, seconds):
@@ -64,3 +64,27 @@ def test_open_files_sees_a_file_this_process_holds(tmp_path):
     with open(path, 'rb'):
         assert (status.st_dev, status.st_ino) in stale_ports.open_files()
     assert (status.st_dev, status.st_ino) not in stale_ports.open_files()
+
+
+def test_only_old_participant_segments_whose_lock_no_process_holds_are_removed(tmp_path):
+    import fcntl
+    old = stale_ports.STALE_AFTER + 5
+    gone = tmp_path / 'fastrtps_0123456789abcdef'
+    alive = tmp_path / 'fastrtps_fedcba9876543210'
+    young = tmp_path / 'fastrtps_00112233445566ff'
+    for segment in (gone, alive, young):
+        segment.write_bytes(b'\0' * 64)
+        aged(segment, old)
+        lock = segment.with_name(segment.name + '_el')
+        lock.touch()
+        aged(lock, old if segment != young else 0)
+    others = [tmp_path / 'fastrtps_port7004_el', tmp_path / 'fastrtps_0123_el']     # a port's, a short name
+    for path in others:
+        path.touch()
+        aged(path, old)
+    with open(alive.with_name(alive.name + '_el'), 'rb') as held:
+        fcntl.flock(held, fcntl.LOCK_EX)                  # as its participant does for its life
+        removed = stale_ports.remove_zombie_segments(tmp_path)
+    assert sorted(removed) == sorted([gone, gone.with_name(gone.name + '_el')])
+    assert not gone.exists() and alive.exists() and young.exists()
+    assert all(path.exists() for path in others)
