@@ -19,7 +19,7 @@ import pytest
 
 from machine_ctrl import contract
 from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
-from machine_ctrl.app import shared_memory
+from machine_ctrl import shared_memory
 
 _ROS_VARIABLES = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS',
                   'ROS_LOCALHOST_ONLY', 'AMENT_PREFIX_PATH')
@@ -39,7 +39,7 @@ def ros_env():
     LOCALHOST and AMENT_PREFIX_PATH (default sys.prefix) into os.environ for the
     in-process nodes, and return the same environment as a dict for child processes.
     os.environ is restored and the lease released at the end of the session. Fast DDS port
-    files left empty (machine_ctrl.app.shared_memory) are removed first: this session's own
+    files left empty (machine_ctrl.shared_memory) are removed first: this session's own
     participants would wait on one forever."""
     shared_memory.clean()
     if _rclpy_already_initialised():

@@ -16,11 +16,12 @@ from machine_ctrl.app.processes import Supervisor
 NODE = '''
 import rclpy
 from std_msgs.msg import String
+from machine_ctrl import shared_memory
 from machine_ctrl.ros import node_common
 node_common.init([])
 node = rclpy.create_node("ends_on_sigint")
 pub = node.create_publisher(String, "/ends_on_sigint", 10)
-locks = node_common.own_files(node_common.SEGMENT_LOCK)
+locks = shared_memory.own_segment_locks()
 print("segment lock", *locks, flush=True)
 print("ready", flush=True)
 node_common.spin([node])
@@ -55,6 +56,6 @@ def test_a_node_process_ends_on_sigint_with_exit_0_its_endpoints_gone_its_segmen
     # the publisher's end announced (not left to the participant's 20 s lease, which cannot be
     # told apart here: only that it goes)
     wait_until(lambda: listener.count_publishers('/ends_on_sigint') == 0, 'the publisher gone')
-    assert ('ends_on_sigint', '/') not in listener.get_node_names_and_namespaces()
+    wait_until(lambda: ('ends_on_sigint', '/') not in listener.get_node_names_and_namespaces(), 'the node gone')
     # its segment and lock file removed by the process itself, as deleting its participant would
     assert not lock.exists() and not lock.with_name(lock.name[:-len('_el')]).exists()

@@ -25,7 +25,7 @@ import yaml
 
 from machine_ctrl import parameters
 from machine_ctrl.app.processes import Supervisor
-from machine_ctrl.app.shared_memory import empty_ports, remove_stale_ports
+from machine_ctrl.shared_memory import empty_ports, remove_stale_ports
 from machine_ctrl.model.config import load_machine
 from ros_fixtures import without_fastdds_log
 
@@ -49,7 +49,7 @@ def ros2(env, *args, timeout=WAIT + 30) -> subprocess.CompletedProcess:
     fails with that and the empty Fast DDS port files of the moment (machine_ctrl.app.
     shared_memory): `ros2 param set` waits for its answer without a limit. Empty port files left
     by killed processes are removed first, as a Supervisor does before it starts a node: a
-    participant that opens one waits forever (machine_ctrl.app.shared_memory; the suite kills
+    participant that opens one waits forever (machine_ctrl.shared_memory; the suite kills
     many nodes).
 
     One kind of hang is retried once, as its user would: the call sent its request and waits

@@ -139,12 +139,12 @@ def test_the_sampler_slows_a_profile_over_the_feed_limit_down_to_it():
         sample(line, feed_s, np.full(11, 0.01 ** 2), limits, 1e-4, ('x',), max_passes=1)
 
 
-def fake_sampling(s, ratios):
+def fake_sampling(s, ratios, feed_ratios=None):
     from machine_ctrl.model.reference import Reference
     from trajectory.sampling import Sampling
     ref = Reference(('x',), 1e-4, np.zeros((len(s), 1)), np.zeros((len(s), 1)), np.zeros((len(s), 1)))
     return Sampling(ref, np.asarray(s, float), np.zeros(len(s)), 1.0, 1, np.zeros((1, 3)),
-                    np.asarray(ratios, float))
+                    np.asarray(ratios, float), feed_ratios)
 
 
 def test_limit_scales_lower_the_exceeded_limit_at_the_nodes_of_its_span_only():
@@ -164,6 +164,26 @@ def test_limit_scales_lower_the_exceeded_limit_at_the_nodes_of_its_span_only():
     assert np.all(limit_scales(fake_sampling(s, np.full((4001, 3), 0.9)), feed_s, margin=0.99) == 1.0)
     sampling = fake_sampling(s, ratios)
     assert sampling.need.max() == pytest.approx(2.0 ** (2 / 3))     # j ~ b^(3/2)
+
+
+def test_a_feed_at_its_limit_is_no_overshoot_only_a_feed_over_it_is():
+    """A cruise at the feed limit (sdot / F = 0.9999, exact) with a jerk overshoot in one span:
+    only the jerk's nodes are asked; where the feed is over F (1.05), the velocity factor is
+    asked there, margin / 1.05 (it scales F in the re-solve)."""
+    from trajectory.sampling import limit_scales
+    feed_s = np.linspace(0.0, 20e-3, 201)
+    s = np.linspace(0.0, 20e-3, 4001)
+    ratios = np.full((4001, 3), 0.5)
+    ratios[(s > 5.02e-3) & (s < 5.08e-3), 2] = 2.0       # jerk, between nodes 50 and 51
+    feed = np.full(4001, 0.9999)
+    want = np.ones((201, 3))
+    want[49:53, 2] = 0.99 / 2.0
+    assert np.allclose(limit_scales(fake_sampling(s, ratios, feed), feed_s, margin=0.99), want, rtol=1e-12, atol=0)
+    feed[(s > 10.01e-3) & (s < 10.02e-3)] = 1.05         # over F, between nodes 100 and 101
+    want[99:103, 0] = 0.99 / 1.05
+    assert np.allclose(limit_scales(fake_sampling(s, ratios, feed), feed_s, margin=0.99), want, rtol=1e-12, atol=0)
+    assert fake_sampling(s, ratios, feed).need.max() == pytest.approx(2.0 ** (2 / 3))     # jerk still the worst
+    assert fake_sampling(s, ratios, feed).peak == pytest.approx(1.05)
 
 
 def straight_line(length=1e-3, nodes=11):

@@ -1,10 +1,12 @@
-"""machine_ctrl.app.shared_memory: an empty Fast DDS port file that no process holds, unchanged
-for longer than STALE_AFTER, is removed; every other file stays. Real files in a temporary
-directory, this process holding one of them open."""
+"""machine_ctrl.shared_memory: an empty Fast DDS port file, and a participant segment whose lock
+file no process holds, unchanged for longer than STALE_AFTER, are removed; every other file
+stays. Real files in a temporary directory, this process holding some of them open. The
+cleanups are called at the young files' own time (`now`), so that a slow machine does not
+age them."""
 import os
 import time
 
-from machine_ctrl.app import shared_memory as stale_ports
+from machine_ctrl import shared_memory
 
 
 def aged(path, seconds):
@@ -14,7 +16,7 @@ def aged(path, seconds):
 
 
 def test_only_empty_old_unheld_port_files_are_removed(tmp_path):
-    old = stale_ports.STALE_AFTER + 5
+    old = shared_memory.STALE_AFTER + 5
     stale = tmp_path / 'fastrtps_port7004'
     stale.touch()
     aged(stale, old)
@@ -31,7 +33,7 @@ def test_only_empty_old_unheld_port_files_are_removed(tmp_path):
     for name in ('sized', 'other name', 'mutex', 'held'):
         aged(files[name], old)
     with open(files['held'], 'rb'):
-        removed = stale_ports.remove_stale_ports(tmp_path)
+        removed = shared_memory.remove_stale_ports(tmp_path, now=files['young'].stat().st_mtime)
     assert removed == [stale]
     assert not stale.exists()
     assert all(path.exists() for path in files.values())
@@ -42,19 +44,19 @@ def test_a_port_sized_while_the_processes_are_looked_at_stays(tmp_path, monkeypa
     files were looked at (its fd closed by then): the port is in use, and stays."""
     port = tmp_path / 'fastrtps_port7012'
     port.touch()
-    aged(port, stale_ports.STALE_AFTER + 5)
-    scan = stale_ports.open_files
+    aged(port, shared_memory.STALE_AFTER + 5)
+    scan = shared_memory.open_files
 
     def sized_meanwhile():
         port.write_bytes(b'\0' * 64)
         return scan()
-    monkeypatch.setattr(stale_ports, 'open_files', sized_meanwhile)
-    assert stale_ports.remove_stale_ports(tmp_path) == []
+    monkeypatch.setattr(shared_memory, 'open_files', sized_meanwhile)
+    assert shared_memory.remove_stale_ports(tmp_path) == []
     assert port.stat().st_size == 64
 
 
 def test_a_missing_directory_removes_nothing(tmp_path):
-    assert stale_ports.remove_stale_ports(tmp_path / 'absent') == []
+    assert shared_memory.remove_stale_ports(tmp_path / 'absent') == []
 
 
 def test_open_files_sees_a_file_this_process_holds(tmp_path):
@@ -62,13 +64,13 @@ def test_open_files_sees_a_file_this_process_holds(tmp_path):
     path.touch()
     status = path.stat()
     with open(path, 'rb'):
-        assert (status.st_dev, status.st_ino) in stale_ports.open_files()
-    assert (status.st_dev, status.st_ino) not in stale_ports.open_files()
+        assert (status.st_dev, status.st_ino) in shared_memory.open_files()
+    assert (status.st_dev, status.st_ino) not in shared_memory.open_files()
 
 
 def test_only_old_participant_segments_whose_lock_no_process_holds_are_removed(tmp_path):
     import fcntl
-    old = stale_ports.STALE_AFTER + 5
+    old = shared_memory.STALE_AFTER + 5
     gone = tmp_path / 'fastrtps_0123456789abcdef'
     alive = tmp_path / 'fastrtps_fedcba9876543210'
     young = tmp_path / 'fastrtps_00112233445566ff'
@@ -84,7 +86,7 @@ def test_only_old_participant_segments_whose_lock_no_process_holds_are_removed(t
         aged(path, old)
     with open(alive.with_name(alive.name + '_el'), 'rb') as held:
         fcntl.flock(held, fcntl.LOCK_EX)                  # as its participant does for its life
-        removed = stale_ports.remove_zombie_segments(tmp_path)
+        removed = shared_memory.remove_zombie_segments(tmp_path, now=young.with_name(young.name + '_el').stat().st_mtime)
     assert sorted(removed) == sorted([gone, gone.with_name(gone.name + '_el')])
     assert not gone.exists() and alive.exists() and young.exists()
     assert all(path.exists() for path in others)

@@ -111,11 +111,6 @@ def jerks(b: np.ndarray, dq, ddq, dddq, ds: float) -> np.ndarray:
                                            + 0.5 * dq[1:-1] * (d2 @ b)[:, None])
 
 
-def accelerations(b: np.ndarray, dq, ddq, ds: float) -> np.ndarray:
-    d1, _ = _difference_operators(len(b), ds)
-    return ddq[1:-1] * b[1:-1, None] + 0.5 * dq[1:-1] * (d1 @ b)[:, None]
-
-
 def _rest_envelope(s, dq, jerk) -> np.ndarray:
     """Upper bound on b from starting and ending at rest with bounded tangential jerk."""
     def envelope(distance, slope):

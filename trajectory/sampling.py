@@ -40,8 +40,8 @@ sdot(s) = sqrt(b(s)), b the feed profile:
 with three rest samples on either side (the machine holds before and after), are
 differenced at the control period (velocity, acceleration, jerk) by `sample_profile`, and
 the tool's feed sdot (exact: s is the tool's arc length) is held against the process feed
-limit F as one more velocity (the velocity column of the ratios; the factor a re-solve puts
-on the velocity limits it puts on F too). The feed bound's headroom (feed_shape.py) keeps
+limit F as one more velocity (where over F, a re-solve asks its velocity factor for it,
+which scales F too). The feed bound's headroom (feed_shape.py) keeps
 b within F^2 between the nodes, so this check does not slow a plan down; without both, every
 feed-limited micromill plan ran 10 % over F near its rest ends. Where a sample exceeds its
 limit, the profile is slowed down and sampled again: one loop,
@@ -54,7 +54,7 @@ F = 1 m/s with the jerk limit binding along the whole path, made new violations 
 pass (8 passes did not converge; a global stretch by 0.86 then cost 22 %).
 :func:`global_stretch` scales b by the exact factor of a time stretch (v ~ c^(1/2), a ~ c,
 j ~ c^(3/2)) — :func:`sample`, the fallback, which resamples until every axis is within
-`tolerance` x its limit, at most `max_passes` times.
+`tolerance` x its limit (and the feed within `tolerance` x F), at most `max_passes` times.
 """
 from __future__ import annotations
 
@@ -329,8 +329,13 @@ class Sampling:
     feed_scale: float            # final global factor on b (1: the profile as given)
     passes: int                  # sampling passes made (1 + rescalings)
     peak_ratios: np.ndarray      # (axes, 3) finite-difference peak |v|, |a|, |j| / limit
-    ratios: np.ndarray           # (K+1, 3) per sample: worst |v| (or sdot / F), |a|, |j| / limit over the axes
-    feed_ratio: float = 0.0      # peak sdot / the process feed limit F (0: limits without a feed)
+    ratios: np.ndarray           # (K+1, 3) per sample: worst |v|, |a|, |j| / limit over the axes
+    feed_ratios: np.ndarray | None = None   # (K+1,) sdot / the process feed limit F (None: no F)
+
+    @property
+    def feed_ratio(self) -> float:
+        """Peak sdot / F (0 without a feed limit)."""
+        return 0.0 if self.feed_ratios is None else float(np.max(self.feed_ratios))
 
     @property
     def duration(self) -> float:
@@ -343,9 +348,18 @@ class Sampling:
 
     @property
     def need(self) -> np.ndarray:
-        """(K+1,) per sample: the factor on b a time stretch would need (v ~ b^1/2, a ~ b,
-        j ~ b^3/2)."""
-        return np.max(self.ratios ** np.array([2.0, 1.0, 2.0 / 3.0]), axis=1)
+        """(K+1,) per sample: the factor on b a time stretch would need (v and the feed ~
+        b^1/2, a ~ b, j ~ b^3/2)."""
+        need = np.max(self.ratios ** np.array([2.0, 1.0, 2.0 / 3.0]), axis=1)
+        return need if self.feed_ratios is None else np.maximum(need, self.feed_ratios ** 2)
+
+    def velocity_asks(self) -> np.ndarray:
+        """(K+1,) per sample: the velocity ratio a re-solve answers (:func:`limit_scales`): the
+        axes', or sdot / F where the feed is over its limit (exact, not a finite difference:
+        a feed at its limit along a whole cruise is no overshoot to pull down)."""
+        if self.feed_ratios is None:
+            return self.ratios[:, 0]
+        return np.where(self.feed_ratios > 1.0, np.maximum(self.ratios[:, 0], self.feed_ratios), self.ratios[:, 0])
 
 
 def _limit_arrays(limits):
@@ -379,13 +393,10 @@ def sample_profile(interpolant: SepticInterpolant, feed_s, feed_b, limits, perio
     s = d + interpolant.s[0]
     q, dq, ddq = interpolant.evaluate_orders(s, (0, 1, 2))
     peaks, per_sample = _ratios(q, period, *_limit_arrays(limits))
-    feed = getattr(limits, 'feed', None)
-    feed_ratio = float(np.max(sdot) / feed) if feed else 0.0
-    if feed:        # s is the tool's arc length: sdot its speed, the exact feed of the time law
-        np.maximum(per_sample[:, 0], sdot / feed, out=per_sample[:, 0])
+    feed = getattr(limits, 'feed', None)       # s is the tool's arc length: sdot its exact speed
     reference = Reference(tuple(axis_names), period, q, dq * sdot[:, None],
                           ddq * sdot[:, None] ** 2 + dq * sddot[:, None])
-    return Sampling(reference, s, sdot, scale / stretch**2, 1, peaks, per_sample, feed_ratio)
+    return Sampling(reference, s, sdot, scale / stretch**2, 1, peaks, per_sample, sdot / feed if feed else None)
 
 
 class LimitsExceeded(ValueError):
@@ -440,12 +451,13 @@ def limit_scales(result: Sampling, feed_s, margin: float = TIGHTEN_MARGIN) -> np
     feed_s = np.asarray(feed_s, float)
     n, last = len(feed_s), len(result.s) - 1
     scales = np.ones((n, 3))
-    near = np.flatnonzero(np.max(result.ratios, axis=1) > margin)
+    ratios = np.column_stack((result.velocity_asks(), result.ratios[:, 1:]))
+    near = np.flatnonzero(np.max(ratios, axis=1) > margin)
 
     def span(k: np.ndarray) -> np.ndarray:          # the feed interval of samples k
         return np.clip(np.searchsorted(feed_s, result.s[np.clip(k, 0, last)], side='right') - 1, 0, n - 2)
     first, end = np.maximum(span(near - 1) - 1, 0), np.minimum(span(near + 2) + 2, n - 1)
-    ask = np.minimum(margin / result.ratios[near], 1.0)
+    ask = np.minimum(margin / ratios[near], 1.0)
     for offset in range(int(np.max(end - first, initial=0)) + 1):
         inside = first + offset <= end
         np.minimum.at(scales, first[inside] + offset, ask[inside])

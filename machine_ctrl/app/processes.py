@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import IO, Mapping, Sequence
 
 from machine_ctrl import contract
-from machine_ctrl.app import shared_memory
+from machine_ctrl import shared_memory
 
 DEFAULT_STOP_TIMEOUT = 5.0   # s to wait after SIGINT and again after SIGTERM
 KILL_TIMEOUT = 2.0           # s to wait for the group to vanish after SIGKILL
@@ -171,12 +171,11 @@ class Supervisor:
               extra_env: Mapping[str, str] | None = None) -> Child:
         """Start ``argv`` as child ``name`` in a new process group; returns at once (use
         :meth:`wait_for_line` to wait for readiness). A name can be reused once its
-        previous child has been stopped. Fast DDS port files left empty are removed first
-        (machine_ctrl.app.shared_memory: a child picking one would never start), and the
-        shared-memory segments of participants that are gone."""
-        for path in shared_memory.remove_stale_ports():
-            print(f'supervisor: removed {path}, a Fast DDS port left empty by a process that died', file=sys.stderr)
-        shared_memory.remove_zombie_segments()
+        previous child has been stopped. Fast DDS port files left empty (a child picking one
+        would never start) and the segments of participants that are gone are removed first
+        (machine_ctrl.shared_memory)."""
+        for path in shared_memory.clean():
+            print(f'supervisor: removed {path}, left by a Fast DDS participant that died', file=sys.stderr)
         with self._lock:
             old = self.children.get(name)
             if old is not None and (old.running() or not old.stopping):

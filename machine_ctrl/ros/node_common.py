@@ -7,7 +7,6 @@ import contextlib
 import faulthandler
 import gc
 import os
-import re
 import shutil
 import signal
 import subprocess
@@ -25,7 +24,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from machine_ctrl import contract
+from machine_ctrl import contract, shared_memory
 from machine_ctrl.control.stepping import StepAnswerer
 from machine_ctrl.diagnostics import Rejections
 from machine_ctrl.recording.cdr import ChunkDecoder, JointStateDecoder
@@ -143,14 +142,8 @@ def spin(nodes, executor=None) -> None:
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
         BUS.stop()
-        with bounded_teardown():
-            executor.shutdown()
-            if nodes[0].context.ok():       # not shut down from elsewhere (a node can be made)
-                keep_participant(nodes[0].context)
-            for node in nodes:
-                node.destroy_node()
-            rclpy.try_shutdown()
-        end_process(0)
+        teardown(executor, nodes)
+    end_process(0)          # only after a stop; an exception out of the loop goes on (its traceback)
 
 
 def log_runtime_warnings(logger) -> None:
@@ -190,22 +183,15 @@ def keep_participant(context) -> Node:
                 parameter_overrides=[Parameter('start_type_description_service', Parameter.Type.BOOL, False)])
 
 
-SEGMENT_LOCK = re.compile(r'/dev/shm/fastrtps_[0-9a-f]{16}_el')
-
-
 def end_process(status: int):
     """End the process now with `status`, its output flushed, without Python's or C++'s exit
     handlers: they would delete the DDS participant that :func:`keep_participant` keeps (the
-    node's deleter, Fast DDS's DomainParticipantFactory destructor; the same wait). The
-    participant's shared-memory segment, ``/dev/shm/fastrtps_<16 hex>`` (~0.5 MB) with the
-    lock file ``<segment>_el`` this process holds for it, is removed first, as deleting the
-    participant would (readers that mapped it keep their mapping)."""
+    node's deleter, Fast DDS's DomainParticipantFactory destructor; the same wait). Its
+    shared-memory segment (~0.5 MB) is removed first, as deleting the participant would
+    (machine_ctrl.shared_memory.remove_own_segments)."""
     import ctypes
     import logging
-    for lock in own_files(SEGMENT_LOCK):
-        for path in (lock[:-len('_el')], lock):
-            with contextlib.suppress(OSError):
-                os.unlink(path)
+    shared_memory.remove_own_segments()
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
@@ -215,17 +201,17 @@ def end_process(status: int):
     os._exit(status)
 
 
-def own_files(pattern: re.Pattern) -> list[str]:
-    """Paths matching `pattern` that this process holds open."""
-    paths = []
-    for fd in os.listdir('/proc/self/fd'):
-        try:
-            target = os.readlink(f'/proc/self/fd/{fd}')
-        except OSError:                   # the listing's own descriptor, closed since
-            continue
-        if pattern.fullmatch(target):
-            paths.append(target)
-    return paths
+def teardown(executor, nodes) -> None:
+    """The end of a node process but its exit (:func:`end_process`): the executor shut down,
+    a node kept (:func:`keep_participant`), the process's nodes destroyed, the context shut
+    down; bounded (:func:`bounded_teardown`)."""
+    with bounded_teardown():
+        executor.shutdown()
+        if nodes[0].context.ok():           # not shut down from elsewhere (a node can be made)
+            keep_participant(nodes[0].context)
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
 
 
 @contextlib.contextmanager

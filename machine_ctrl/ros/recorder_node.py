@@ -67,8 +67,8 @@ from machine_ctrl.recording.bag import BagError, qos_profile
 from machine_ctrl.model.config import load_machine
 from machine_ctrl.model.errors import ConfigError
 from machine_ctrl.recording.msgdefs import DefinitionNotFound
-from machine_ctrl.ros.node_common import (DefaultExecutor, bounded_teardown, end_process, keep_participant, qos,
-                                          report_stacks_on_signal, wall_timer)
+from machine_ctrl.ros.node_common import (DefaultExecutor, end_process, qos, report_stacks_on_signal, teardown,
+                                          wall_timer)
 from machine_ctrl.ros.node_parameters import declare_parameters
 
 DRAIN_QUIET = 0.5      # s without a message that ends the drain at stop
@@ -310,12 +310,7 @@ def run(node: RecorderNode) -> int:
             executor.spin_until_future_complete(Future(), timeout_sec=0.05)
     finally:
         print(node.finish(), flush=True)
-        with bounded_teardown():      # the bag is closed: nothing is lost if this hangs
-            executor.shutdown()
-            if node.context.ok():
-                keep_participant(node.context)
-            node.destroy_node()
-            rclpy.try_shutdown()
+        teardown(executor, [node])    # the bag is closed: nothing is lost if this hangs
     end_process(0 if node.stopped is None else 1)
 
 

@@ -106,37 +106,74 @@ def remove_stale_ports(directory: Path = SHM_DIR, now: float | None = None) -> l
 
 
 def remove_zombie_segments(directory: Path = SHM_DIR, now: float | None = None) -> list[Path]:
-    """Remove the participant segments of `directory` whose lock file no process holds (an
-    exclusive flock of it succeeds) and that are older than :data:`STALE_AFTER` (a creator
-    locks its new file within microseconds); returns the removed paths (segment, lock file).
-    Files of other names and held locks are left alone; an error on one file skips it."""
+    """Remove the participant segments of `directory` whose lock file is older than
+    :data:`STALE_AFTER`, open in no process this one can see, and locked by none (an exclusive
+    flock of it succeeds: also for processes whose files cannot be seen); returns the removed
+    paths (segment, lock file). A creator holds its new lock file open from the moment it
+    makes it. Files of other names, young, open or locked ones are left alone; an error on
+    one file skips it."""
     now = time.time() if now is None else now
     try:
-        entries = [e for e in os.scandir(directory) if SEGMENT_LOCK.fullmatch(e.name)]
+        candidates = [(Path(e.path), e.stat()) for e in os.scandir(directory) if SEGMENT_LOCK.fullmatch(e.name)]
     except OSError:
         return []
+    candidates = [(path, status) for path, status in candidates if now - status.st_mtime > STALE_AFTER]
+    if not candidates:
+        return []
+    held = open_files()
     removed = []
-    for entry in entries:
+    for lock, status in candidates:
+        if (status.st_dev, status.st_ino) in held:
+            continue
         try:
-            if now - entry.stat().st_mtime <= STALE_AFTER:
-                continue
-            fd = os.open(entry.path, os.O_RDONLY)
+            fd = os.open(lock, os.O_RDONLY)
         except OSError:
             continue
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)       # held: its participant lives
-        except OSError:
-            os.close(fd)
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            removed += _unlink((segment_of(lock), lock))
+        except OSError:                    # locked: its participant lives
             continue
-        try:
-            for path in (Path(directory) / entry.name[:-len('_el')], Path(entry.path)):
-                try:
-                    path.unlink()
-                except OSError:
-                    continue
-                removed.append(path)
         finally:
             os.close(fd)
+    return removed
+
+
+def segment_of(lock) -> Path:
+    """The segment of the lock file ``<segment>_el``."""
+    lock = Path(lock)
+    return lock.with_name(lock.name[:-len('_el')])
+
+
+def own_segment_locks() -> list[Path]:
+    """The segment lock files this process holds open: its participants'."""
+    own = []
+    for fd in os.listdir('/proc/self/fd'):
+        try:
+            target = Path(os.readlink(f'/proc/self/fd/{fd}'))
+        except OSError:                    # the listing's own descriptor, closed since
+            continue
+        if target.parent == SHM_DIR and SEGMENT_LOCK.fullmatch(target.name):
+            own.append(target)
+    return own
+
+
+def remove_own_segments() -> list[Path]:
+    """Remove this process's participants' segments with their lock files: what deleting the
+    participants would remove (node_common.end_process, which ends the process without
+    deleting them). Readers that mapped a segment keep their mapping."""
+    return _unlink([path for lock in own_segment_locks() for path in (segment_of(lock), lock)])
+
+
+def _unlink(paths) -> list[Path]:
+    """The paths removed (an error on one skips it)."""
+    removed = []
+    for path in paths:
+        try:
+            path.unlink()
+        except OSError:
+            continue
+        removed.append(path)
     return removed
 
 
