@@ -14,12 +14,12 @@ import contextlib
 import io
 import os
 import sys
+import time
 
 import pytest
 
-from machine_ctrl import contract
+from machine_ctrl import contract, shared_memory
 from machine_ctrl.app.processes import Supervisor, isolated_ros_env, reserve_ros_domain
-from machine_ctrl import shared_memory
 
 _ROS_VARIABLES = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS',
                   'ROS_LOCALHOST_ONLY', 'AMENT_PREFIX_PATH')
@@ -184,3 +184,13 @@ FASTDDS_LOG = '\x1b['
 def without_fastdds_log(text: str) -> str:
     """`ros2 topic echo`'s output without Fast DDS's log lines."""
     return ''.join(line for line in text.splitlines(keepends=True) if not line.startswith(FASTDDS_LOG))
+
+
+def wait_until(condition, what: str, timeout: float = 300.0) -> None:
+    """Poll `condition` until it holds; the timeout only bounds a failure (a planner process
+    may first load, or after a change to its source compile, its numba kernel: seconds to a
+    minute on a loaded machine)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f'no {what} within {timeout} s'
+        time.sleep(0.01)

@@ -4,12 +4,12 @@ spin for ever), its entities still destroyed and announced, its output flushed, 
 shared-memory segment removed. A real node process (ros_env: own domain)."""
 import signal
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from machine_ctrl.app.processes import Supervisor
+from ros_fixtures import wait_until
 
 # A node process (node_common's init and spin) with a publisher; it names the lock file of
 # its participant's shared-memory segment (the one it holds open) and says 'ready'.
@@ -32,13 +32,6 @@ node_common.spin([node])
 def sup(ros_env, tmp_path):
     with Supervisor(log_dir=tmp_path / 'logs', stop_timeout=30.0) as supervisor:
         yield supervisor
-
-
-def wait_until(predicate, what: str, limit: float = 120.0) -> None:
-    deadline = time.monotonic() + limit          # bounds a failure only
-    while not predicate():
-        assert time.monotonic() < deadline, f'{what}: not within {limit} s'
-        time.sleep(0.02)
 
 
 def test_a_node_process_ends_on_sigint_with_exit_0_its_endpoints_gone_its_segment_cleaned(sup, ros_node):

@@ -23,7 +23,7 @@ from machine_ctrl.app.client import MachineClient
 from machine_ctrl.ros.graph import default_graph, single_process_argv
 from machine_ctrl.model.kinematics import Kinematics
 from machine_ctrl.app.processes import Supervisor
-from ros_fixtures import private_context
+from ros_fixtures import private_context, wait_until
 from trajectory import moves, toolpath
 
 START = [1e-3, -0.5e-3, 0.2e-3, 0, 0, 0, 0, 0, 0]      # hw_sim's initial position, away from home
@@ -444,15 +444,6 @@ def started_then_sleeping(flag: str) -> None:
     """A "plan" for the planner process that says it began, then outlasts any test."""
     Path(flag).touch()
     time.sleep(3600.0)
-
-
-def wait_until(condition, what: str, timeout: float = 300.0) -> None:
-    """Poll `condition` (the planner process may first load, or after a change to its
-    source compile, its numba kernel: seconds to a minute on a loaded machine)."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f'no {what} within {timeout} s'
-        time.sleep(0.01)
 
 
 @pytest.fixture

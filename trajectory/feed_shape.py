@@ -6,6 +6,8 @@ is the factor on its feed bound that keeps b(s) within it between the nodes too.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from trajectory.blocks import BLOCK, in_blocks
@@ -92,21 +94,30 @@ def feed_headroom(s) -> np.ndarray:
     1.0003 at 1 mm, 1 from 6 mm on.
     A node's factor is 1 / the largest r over the four intervals its control point weighs
     on; then for any b[j] <= F^2 factor[j], b(s) <= F^2 r(s) / max r <= F^2. r between
-    nodes is sampled (HEADROOM_POINTS). End nodes (at rest, b = 0): 0."""
+    nodes is sampled (HEADROOM_POINTS). End nodes (at rest, b = 0): 0. It depends on the
+    grid's length and node count only: computed once per grid (the re-solves of a plan ask
+    again), a read-only array."""
     s = np.asarray(s, float)
-    d = s - s[0]
-    ones = np.ones(len(d))
-    spline = profile_spline(d, ones)
+    return _headroom(float(s[-1] - s[0]), len(s))
+
+
+@functools.lru_cache(maxsize=8)
+def _headroom(length: float, nodes: int) -> np.ndarray:
+    d = np.linspace(0.0, length, nodes)
+    spline = profile_spline(d, np.ones(nodes))
+
     def rise(intervals, points):
-        x = np.minimum((intervals[:, None] + np.linspace(0.0, 1.0, points + 1)) * spline.h, d[-1])
-        return np.max(rest_shape(x, d[-1]) * spline(x), axis=1)
-    count = len(d) - 1
-    ends = np.unique(np.clip([0, 1, count - 2, count - 1], 0, count - 1))
-    r = rise(np.arange(count), HEADROOM_POINTS)                        # per interval
-    r[ends] = rise(ends, HEADROOM_POINTS_AT_THE_ENDS)
+        x = np.minimum((intervals[:, None] + np.linspace(0.0, 1.0, points + 1)) * spline.h, length)
+        return np.max(rest_shape(x, length) * spline(x), axis=1)
+    count = nodes - 1
+    at_ends = np.isin(np.arange(count), [0, 1, count - 2, count - 1])
+    r = np.empty(count)                                                 # per interval
+    r[~at_ends] = rise(np.flatnonzero(~at_ends), HEADROOM_POINTS)
+    r[at_ends] = rise(np.flatnonzero(at_ends), HEADROOM_POINTS_AT_THE_ENDS)
     # node j's control point weighs on intervals j-2 .. j+1 (those that exist)
     padded = np.concatenate(([0.0, 0.0], r, [0.0, 0.0]))
     worst = np.max([padded[k:k + len(d)] for k in range(4)], axis=0)
     headroom = np.divide(1.0, worst, out=np.zeros_like(worst), where=worst > 0)
     headroom[0] = headroom[-1] = 0.0
+    headroom.flags.writeable = False
     return headroom
