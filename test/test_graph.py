@@ -264,24 +264,32 @@ def test_dual_stage_switches_off_and_on_at_runtime(micromill, ros_node, ros_supe
             ros_supervisor.check()
 
     def switch(on):
-        """Returns the first step not held when the switch answered: it acts on no step before."""
+        """Returns the first steps not held when the switch was asked and when it answered: it
+        acts on no step before the first, every row computed after the second sees it."""
         assert client.wait_for_service(timeout_sec=30)
+        asked = held()
         future = client.call_async(SetBool.Request(data=on))
         spin_until(future.done)
         assert future.result().success
-        return held()
+        return asked, held()
 
-    def first_zero(since):
-        return next((k for k in range(since, held()) if not any(offsets[k])), None)
+    def zeros_from(since):
+        """The step after the last row with a non-zero offset in [since, held()): a row can be
+        zero by chance (at rest): the switch acted after the last non-zero row."""
+        return max((k + 1 for k in range(since, held()) if any(offsets[k])), default=since)
 
     try:
         spin_until(lambda: held() > 300)
         assert any(v != 0.0 for k in range(300) for v in offsets[k])          # coupling works
-        off = switch(False)
+        _, off = switch(False)
         # off: from one step on, every offset is exactly zero (300 steps, then until switched on)
-        spin_until(lambda: first_zero(off) is not None and held() > first_zero(off) + 300)
-        zero = first_zero(off)
-        on = switch(True)
+        spin_until(lambda: held() > zeros_from(off) + 300)
+        zero = zeros_from(off)
+        # it acts on the next row computed: only the rows already under way when it answered
+        # come before it (hw_sim runs at most WINDOW + 1 steps ahead of this reader; +2 for the
+        # pipeline from the state to the offsets)
+        assert zero <= off + ProgressReporter.WINDOW + 3, (off, zero)
+        on, _ = switch(True)
         assert all(v == 0.0 for k in range(zero, on) for v in offsets[k]), (zero, on)
         spin_until(lambda: any(v != 0.0 for k in range(on, held()) for v in offsets[k]))     # on again
     finally:
