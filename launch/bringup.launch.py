@@ -26,12 +26,12 @@ Arguments (``name:=value``):
 * ``robot_state_publisher`` — ``true`` starts robot_state_publisher (TF for RViz) when it is
   installed (ROS from apt; not on PyPI); default false.
 * ``respawn`` — ``true`` (default): a controller node that dies (servo, dual_stage, trajectory,
-  compensation, contour_error; an exit status other than 0) is started again once its death
-  has certainly been detected, + ``RESPAWN_MARGIN`` s: the longer of hw_sim's
-  ``command_timeout`` and the liveliness lease with its confirmation (7.5 s by default, so
-  8.5 s with the margin; a
-  ``params_file``'s ``command_timeout`` is not read here), at most ``RESPAWN_MAX`` times; a node that exits 0 was asked to stop. hw_sim (the machine: its state would be lost) and the recorder (its
-  bag directory is not empty any more) are not respawned. A dead servo or dual_stage node
+  compensation, contour_error; an exit status other than 0) is started again as
+  ``machine-ctrl bringup`` does (machine_ctrl.app.bringup: ``respawn_delay``, 8.5 s after its
+  death by default; a ``params_file``'s ``command_timeout`` is not read here; at most
+  ``RESPAWN_MAX`` times); a node that exits 0 was asked to stop. hw_sim (the machine: its
+  state would be lost) and the recorder (its bag directory is not empty any more) are not
+  respawned. A dead servo or dual_stage node
   faults hw_sim (its commands stop); once the respawned node answers the held step,
   ``hw_sim/reset`` continues, and nothing moves again without a new goal.
 
@@ -62,17 +62,6 @@ ARGUMENTS = (
     ('robot_state_publisher', 'false', 'start robot_state_publisher when installed (true/false)'),
     ('respawn', 'true', 'start a dead controller node again (not hw_sim, not the recorder)'),
 )
-# assumed: a node is started again 1 s after its death has certainly been detected: hw_sim's
-# command_timeout (a dead servo or dual_stage node) or the liveliness lease and its
-# confirmation (a dead compensation node, seen by the trajectory node), whichever is longer.
-# So a death is always a fault first (the successor starts without its state: integrators,
-# filters, estimates), never a silent continuation — with a 1 s delay a successor that started
-# fast answered the held step within the timeout and the machine went on (a loaded run); the
-# 1 s also lets the dying process release its DDS entities. 3 retries tell a transient crash from one that repeats (then the fault
-# stays, named).
-RESPAWN_MARGIN = 1.0       # s
-RESPAWN_MAX = 3
-NOT_RESPAWNED = ('hw_sim', 'recorder')
 
 
 def _flag(name: str, text: str) -> bool:
@@ -99,7 +88,8 @@ def _executable(spec) -> str:
 
 def _nodes(context):
     from machine_ctrl import contract
-    from machine_ctrl.app.bringup import RECORDER_STOP_TIMEOUT, graph_specs, recorder_spec
+    from machine_ctrl.app.bringup import (NOT_RESPAWNED, RECORDER_STOP_TIMEOUT, RESPAWN_MAX, graph_specs,
+                                          recorder_spec, respawn_delay)
     from machine_ctrl.model.config import load_machine
     from machine_ctrl.ros.graph import write_params_file
 
@@ -121,7 +111,7 @@ def _nodes(context):
     extra = [value['params_file']] if value['params_file'] else []
     # the graph's values as our own parameters file (strings quoted: rcl reads a bare y as true)
     respawn = _flag('respawn', value['respawn'])
-    delay = _respawn_delay(specs)
+    delay = respawn_delay(specs)
     actions = []
     for spec in specs:
         params = [str(write_params_file([spec], None, spec.name)), *extra]
@@ -139,15 +129,6 @@ def _nodes(context):
     if _flag('robot_state_publisher', value['robot_state_publisher']):
         actions.append(_robot_state_publisher(machine, namespace))
     return actions
-
-
-def _respawn_delay(specs) -> float:
-    """The longer of hw_sim's command_timeout in this graph (its spec's value, else its
-    default) and the liveliness lease with its confirmation, + margin."""
-    from machine_ctrl import contract
-    hw_sim = next(spec for spec in specs if spec.name == 'hw_sim')
-    timeout = {**hw_sim.table.defaults(), **hw_sim.parameters}['command_timeout']
-    return max(timeout, contract.LIVELINESS_LEASE + contract.LOSS_CONFIRM) + RESPAWN_MARGIN
 
 
 def _respawned(make, delay: float, retries: int) -> list:

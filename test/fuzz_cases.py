@@ -64,10 +64,10 @@ STEP_NODES = ('servo_coarse', 'servo_fine', 'dual_stage')       # StepAnswerer: 
 REJECTED = 'rejected_messages'
 # Prefixes of `last_rejection` (Rejections: '<what>: <reason>') by node counter.
 REASON_PREFIXES = {
-    ('servo_coarse', REJECTED): ('state: ', 'reference: '),
-    ('servo_fine', REJECTED): ('state: ', 'reference: ', 'offsets: '),
-    ('dual_stage', REJECTED): ('state: ', 'reference: '),
-    ('contour_error', REJECTED): ('state: ', 'reference: '),
+    ('servo_coarse', REJECTED): ('state: ', 'reference: ', 'clock: '),
+    ('servo_fine', REJECTED): ('state: ', 'reference: ', 'offsets: ', 'clock: '),
+    ('dual_stage', REJECTED): ('state: ', 'reference: ', 'clock: '),
+    ('contour_error', REJECTED): ('state: ', 'reference: ', 'clock: '),
     ('compensation', 'rejected_chunks'): ('reference chunk: ',),
     ('hw_sim', 'refused_commands'): ('',),
 }
@@ -335,7 +335,13 @@ def effects(case) -> dict[tuple[str, str], tuple[int, int | None]]:
                 for node, wanted in REFERENCE_READERS.items()}
     if case.topic == TRAJECTORY_REFERENCE:
         return {('compensation', 'rejected_chunks'): (1, 1) if chunk_problem(case, AXES) else (0, 0)}
-    return {}         # /clock, /diagnostics: ignored (not counted), README
+    if case.topic == CLOCK:
+        # no time (node_common.use_sim_time): refused by the nodes on the clock that count, if
+        # its reader takes it: rclpy's clock reader keeps the last message only (hw_sim's clock
+        # and the batch's next one may replace it first)
+        no_time = case.stamp[0] < 0 or not 0 <= case.stamp[1] < contract.NS_PER_SECOND
+        return {(node, REJECTED): (0, 1) if no_time else (0, 0) for node in (*STEP_NODES, 'contour_error')}
+    return {}         # /diagnostics: ignored (not counted), README
 
 
 # --- strategies: per-step states ----------------------------------------------------------------

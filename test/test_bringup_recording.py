@@ -1,9 +1,11 @@
-"""`machine-ctrl bringup --record` when the recording is lost: the machine does not vanish.
+"""`machine-ctrl bringup --record` when the recording or the contour estimate is lost: the
+machine does not vanish (a non-control node's loss does not stop it).
 
 * End to end: the recorder process of a running bringup is killed (SIGKILL); bringup says
-  so in one line naming `machine-ctrl record --recover`, the graph keeps running (a `move`
-  succeeds afterwards), Ctrl-C stops everything with exit status 1 (the recording was lost),
-  and the recovered bag opens.
+  so in one line naming `machine-ctrl record --recover`, and the same for contour_error,
+  which it starts again (test_bringup_respawn.py: the rule); the graph keeps running (a
+  `move` succeeds afterwards), Ctrl-C stops everything with exit status 1 (the recording was
+  lost), and the recovered bag opens.
 * Bringup's rule, with a stand-in recorder process (no ROS): before the graph is ready a
   recorder that ends stops the bringup (hw_sim waits at step 0 for it); after, it is one
   notice and the graph runs on, unless stop_on_recording_loss asks to stop everything.
@@ -26,7 +28,7 @@ EXE = str(Path(sys.executable).with_name('machine-ctrl'))
 STAND_IN = [sys.executable, '-c', 'import time; print("recording to it", flush=True); time.sleep(600)']
 
 
-def recorder_pid(domain_id: str) -> int:
+def node_pid(domain_id: str, module: bytes = b'machine_ctrl.ros.recorder_node') -> int:
     for entry in Path('/proc').iterdir():
         if not entry.name.isdigit():
             continue
@@ -35,12 +37,12 @@ def recorder_pid(domain_id: str) -> int:
             environ = (entry / 'environ').read_bytes().split(b'\0')
         except OSError:
             continue
-        if b'machine_ctrl.ros.recorder_node' in cmdline and f'ROS_DOMAIN_ID={domain_id}'.encode() in environ:
+        if module in cmdline and f'ROS_DOMAIN_ID={domain_id}'.encode() in environ:
             return int(entry.name)
-    raise AssertionError('no recorder process')
+    raise AssertionError(f'no process of {module.decode()}')
 
 
-def test_a_killed_recorder_does_not_stop_the_machine(ros_supervisor, ros_env, tmp_path):
+def test_a_killed_recorder_or_contour_error_does_not_stop_the_machine(ros_supervisor, ros_env, tmp_path):
     bag = tmp_path / 'bag'
     child = ros_supervisor.start('bringup', [EXE, 'bringup', '--record', str(bag)])
     ros_supervisor.wait_for_line('bringup', 'all nodes ready', timeout=180)
@@ -51,16 +53,21 @@ def test_a_killed_recorder_does_not_stop_the_machine(ros_supervisor, ros_env, tm
         assert time.monotonic() < deadline, 'no /joint_states in a complete chunk'
         time.sleep(0.05)
     flushed = on_disk(bag / 'bag_0.mcap', '/joint_states')
-    os.kill(recorder_pid(ros_env['ROS_DOMAIN_ID']), signal.SIGKILL)
+    os.kill(node_pid(ros_env['ROS_DOMAIN_ID']), signal.SIGKILL)
     line = ros_supervisor.wait_for_line('bringup', 'recording stopped: ', timeout=30)
     assert line.startswith('recording stopped: recorder exited with code -9 (killed by SIGKILL) (its log: ')
     assert line.endswith(f'recorder.log); the bag may need machine-ctrl record --recover {bag}; '
                          f'the graph keeps running')
+    os.kill(node_pid(ros_env['ROS_DOMAIN_ID'], b'machine_ctrl.ros.contour_error_node'), signal.SIGKILL)
+    line = ros_supervisor.wait_for_line('bringup', 'contour_error exited with', timeout=30)
+    assert line.startswith('contour_error exited with code -9 (killed by SIGKILL) (its log: ')
+    assert 'starting it again in 8.5 s; the graph keeps running' in line
     started = time.monotonic()
     done = subprocess.run([EXE, 'move', 'x_c=0.001'], env=ros_env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr                   # the machine is still there
-    # hw_sim holds for the dead recorder until DDS notices its participant is gone
+    # hw_sim holds for the dead recorder until its liveliness lease (5 s) runs out
     print(f'move after the kill took {time.monotonic() - started:.1f} s')
+    ros_supervisor.wait_for_line('bringup', 'contour_error started again (1 of 3)', timeout=120)
     child.signal_group(signal.SIGINT)
     assert ros_supervisor.wait('bringup', timeout=120) == 1
     output = '\n'.join(child.tail(200))

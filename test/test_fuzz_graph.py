@@ -506,17 +506,24 @@ def test_parameter_sets_are_refused_with_the_reason_or_taken_and_read_back(campa
     campaign.assert_still()
 
 
-def test_a_parameter_of_a_type_outside_the_enum_crashes_no_node(campaign, parameters):
-    """rcl_interfaces ParameterType is a uint8: 10..255 are no type. rclpy's parameter
-    service raises in its callback (Parameter.Type(value)) and answers nothing; the node,
-    whose spin survives callback errors, must go on, and answer the next request."""
-    from rcl_interfaces.msg import Parameter, ParameterValue
+def test_a_parameter_of_a_type_outside_the_enum_is_refused_with_the_reason(campaign, parameters):
+    """rcl_interfaces ParameterType is a uint8: 10..255 are no type. rclpy's parameter service
+    raises on one (Parameter.from_parameter_msg) and answers nothing; node_parameters refuses it
+    with the reason: set_parameters that one alone (the request's others are set),
+    set_parameters_atomically the whole request (nothing set)."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    bad = Parameter(name='feed', value=ParameterValue(type=200))
+    reason = "parameter 'feed': type 200 is not a ParameterType (0-9)"
     for node in NODES:
-        service = parameters.services[(node, 'set')]
-        request = parameters.kinds['set'].Request(parameters=[Parameter(name='feed', value=ParameterValue(type=200))])
-        service.call_async(request)                  # no answer awaited (rclpy gives none)
-    for node in NODES:
-        assert parameters.get(node, ['use_sim_time'])['use_sim_time'] in (True, False)
+        sim_time = parameters.get(node, ['use_sim_time'])['use_sim_time']        # set again as it is
+        good = Parameter(name='use_sim_time', value=ParameterValue(type=ParameterType.PARAMETER_BOOL,
+                                                                   bool_value=sim_time))
+        one, other = parameters.call(node, 'set', parameters.kinds['set'].Request(parameters=[bad, good])).results
+        assert (one.successful, one.reason) == (False, reason), (node, one)
+        assert other.successful, (node, other)
+        whole = parameters.call(node, 'atomic', parameters.kinds['atomic'].Request(parameters=[good, bad])).result
+        assert (whole.successful, whole.reason) == (False, reason), (node, whole)
+        assert parameters.get(node, ['use_sim_time'])['use_sim_time'] is sim_time
     campaign.assert_still()
 
 

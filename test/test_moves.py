@@ -153,7 +153,9 @@ EARLIEST = 4 * (1e-3 / (2 * 100.0)) ** (1 / 3)
                                r'\(1048576 control steps\)'),
     (['c_f'], [[1e10]], [0.0], r'point 0: c_f at 1e\+10 rad, beyond ±2\.14748e\+09 rad \(341782638 turns\)'),
     # 2000 rad at the 2 pi rad/s limit of c_f: > 318 s
-    (['c_f'], [[2000.0]], [0.0], r'point 0: the joint goal would last 31\d\.\d+ s up to it, beyond the 104.858 s'),
+    (['c_f'], [[2000.0]], [0.0], r'point 0: the joint goal would last at least 318\.31 s up to it, beyond the '
+                                 r'104\.858 s'),
+    (['c_f'], [[1e9]], [0.0], r'point 0: the joint goal would last at least 1\.59155e\+08 s up to it'),
     (['x_f'], [[5e-4]], [0.0], r'point 0: x_f at 0.0005 m, outside its stroke \[-0.0001, 0.0001\] m by 400 µm'),
     (['x_c'], [[0.0], [float('nan')]], [0.0, 0.0], 'point 1: x_c at nan: NaN or inf is not a position'),
 ])
@@ -183,3 +185,11 @@ def test_a_move_ruckig_fails_to_solve_is_refused_naming_the_axis(fts_lathe):
                        (12.56637061435917, -1e-05, 0.0, 0.0004548856632746526), (0.0, 0.0, 0.0, -0.01081372245328538))
     with pytest.raises(ValueError, match=r'^Ruckig cannot plan this move \(Ruckig found no profile for w in its step 1\)$'):
         move_to_state(fts_lathe, target, start, 0.98)
+
+
+def test_amounts_in_reasons_read_in_three_digits_with_the_prefix_after_rounding():
+    """A measured start 1 mm away is 0.99999... mm: its speed read '1e+03 m/s' (a ROS goal of
+    1 mm in 1 µs, test_trajectory_node) where the offline goal read '1000 m/s'."""
+    from trajectory.axis_limits import amount
+    assert amount(999.99, 'm/s') == '1000 m/s' and amount(0.99999e-3, 'm') == '1 mm'
+    assert (amount(0.0032, 'm'), amount(0.091, 'rad'), amount(4e-4, 'm')) == ('3.2 mm', '91 mrad', '400 µm')

@@ -131,6 +131,21 @@ def test_a_killed_recorder_leaves_a_bag_that_recover_makes_readable(ros_supervis
     print(f'published {published} states, {flushed} messages on disk before the kill, {total} recovered')
 
 
+def test_a_bag_directory_that_cannot_be_created_ends_the_recorder_at_start(ros_env, tmp_path, micromill):
+    """README "Disk full": a bag directory that cannot be created ends the recorder at start
+    with one line naming it and the reason, exit 2, and nothing written (here its parent is a
+    file: the tests run as root, for whom no directory is unwritable)."""
+    blocker = tmp_path / 'a_file'
+    blocker.write_text('')
+    bag = blocker / 'bag'
+    result = subprocess.run(recorder_argv(bag, micromill.yaml_path), env=ros_env, capture_output=True, text=True,
+                            timeout=DEADLINE)
+    assert result.returncode == 2, result
+    said = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
+    assert len(said) == 1 and said[0].endswith(f'{bag}: cannot create: Not a directory'), said
+    assert blocker.read_text() == ''
+
+
 def _diagnostics(node):
     from diagnostic_msgs.msg import DiagnosticArray
     seen = []

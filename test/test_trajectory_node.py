@@ -167,12 +167,27 @@ BAD_GOALS = [
     ('goal', (['x_f'], [[0.5e-3]]), 'outside its stroke'),
     ('goal', (['x_c'], [[1e-3], [2e-3]], [0.2, 0.1]), 'strictly increasing'),
     ('goal', (['x_c'], []), 'no points'),
+    # the two goals that got no word: a time it cannot meet (x_c starts at 1 mm), a turn count
+    # beyond a goal's length
+    ('goal_ns', (['x_c'], [[2e-3]], [1000]), 'point 0: 1 mm in 1 µs on x_c needs 1000 m/s (limit 150 mm/s); '
+                                             'earliest time_from_start 0.0684 s'),
+    ('goal', (['c_f'], [[1e9]]), 'point 0: the joint goal would last at least 1.59155e+08 s up to it'),
 ]
 
 
 def send_bad(client, machine, kind, spec):
     if kind == 'goal':
         client.send_goal(*spec)
+        return
+    if kind == 'goal_ns':           # times in ns as given (send_goal puts them on the control grid)
+        from builtin_interfaces.msg import Duration
+        from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+        names, points, times = spec
+        msg = JointTrajectory(joint_names=names, points=[
+            JointTrajectoryPoint(positions=values, time_from_start=Duration(sec=t // 10**9, nanosec=t % 10**9))
+            for values, t in zip(points, times)])
+        msg.header.stamp = client.stamp_now()
+        client.pub_goal.publish(msg)
         return
     p, o = arc(machine, points=spec.get('points', 24))
     if spec.get('nan'):

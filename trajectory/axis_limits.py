@@ -19,8 +19,9 @@ _PREFIXES = ((1.0, ''), (1e-3, 'm'), (1e-6, 'µ'), (1e-9, 'n'))
 def amount(value: float, unit: str) -> str:
     """|value| in `unit` ('m', 'rad', 's', ...) with the SI prefix that keeps 1-3 digits
     before the point (none above 1 unit), 3 significant digits: 0.0032 m -> '3.2 mm',
-    0.091 rad -> '91 mrad', 1000 m/s -> '1000 m/s'."""
-    size = abs(value)
+    0.091 rad -> '91 mrad', 1000 m/s -> '1000 m/s'; rounded before the prefix is chosen, so
+    999.99 m/s reads '1000 m/s' and 0.99999 mm '1 mm' (not '1e+03')."""
+    size = float(f'{abs(value):.3g}')
     scale, prefix = next(((scale, prefix) for scale, prefix in _PREFIXES if size >= scale), (1.0, ''))
     size /= scale
     return f'{size:.0f} {prefix}{unit}' if 1e3 <= size < 1e6 else f'{size:.3g} {prefix}{unit}'

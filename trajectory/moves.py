@@ -204,6 +204,13 @@ def through_waypoints(machine: MachineConfig, start, names, points, times) -> Re
             raise ValueError(f'point {i}: {exc}') from None
     motions, state, previous, steps = [], AxisState.at_rest(start), 0.0, 0
     for i, (goal, t) in enumerate(zip(goals, times)):
+        # at full speed all the way: a goal far beyond a goal's length is refused before Ruckig,
+        # which finds no profile for one of 1e9 rad (its numbers, not the goal, would be named)
+        least = max(abs(g - x) / axis.limits.velocity for g, x, axis in zip(goal, state.position, machine.axes))
+        if steps * machine.control_period + least > longest:
+            raise ValueError(f'point {i}: the joint goal would last at least '
+                             f'{steps * machine.control_period + least:.6g} s up to it, beyond the {longest:g} s a '
+                             f'joint goal may last ({MAX_GOAL_STEPS} control steps)')
         motion = _calculate(machine, _move_input(machine, goal, state, 1.0, (t - previous) if timed else 0.0))
         if timed and max(motion.trajectory.independent_min_durations) > t - previous:
             raise ValueError(f'point {i}: ' + _too_early(machine, state.position, goal, t, previous,

@@ -20,6 +20,16 @@ that reports on /diagnostics that its recording stopped (disk full: it stays up)
 any node's does: hw_sim waits at step 0 for it (min_subscribers). The session's exit status
 is 1 when the recording was lost.
 
+A node process of the graph that ends on its own once the graph is ready is started again as
+the launch file does (:func:`respawn_delay`: once its death has certainly been detected, at
+most :data:`RESPAWN_MAX` times), with one line for the shell each time; the graph keeps
+running meanwhile (a dead servo or dual_stage node faults hw_sim, which names its axes;
+`/hw_sim/reset` continues once the new node answers). Not started again: hw_sim (the
+machine: its end stops the bringup, a new bringup is a new machine), a node that exited 0
+(asked to stop from outside), a node past its limit (one line; the graph runs on, faulted
+if it was a controller). One process (``single_process``): the process is the graph, its end
+stops the bringup.
+
 The shell is :func:`run`: prints the command API (:data:`API`), the state changes, and
 stops on Ctrl-C / SIGTERM. The demo (:mod:`machine_ctrl.app.demo`) drives a :class:`Bringup`
 from the same process.
@@ -47,6 +57,17 @@ JOINT_STATE_READERS = {'ServoNode', 'DualStageNode', 'ContourErrorNode'}
 # waits for a message of each before it subscribes /joint_states (its start_streams)
 STEP_ANSWERERS = {'ServoNode', 'DualStageNode'}
 RECORDER_WINDOW = 100          # steps hw_sim may run ahead of the recorder (README: recommended)
+# assumed: a node is started again 1 s after its death has certainly been detected: hw_sim's
+# command_timeout (a dead servo or dual_stage node) or the liveliness lease and its
+# confirmation (a dead compensation node, seen by the trajectory node), whichever is longer.
+# So a death is always a fault first (the successor starts without its state: integrators,
+# filters, estimates), never a silent continuation — with a 1 s delay a successor that started
+# fast answered the held step within the timeout and the machine went on (a loaded run); the
+# 1 s also lets the dying process release its DDS entities. 3 retries tell a transient crash
+# from one that repeats (then the fault stays, named). bringup and the launch file alike.
+RESPAWN_MARGIN = 1.0           # s
+RESPAWN_MAX = 3
+NOT_RESPAWNED = ('hw_sim', 'recorder')
 
 # (topic or service, type, what) of the command API, as printed by bringup
 API = [(item.name, item.type.replace('/msg/', '/').replace('/srv/', '/'), item.description)
@@ -101,6 +122,23 @@ def session_facts(graph: list[NodeSpec]) -> list[str]:
     return facts + [f'belief_{i}={path}' for i, path in enumerate(belief, 1)]
 
 
+def respawn_delay(specs: list[NodeSpec]) -> float:
+    """Seconds from a node's death to its new start: the longer of hw_sim's command_timeout
+    in this graph (its spec's value, else its default) and the liveliness lease with its
+    confirmation, + RESPAWN_MARGIN (8.5 s by default)."""
+    hw_sim = next(spec for spec in specs if spec.name == 'hw_sim')
+    timeout = {**hw_sim.table.defaults(), **hw_sim.parameters}['command_timeout']
+    return max(timeout, contract.LIVELINESS_LEASE + contract.LOSS_CONFIRM) + RESPAWN_MARGIN
+
+
+def exit_text(child) -> str:
+    """How a supervised process ended, and where its log is: 'code -9 (killed by SIGKILL)
+    (its log: ...)'."""
+    code = child.returncode
+    how = f'code {code}' + (f' (killed by {signal.Signals(-code).name})' if code < 0 else '')
+    return how + (f' (its log: {child.log_path})' if child.log_path else '')
+
+
 def view_spec(machine: MachineConfig, port: int, namespace: str = '') -> NodeSpec:
     """The Foxglove live view of the graph (machine_ctrl/ros/view_node.py), on `port`."""
     return NodeSpec('view', 'machine_ctrl.ros.view_node', 'ViewNode',
@@ -138,6 +176,9 @@ class Bringup:
         self.viewer = Supervisor(env, log_dir=self.log_dir, stop_timeout=5.0)
         self.report: list[str] = []
         self.stopped = False
+        self.respawn_delay = respawn_delay(self.specs)
+        self.respawns: dict[str, int] = {}      # node -> times started again
+        self.respawn_due: dict[str, float] = {}  # node -> when (time.monotonic) it starts again
 
     @property
     def node_names(self) -> set[str]:
@@ -155,10 +196,11 @@ class Bringup:
         self.graph.start_nodes(self.specs, self.log_dir)
 
     def check(self) -> None:
-        """Raise processes.ChildExited when a node process has ended on its own. The
-        recorder's end raises it only before the graph is ready; later it is a lost
-        recording (:meth:`lose_recording`). So does the view's: later it is a notice, and the
-        graph runs on (nothing of the machine depends on its view)."""
+        """Raise processes.ChildExited when a node process has ended on its own before the
+        graph is ready, or when hw_sim (or the one process of a single-process graph) has;
+        once ready, any other node's end is a notice and the node starts again when due
+        (module docstring). The recorder's end later is a lost recording
+        (:meth:`lose_recording`); the view's a notice (nothing of the machine depends on it)."""
         view = self.viewer.children.get('view')
         if view is not None and not view.stopping and not view.running():
             if not self.ready:
@@ -171,11 +213,37 @@ class Bringup:
             if not self.ready:
                 self.recorder.check()
             child.stopping = True                   # its end is known now
-            code = child.returncode
-            how = f'code {code}' + (f' (killed by {signal.Signals(-code).name})' if code < 0 else '')
-            log = f' (its log: {child.log_path})' if child.log_path else ''
-            self.lose_recording(f'recorder exited with {how}{log}')
-        self.graph.check()
+            self.lose_recording(f'recorder exited with {exit_text(child)}')
+        if not self.ready or self.single_process:
+            self.graph.check()
+            return
+        for name, node in list(self.graph.children.items()):
+            if not node.stopping and not node.running():
+                self._node_ended(name, node)
+        now = time.monotonic()
+        for name, due in list(self.respawn_due.items()):
+            if now >= due:
+                del self.respawn_due[name]
+                self.respawns[name] = self.respawns.get(name, 0) + 1
+                self.graph.start(name, self.graph[name].argv)
+                self.notices.append(f'{name} started again ({self.respawns[name]} of {RESPAWN_MAX})')
+
+    def _node_ended(self, name: str, node) -> None:
+        """A node process of the ready graph ended on its own: hw_sim's end raises; any other's
+        is a notice, and its start again is scheduled where due (module docstring)."""
+        if name in NOT_RESPAWNED:
+            self.graph.check()                          # raises ChildExited for it
+        self.graph.stop(name)                   # what is left of its process group (a planner process)
+        ended = f'{name} exited with {exit_text(node)}'
+        if node.returncode == 0:
+            self.notices.append(f'{ended}: asked to stop from outside, not started again; the graph keeps running')
+        elif self.respawns.get(name, 0) >= RESPAWN_MAX:
+            self.notices.append(f'{ended}: not started again (started again {RESPAWN_MAX} times already); '
+                                'the graph keeps running')
+        else:
+            self.respawn_due[name] = time.monotonic() + self.respawn_delay
+            self.notices.append(f'{ended}; starting it again in {self.respawn_delay:g} s; the graph keeps running '
+                                f'(a faulted machine continues with {contract.RESET.name} once it answers)')
 
     def lose_recording(self, reason: str) -> None:
         """The recording stopped while the graph runs: note it (once) for the shell, or raise

@@ -21,6 +21,7 @@ import atexit
 import collections
 import errno
 import fcntl
+import itertools
 import os
 import signal
 import subprocess
@@ -171,9 +172,9 @@ class Supervisor:
               extra_env: Mapping[str, str] | None = None) -> Child:
         """Start ``argv`` as child ``name`` in a new process group; returns at once (use
         :meth:`wait_for_line` to wait for readiness). A name can be reused once its
-        previous child has been stopped. Fast DDS port files left empty (a child picking one
-        would never start) and the segments of participants that are gone are removed first
-        (machine_ctrl.shared_memory)."""
+        previous child has been stopped (its log is kept: NAME.1.log, NAME.2.log, ... in
+        order). Fast DDS port files left empty (a child picking one would never start) and the
+        segments of participants that are gone are removed first (machine_ctrl.shared_memory)."""
         for path in shared_memory.clean():
             print(f'supervisor: removed {path}, left by a Fast DDS participant that died', file=sys.stderr)
         with self._lock:
@@ -185,6 +186,10 @@ class Supervisor:
             if self.log_dir is not None:
                 self.log_dir.mkdir(parents=True, exist_ok=True)
                 log_path = self.log_dir / f'{name}.log'
+                if old is not None and old.log_path == log_path and log_path.exists():
+                    _join_reader(old)               # its last lines written
+                    log_path.rename(next(earlier for k in itertools.count(1)
+                                         if not (earlier := self.log_dir / f'{name}.{k}.log').exists()))
                 log = open(log_path, 'wb')
             env = {**self.env, **(extra_env or {})}
             try:

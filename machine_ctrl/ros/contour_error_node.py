@@ -67,7 +67,7 @@ from machine_ctrl.ros.node_parameters import declare_parameters, machine_paramet
 class ContourErrorNode(Node):
     def __init__(self, name: str = 'contour_error', **kwargs):
         super().__init__(name, **kwargs)
-        use_sim_time(self)
+        use_sim_time(self, lambda reason: self.rejections.add('clock', reason))
         self.machine = machine_parameter(self)
         method = declare_parameters(self, parameters.CONTOUR_ERROR,
                                     on_change={'estimator': self.on_estimator}).estimator

@@ -39,12 +39,37 @@ except ImportError:  # pragma: no cover - older rclpy
     DefaultExecutor = SingleThreadedExecutor
 
 
-def use_sim_time(node: Node) -> None:
+def use_sim_time(node: Node, refuse=None) -> None:
     """A node on the simulated clock (its parameter table's sim_time) runs on hw_sim's clock
-    (design.md "Time")."""
+    (design.md "Time"). A clock message that is no time (negative seconds: rclpy's TimeSource
+    raises on it, and the node's log showed its exception; nanosec outside [0, 1e9)) is
+    refused with the reason before rclpy's TimeSource sees it: `refuse(reason)` (the node's
+    count of refused messages), else a warning on its log; the node's clock keeps its time."""
+    from rclpy.time_source import TimeSource
     if not node.has_parameter('use_sim_time'):
         node.declare_parameter('use_sim_time', True)
     node.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, True)])
+    if refuse is None:
+        def refuse(reason: str) -> None:
+            node.get_logger().warning(f'rejected clock: {reason}', throttle_duration_sec=1.0)
+    for subscription in node.subscriptions:          # the TimeSource's, just made
+        if isinstance(getattr(subscription.callback, '__self__', None), TimeSource):
+            subscription.callback = _checked_clock(subscription.callback, refuse)
+
+
+def _checked_clock(take, refuse):
+    def on_clock(msg) -> None:
+        stamp = msg.clock
+        try:
+            contract.join_ns(stamp.sec, stamp.nanosec)
+        except InvalidMessage as exc:
+            refuse(str(exc))
+            return
+        if stamp.sec < 0:
+            refuse(f'stamp {stamp.sec} s {stamp.nanosec} ns is before time 0')
+            return
+        take(msg)
+    return on_clock
 
 
 def wall_timer(node: Node, period: float, callback):

@@ -78,6 +78,7 @@ class _Declared:
         self.sim_time = node.has_parameter(USE_SIM_TIME) and node.get_parameter(USE_SIM_TIME).value is True
         node.add_on_set_parameters_callback(self.on_set)
         node.add_post_set_parameters_callback(self.after_set)
+        refuse_unknown_types(node)
         if self.sim_time:
             from rcl_interfaces.msg import ParameterDescriptor, ParameterType
             node.set_descriptor(USE_SIM_TIME, ParameterDescriptor(
@@ -124,6 +125,48 @@ class _Declared:
             hook = self.on_change.get(name)
             if hook is not None:
                 hook(self.values[name])
+
+
+def refuse_unknown_types(node: Node) -> None:
+    """A ParameterValue's type is a uint8, and 10..255 name no ParameterType: rclpy 7.1's
+    set_parameters services raise on one (Parameter.from_parameter_msg) and answer nothing,
+    the caller waiting for ever. Here such a parameter is refused with the reason: on
+    set_parameters on its own, the request's others handled as rclpy handles them (each
+    through rclpy's own callback); on set_parameters_atomically the whole request, nothing set."""
+    from rcl_interfaces.msg import SetParametersResult
+    from rclpy.parameter import Parameter
+
+    known = {kind.value for kind in Parameter.Type}
+
+    def refusal(param) -> SetParametersResult:
+        return SetParametersResult(successful=False, reason=f'parameter {param.name!r}: type {param.value.type} is '
+                                                            f'not a ParameterType (0-{max(known)})')
+
+    def one_by_one(rclpy_callback):
+        def callback(request, response):
+            for param in request.parameters:
+                if param.value.type in known:
+                    single = type(request)(parameters=[param])
+                    response.results.extend(rclpy_callback(single, type(response)()).results)
+                else:
+                    response.results.append(refusal(param))
+            return response
+        return callback
+
+    def all_or_none(rclpy_callback):
+        def callback(request, response):
+            bad = next((param for param in request.parameters if param.value.type not in known), None)
+            if bad is None:
+                return rclpy_callback(request, response)
+            response.result = refusal(bad)
+            return response
+        return callback
+
+    wrappers = {f'{node.get_name()}/set_parameters': one_by_one,
+                f'{node.get_name()}/set_parameters_atomically': all_or_none}
+    for service in node.services:
+        if service.srv_name in wrappers:
+            service.callback = wrappers[service.srv_name](service.callback)
 
 
 def _plain(value):

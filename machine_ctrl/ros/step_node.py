@@ -19,7 +19,7 @@ class StepNode(Node):
     def __init__(self, name: str, table: parameters.NodeParameters, **kwargs):
         """`table`: the node's parameters, which hold `input_timeout`."""
         super().__init__(name, **kwargs)
-        use_sim_time(self)
+        use_sim_time(self, lambda reason: self.rejections.add('clock', reason))
         self.input_timeout = declare_parameters(self, table, names=('input_timeout',)).input_timeout
         self.rejections = rejections(self)
 

@@ -139,7 +139,7 @@ class NodeOutputs:
 class TrajectoryNode(Node):
     def __init__(self, name: str = 'trajectory', **kwargs):
         super().__init__(name, **kwargs)
-        use_sim_time(self)
+        use_sim_time(self)             # a clock refused goes to its log: rejected_goals counts goals
         self.machine = machine_parameter(self)
         # feed is live: a new value applies from the next tool path planned; stall_limit from
         # the next check
