@@ -56,7 +56,9 @@ DIAGNOSTICS = contract.DIAGNOSTICS.name
 PATH = contract.PATH.name
 JOINT_GOAL = contract.JOINT_GOAL.name
 FEED_OVERRIDE = contract.FEED_OVERRIDE.name
-GOAL_TOPICS = {PATH: 'path', JOINT_GOAL: 'joint goal', FEED_OVERRIDE: 'feed override'}   # -> Rejections `what`
+PROGRAM = contract.PROGRAM.name
+GOAL_TOPICS = {PATH: 'path', JOINT_GOAL: 'joint goal', FEED_OVERRIDE: 'feed override',      # -> Rejections `what`
+               PROGRAM: 'program'}
 
 # Who reads what (machine_ctrl/ros/*_node.py), and the axes each needs from the message.
 REFERENCE_READERS = {'servo_coarse': COARSE, 'servo_fine': FINE, 'dual_stage': AXES, 'contour_error': AXES}
@@ -176,6 +178,18 @@ class ChunkCase:
                                            time_from_start=Duration(sec=t[0], nanosec=t[1]))
                       for p, v, a, t in self.points()]
         return msg
+
+
+@dataclass(frozen=True)
+class ProgramCase:
+    """std_msgs/String: a G-code program's text."""
+    topic: str
+    kind: str
+    text: str
+
+    def message(self):
+        from std_msgs.msg import String
+        return String(data=self.text)
 
 
 @dataclass(frozen=True)
@@ -708,14 +722,33 @@ def overrides(draw):
     return OverrideCase(FEED_OVERRIDE, 'not finite' if not math.isfinite(value) else 'outside [0, 1]', value)
 
 
+# blocks the G-code reader refuses (test_gcode: each with its reason), whatever follows
+PROGRAM_DEFECTS = ('G43 H1', 'M8', 'T1 M6', 'G0 X#1', 'G0 X[1+2]', '/G0 X1', 'G0 X1 X2', 'X1', 'G0 X1 G1',
+                   'G1 X1 F0', 'G0 X1 (open', 'M' + '9' * 400, 'G1 X100000 F100', 'G20 G21 G0 X1', '\x01', 'O100')
+
+
+@st.composite
+def programs(draw):
+    """A program whose first block is one the reader refuses, then anything: random text
+    (any characters, long lines) or blocks that would move (a program is read whole before
+    anything is planned, so none of it may move the machine)."""
+    defect = draw(st.sampled_from(PROGRAM_DEFECTS))
+    # no NUL: a ROS string cannot carry one (rclpy refuses to publish it)
+    blocks = st.one_of(st.text(st.characters(blacklist_characters='\x00'), max_size=200), st.sampled_from(('G0 X0.001', 'G1 X0.002 F600', 'G2 X0 Y0 I0.001 F60',
+                                                                 'M30', '%', '(comment)', '')))
+    rest = draw(st.lists(blocks, max_size=20))
+    return ProgramCase(PROGRAM, defect, '\n'.join([defect, *rest]))
+
+
 TOPIC_STRATEGIES = (joint_goals(), paths(), chunks(REFERENCE), chunks(TRAJECTORY_REFERENCE), joint_states(),
-                    offsets(), servo_commands(), overrides(), clocks(), diagnostics())
+                    offsets(), servo_commands(), overrides(), clocks(), diagnostics(), programs())
 
 
 def batches(size: int):
-    """`size` cases, as many of each topic's (a strategy's first examples are its simplest:
-    drawn as one_of, the first batches would hold mostly the first topic), in a drawn order."""
-    each = max(1, size // len(TOPIC_STRATEGIES))
+    """At least `size` cases, as many of each topic's (a strategy's first examples are its
+    simplest: drawn as one_of, the first batches would hold mostly the first topic), in a
+    drawn order."""
+    each = max(1, -(-size // len(TOPIC_STRATEGIES)))
     return (st.tuples(*(st.lists(s, min_size=each, max_size=each) for s in TOPIC_STRATEGIES))
             .map(lambda lists: [case for cases in lists for case in cases])
             .flatmap(st.permutations))

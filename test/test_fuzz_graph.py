@@ -8,7 +8,10 @@ of this session's own).
 Properties: no node process ends; every invalid message is refused and counted, with a
 reason, where the README says (/trajectory/status `rejected_goals` and `last_rejection`,
 the nodes' /diagnostics `rejected_messages` / `rejected_chunks` / `refused_commands` with
-`last_rejection` / `last_refusal`) — the counters reach exactly what the oracle predicts;
+`last_rejection` / `last_refusal`) — the counters reach exactly what the oracle predicts
+(but for /clock: rclpy's clock reader keeps the newest message only, so a clock that is no
+time counts at most once); a G-code program on /trajectory/program is read whole and refused
+before anything of it is planned;
 nothing moves while only invalid input is sent (ground-truth positions, the reference
 stream); hw_sim does not fault; a parameter set is refused with the reason and changes
 nothing, or is taken and read back; every service call is answered, a refusal with its
@@ -124,6 +127,7 @@ class FuzzClient(MachineClient):
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
+        from std_msgs.msg import String
         from trajectory_msgs.msg import JointTrajectory
 
         self.diagnostics, self.truth, self.history = {}, None, {}
@@ -143,7 +147,8 @@ class FuzzClient(MachineClient):
             (fc.JOINT_STATES, JointState), (fc.OFFSETS, JointState), (fc.SERVO_COMMANDS, JointState),
             (fc.REFERENCE, JointTrajectory), (fc.TRAJECTORY_REFERENCE, JointTrajectory), (fc.CLOCK, Clock),
             (fc.DIAGNOSTICS, DiagnosticArray))}
-        self.rogue.update({fc.PATH: self.pub_path, fc.JOINT_GOAL: self.pub_goal, fc.FEED_OVERRIDE: self.pub_override})
+        self.rogue.update({fc.PATH: self.pub_path, fc.JOINT_GOAL: self.pub_goal, fc.FEED_OVERRIDE: self.pub_override,
+                           fc.PROGRAM: node.create_publisher(String, fc.PROGRAM, ros_io.qos(contract.PROGRAM.qos))})
 
     def on_diagnostics(self, msg):
         for status in msg.status:
@@ -175,7 +180,7 @@ class FuzzClient(MachineClient):
 
 # expected matched readers of each topic the test publishes on (README "Node graph")
 READERS = {fc.JOINT_STATES: 4, fc.OFFSETS: 1, fc.SERVO_COMMANDS: 1, fc.REFERENCE: 4, fc.TRAJECTORY_REFERENCE: 1,
-           fc.CLOCK: 1, fc.DIAGNOSTICS: 1, fc.PATH: 1, fc.JOINT_GOAL: 1, fc.FEED_OVERRIDE: 1}
+           fc.CLOCK: 1, fc.DIAGNOSTICS: 1, fc.PATH: 1, fc.JOINT_GOAL: 1, fc.FEED_OVERRIDE: 1, fc.PROGRAM: 1}
 
 
 @pytest.fixture(scope='module')
