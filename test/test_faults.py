@@ -280,7 +280,19 @@ def test_a_stopped_servo_faults_hw_sim_naming_its_axes_and_aborts_the_goal(micro
     reset_and_move(client, graph)
 
 
-def test_a_killed_dual_stage_faults_hw_sim_naming_the_fine_axes_restart_and_reset_recover(micromill, graph, client):
+def stall_logged(graph, name, at_least):
+    """The line of `name`'s output saying its process did not run for at least `at_least` s
+    (StepResponder: printed to 0.1 s), or None: an earlier, shorter gap (a loaded machine)
+    is not it."""
+    for line in graph[name].tail(200):
+        if 'its process did not run for ' in line:
+            if float(line.split(' did not run for ')[1].split(' s')[0]) >= at_least - 0.1:
+                return line
+    return None
+
+
+def test_a_killed_or_stopped_dual_stage_faults_hw_sim_naming_the_fine_axes_restart_or_cont_and_reset_recover(
+        micromill, graph, client):
     fine = ' '.join(specs(micromill)['servo_fine'].parameters['axes'])
     stamp, _ = slow_goal(client, 'x_f', 20e-6, 3.0)
     client.wait_goal(stamp, ('executing',), graph.check)
@@ -292,6 +304,25 @@ def test_a_killed_dual_stage_faults_hw_sim_naming_the_fine_axes_restart_and_rese
     assert client.diag('servo_fine', 'waiting_for').endswith(' matched)')      # the writers its reader has
     restart(graph, micromill, 'dual_stage')
     client.wait(answering(client, 'servo_fine'), 'servo_fine answering with the new offsets', GUARD, graph.check)
+    reset_and_move(client, graph, 'x_f')
+
+    # stopped (SIGSTOP) under way, then continued: the same fault, and its log tells the stall
+    stamp, _ = slow_goal(client, 'x_f', -20e-6, 3.0)
+    client.wait_goal(stamp, ('executing',), graph.check)
+    graph['dual_stage'].signal_group(signal.SIGSTOP)
+    stopped_at = time.monotonic()                  # the signal sent: its last timer call came before
+    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+    assert state == 'aborted' and f'machine faulted: missing command for {fine} ' in reason, reason
+    client.wait(lambda: client.diag('hw_sim', 'fault') != '', 'hw_sim naming the fault', GUARD, graph.check)
+    assert client.diag('hw_sim', 'fault') in reason
+    client.wait(lambda: 'dual_stage/offsets (none for step' in client.diag('servo_fine', 'waiting_for'),
+                'servo_fine naming the offsets it lacks', GUARD, graph.check)
+    stalled = time.monotonic() - stopped_at       # a lower bound of the gap it logs
+    graph['dual_stage'].signal_group(signal.SIGCONT)
+    client.wait(answering(client, 'servo_fine'), 'servo_fine answering the held step', GUARD, graph.check)
+    client.wait(lambda: stall_logged(graph, 'dual_stage', stalled), f'dual_stage logging a stall of {stalled:.1f} s',
+                GUARD, graph.check)
+    faulted(client, graph)
     reset_and_move(client, graph, 'x_f')
 
 

@@ -1,8 +1,9 @@
 """The fault model (README "Faults") for the compensation node, which carries the trajectory
-node's reference on to the servos: killed mid-goal, the servos run out of reference and hold
-(hw_sim does not fault), the trajectory node aborts the goal naming it and refuses goals
-until it is back; started again, a new goal succeeds. Real nodes over real DDS, each in its
-own process (the graph of test_faults.py with compensation in the chain)."""
+node's reference on to the servos: stopped (SIGSTOP, past its liveliness lease and the
+confirmation) or killed mid-goal, the servos run out of reference and hold (hw_sim does not
+fault), the trajectory node aborts the goal naming it and refuses goals until it is back;
+continued (SIGCONT) or started again, a new goal succeeds. Real nodes over real DDS, each in
+its own process (the graph of test_faults.py with compensation in the chain)."""
 import signal
 
 import pytest
@@ -29,32 +30,51 @@ def client(micromill, graph, ros_env):
         yield c
 
 
-def test_a_killed_compensation_aborts_the_goal_naming_it_the_servos_hold_and_goals_wait_for_it(
+def test_a_stopped_or_killed_compensation_aborts_the_goal_naming_it_the_servos_hold_and_goals_wait_for_it(
         micromill, graph, client):
     x = micromill.axis_names.index('x_c')
-    stamp, target = slow_goal(client, seconds=3.0)
-    client.wait_goal(stamp, ('executing',), graph.check)
-    graph['compensation'].stopping = True
-    graph['compensation'].signal_group(signal.SIGKILL)
-    assert graph.wait('compensation', GUARD) == -signal.SIGKILL
-    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
     lost = (f'compensation lost: no sign of life within its {contract.LIVELINESS_LEASE:g} s liveliness lease '
             '(killed, stopped or hung); '
             'the reference does not reach the servos')
-    assert (state, reason) == ('aborted', lost)
-    client.wait(lambda: client.status().get('reference_lost') == lost, 'the status naming it', GUARD, graph.check)
-    # the servos run out of reference and hold its last row: the machine stands, no fault
-    client.wait(lambda: int(client.diag('servo_coarse', 'reference_underruns', '0')) > 0, 'an underrun', GUARD,
-                graph.check)
-    assert client.diag('hw_sim', 'fault') == '' and abs(client.truth[x] - target) > 0.2e-3
-    refused, _ = slow_goal(client, distance=-0.5e-3, seconds=0.0)
-    _, state, reason = client.wait_goal(refused, TERMINAL, graph.check)
-    assert (state, reason) == ('aborted', f'joint goal: {lost}')      # refused while it is lost
 
+    def lost_under_way(fault):
+        """`fault` (SIGSTOP or SIGKILL) sent to the compensation node during a goal: the goal
+        aborted naming it, the status too, the servos out of reference and holding (no
+        fault), a new goal refused while it is lost."""
+        stamp, target = slow_goal(client, seconds=3.0)
+        client.wait_goal(stamp, ('executing',), graph.check)
+        underruns = int(client.diag('servo_coarse', 'reference_underruns', '0'))
+        fault()
+        _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+        assert (state, reason) == ('aborted', lost)
+        client.wait(lambda: client.status().get('reference_lost') == lost, 'the status naming it', GUARD,
+                    graph.check)
+        # the servos run out of reference and hold its last row: the machine stands, no fault
+        client.wait(lambda: int(client.diag('servo_coarse', 'reference_underruns', '0')) > underruns,
+                    'an underrun', GUARD, graph.check)
+        assert client.diag('hw_sim', 'fault') == '' and abs(client.truth[x] - target) > 0.2e-3
+        refused, _ = slow_goal(client, distance=-0.5e-3, seconds=0.0)
+        _, state, reason = client.wait_goal(refused, TERMINAL, graph.check)
+        assert (state, reason) == ('aborted', f'joint goal: {lost}')      # refused while it is lost
+
+    def back():
+        client.wait(lambda: client.status().get('reference_lost') == '', 'the compensation node back', GUARD,
+                    graph.check)
+        stamp, _ = slow_goal(client, distance=-0.5e-3, seconds=0.0)
+        _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
+        assert state == 'succeeded', reason
+
+    # stopped: its liveliness lease runs out (the abort waits for that: no time is assumed)
+    lost_under_way(lambda: graph['compensation'].signal_group(signal.SIGSTOP))
+    graph['compensation'].signal_group(signal.SIGCONT)
+    back()                                          # its liveliness asserted again: goals accepted
+
+    def kill():
+        graph['compensation'].stopping = True
+        graph['compensation'].signal_group(signal.SIGKILL)
+        assert graph.wait('compensation', GUARD) == -signal.SIGKILL
+    lost_under_way(kill)
     graph.start('compensation', specs(micromill)['compensation'].argv())
     graph.wait_for_line('compensation', 'ready', GUARD)
-    client.wait(lambda: client.status().get('reference_lost') == '', 'the compensation node back', GUARD, graph.check)
-    stamp, target = slow_goal(client, distance=-0.5e-3, seconds=0.0)
-    _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
-    assert state == 'succeeded', reason
+    back()
     graph.check()
