@@ -361,6 +361,7 @@ def test_a_stopped_trajectory_aborts_its_goal_on_cont_and_the_motion_does_not_go
     underruns = int(client.diag('servo_coarse', 'reference_underruns', '0'))
     client.wait(lambda: int(client.diag('servo_coarse', 'reference_underruns', '0')) > underruns,
                 'the servos out of reference', GUARD, graph.check)
+    held = client.truth.copy()                  # the servos hold their last row
     graph['trajectory'].signal_group(signal.SIGCONT)
     _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
     assert state == 'aborted' and reason.startswith('trajectory stalled: its process did not run for'), reason
@@ -369,6 +370,7 @@ def test_a_stopped_trajectory_aborts_its_goal_on_cont_and_the_motion_does_not_go
     client.wait(lambda: int(client.diag('hw_sim', 'step') or 0) > end, 'every streamed row played', GUARD,
                 graph.check)
     assert abs(client.truth[0] - here) < abs(target - here) / 2            # far from the goal: it did not go on
+    assert abs(client.truth[0] - held[0]) < 1e-6, client.truth[0] - held[0]   # where the servos held: no jump
     stamp, _ = slow_goal(client, distance=-0.5e-3, seconds=0.0)
     assert succeeded(client, stamp, graph)
 

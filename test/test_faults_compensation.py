@@ -56,25 +56,31 @@ def test_a_stopped_or_killed_compensation_aborts_the_goal_naming_it_the_servos_h
         refused, _ = slow_goal(client, distance=-0.5e-3, seconds=0.0)
         _, state, reason = client.wait_goal(refused, TERMINAL, graph.check)
         assert (state, reason) == ('aborted', f'joint goal: {lost}')      # refused while it is lost
+        return client.truth.copy()                  # where the servos hold
 
-    def back():
+    def back(held):
+        """Goals accepted again; the machine has stayed where the servos held, with no goal
+        (0.5 s of sim time after the return), and a new goal succeeds."""
         client.wait(lambda: client.status().get('reference_lost') == '', 'the compensation node back', GUARD,
                     graph.check)
+        step = int(client.diag('hw_sim', 'step') or 0) + round(0.5 / micromill.control_period)
+        client.wait(lambda: int(client.diag('hw_sim', 'step') or 0) > step, '0.5 s of sim time', GUARD, graph.check)
+        assert abs(client.truth[x] - held[x]) < 1e-6, (client.truth[x] - held[x])     # no motion without a goal
         stamp, _ = slow_goal(client, distance=-0.5e-3, seconds=0.0)
         _, state, reason = client.wait_goal(stamp, TERMINAL, graph.check)
         assert state == 'succeeded', reason
 
     # stopped: its liveliness lease runs out (the abort waits for that: no time is assumed)
-    lost_under_way(lambda: graph['compensation'].signal_group(signal.SIGSTOP))
+    held = lost_under_way(lambda: graph['compensation'].signal_group(signal.SIGSTOP))
     graph['compensation'].signal_group(signal.SIGCONT)
-    back()                                          # its liveliness asserted again: goals accepted
+    back(held)                                          # its liveliness asserted again: goals accepted
 
     def kill():
         graph['compensation'].stopping = True
         graph['compensation'].signal_group(signal.SIGKILL)
         assert graph.wait('compensation', GUARD) == -signal.SIGKILL
-    lost_under_way(kill)
+    held = lost_under_way(kill)
     graph.start('compensation', specs(micromill)['compensation'].argv())
     graph.wait_for_line('compensation', 'ready', GUARD)
-    back()
+    back(held)
     graph.check()

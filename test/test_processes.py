@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from machine_ctrl.app.processes import (ChildExited, Supervisor, isolated_ros_env,
+from machine_ctrl.app.processes import (ChildExited, Supervisor, exit_code_text, isolated_ros_env,
                                     reserve_ros_domain)
 
 # Tiny children. Each prints 'ready' once its signal dispositions are in place, so a test
@@ -65,6 +65,13 @@ def test_children_get_the_given_environment_and_their_own_process_group(tmp_path
         assert supervisor.wait_for_line('env', 'env', timeout=10) == 'env 42 LOCALHOST False True'
         assert supervisor.wait('env', timeout=10) == 0
         supervisor.check()      # a child that was waited for has not "exited early"
+
+
+def test_an_exit_code_reads_as_the_signal_that_ended_the_process():
+    assert exit_code_text(3) == 'code 3'
+    assert exit_code_text(-signal.SIGKILL) == 'code -9 (killed by SIGKILL)'
+    unnamed = signal.SIGRTMIN + 1                # real-time signals between MIN and MAX have no name
+    assert exit_code_text(-unnamed) == f'code {-unnamed} (killed by signal {unnamed})'
 
 
 def test_early_exit_is_reported_with_code_and_last_output(sup):

@@ -26,6 +26,7 @@ class Recorder:
     def __init__(self):
         self.by_step, self.chunks, self.states, self.logs, self.warnings = {}, [], [], [], []
         self.goal_changes = []
+        self.states_wanted = 0
         self.session = None
 
     def rows(self, first, positions, velocities, accelerations):
@@ -44,6 +45,9 @@ class Recorder:
 
     def warn(self, text):
         self.warnings.append(text)
+
+    def want_state(self):
+        self.states_wanted += 1
 
 
 @pytest.fixture
@@ -461,6 +465,29 @@ def test_a_stall_of_the_node_aborts_its_goal_and_nothing_of_it_goes_on(micromill
     assert session.state == State.IDLE
 
 
+def test_a_stall_seen_by_a_timer_waits_for_the_sim_time_and_holds_the_last_row_the_servos_had(micromill, out):
+    """A stall seen from a timer (no /clock yet: the newest step known is from before it)
+    aborts at the next /clock step; the sim went on meanwhile and the servos ran out of rows,
+    so the stream holds the last row they had: no stop planned from the past steps, which
+    would take them back along the motion."""
+    session = session_of(micromill, out, start_step=0)
+    session.watch(now=10.0, step=0)
+    assert session.accept_joint_goal(['x_c'], [[-40e-3]], [20.0])     # 20 s long
+    for step in range(CHUNK, 20 * CHUNK + 1, CHUNK):
+        session.tick(step)
+    last = max(out.by_step)
+    had = out.by_step[last]
+    session.watch(now=10.0 + 2 * contract.STALL_LIMIT)            # the timer first, after the stall
+    assert session.state == State.RUNNING and out.goal_changes[-1][1] == 'executing'
+    assert max(out.by_step) == last                              # nothing streamed, nothing cut
+    session.watch(now=10.01 + 2 * contract.STALL_LIMIT, step=last + 5 * CHUNK)   # the sim ran on
+    assert out.goal_changes[-1][1] == 'aborted' and out.goal_changes[-1][2].startswith('trajectory stalled')
+    session.tick(last + 5 * CHUNK)
+    assert session.state == State.IDLE
+    assert all(out.by_step[k] == had for k in range(last, max(out.by_step) + 1))   # held there
+    assert abs(had[0] - HERE[0]) > 1e-3                        # a row under way, not the start
+
+
 def test_the_stall_limit_is_the_sessions_own(micromill, out):
     """The trajectory node's `stall_limit` parameter: a gap of 4 s aborts nothing under a
     5 s limit; after a change to 2 s (live), a gap of 2.5 s aborts the goal."""
@@ -539,7 +566,8 @@ def test_a_loss_is_not_confirmed_across_a_stall_of_the_watching_node(micromill, 
 def test_the_compensation_node_lost_aborts_the_goal_and_refuses_goals_until_it_is_back(micromill, out):
     """README "Faults": with compensation in the chain, its loss (confirmed as hw_sim's) means
     the reference no longer reaches the servos: the goal is aborted naming it, nothing of the
-    motion goes on, and goals are refused until it is back."""
+    motion goes on, nothing more is streamed, and goals are refused until it is back and the
+    stream is taken up again from a machine state (where the servos held)."""
     session = session_of(micromill, out, start_step=0)
     assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
     session.tick(2000)
@@ -559,5 +587,43 @@ def test_the_compensation_node_lost_aborts_the_goal_and_refuses_goals_until_it_i
     assert abs(rows[-1][0] - (HERE[0] - 40e-3)) > 10e-3 and (rows[-50:] == rows[-1]).all()   # stopped short, at rest
     assert not session.accept_joint_goal(['x_c'], [[0.0]], [0.0])
     assert session.rejections.last == f'joint goal: {reason}'
+    streamed_to = max(out.by_step)
+    session.tick(session.step + 10 * LOOKAHEAD)
+    assert max(out.by_step) == streamed_to                       # nothing streamed while it is lost
     session.chain_alive('compensation', True)
-    assert session.accept_joint_goal(['x_c'], [[rows[-1][0] + 1e-3]], [0.0])
+    assert out.states_wanted == 1
+    waiting = 'compensation back: waiting for the machine state to hold where the servos stand'
+    assert session.status_values()['reference_lost'] == waiting
+    assert not session.accept_joint_goal(['x_c'], [[0.0]], [0.0])
+    assert session.rejections.last == f'joint goal: {waiting}'
+    session.chain_alive('compensation', True)                    # liveliness again: one state asked for
+    assert out.states_wanted == 1 and max(out.by_step) == streamed_to
+    # the servos held a row of the motion before its stop: the stream goes on from there
+    stood, at = list(HERE), session.step - 3
+    stood[0] = HERE[0] - 7e-3
+    session.start_streaming(stood, at)
+    assert session.status_values()['reference_lost'] == '' and session.state == State.IDLE
+    assert out.logs[-1] == f'compensation back: holding where the machine stands (step {at}); goals accepted again'
+    assert min(out.by_step) <= at and max(out.by_step) >= session.step + LOOKAHEAD
+    assert all(out.by_step[k] == tuple(stood) for k in range(at, max(out.by_step) + 1))
+    assert session.accept_joint_goal(['x_c'], [[stood[0] + 1e-3]], [0.0])
+
+
+def test_a_lost_chain_lost_again_before_its_state_came_waits_for_the_next_return(micromill, out):
+    """The state asked for at a return that is lost again before it came does not take the
+    stream up again; the next return asks again."""
+    session = session_of(micromill, out, start_step=0)
+    lost = functools.partial(session.chain_alive, 'compensation', False)
+    for start in (1.0, 3.0):
+        checked(lost, start, start + contract.LOSS_CONFIRM)
+        assert session.status_values()['reference_lost'].startswith('compensation lost')
+        session.chain_alive('compensation', True)
+    assert out.states_wanted == 2
+    checked(lost, 5.0, 5.0 + contract.LOSS_CONFIRM)
+    session.start_streaming(HERE, session.step)                  # the state of the return before
+    assert session.status_values()['reference_lost'].startswith('compensation lost')
+    assert not session.accept_joint_goal(['x_c'], [[0.0]], [0.0])
+    session.chain_alive('compensation', True)
+    assert out.states_wanted == 3
+    session.start_streaming(HERE, session.step)
+    assert session.accept_joint_goal(['x_c'], [[0.0]], [0.0])

@@ -112,6 +112,10 @@ class Outputs(Protocol):
 
     def warn(self, text: str) -> None: ...
 
+    def want_state(self) -> None:
+        """Hand the next machine state to Session.start_streaming (asked for only when the node
+        between this one and the servos is back: Session.chain_alive)."""
+
 
 @dataclass
 class Program:
@@ -251,7 +255,9 @@ class Session:
         self.hw_sim = PeerLiveliness(contract.LOSS_CONFIRM, contract.LOSS_CHECK_GAP)   # hw_sim's liveliness
         self.chain = PeerLiveliness(contract.LOSS_CONFIRM, contract.LOSS_CHECK_GAP)    # the node between this one and the servos
         self.chain_lost = ''                 # why the reference does not reach the servos
+        self.chain_back = ''                 # the node back whose machine state is awaited (chain_alive)
         self._watched_at: float | None = None  # wall time of the last watch (own stall)
+        self._stalled = ''                   # a stall of its own seen, its abort waiting for a /clock step (watch)
         self._await_fault_step = False       # a fault without hw_sim's fault step yet
 
     @property
@@ -265,9 +271,19 @@ class Session:
 
     # -- time and streaming ----------------------------------------------------------------
     def start_streaming(self, position, step: int) -> None:
-        """The first machine state: hold `position` from `step` on and stream from there."""
+        """A machine state — the first, or the one asked for when the node between this one and
+        the servos is back (:meth:`chain_alive`): hold `position` from `step` on and stream from
+        there. After such a return this is where the servos stand (they held their last row
+        while it was lost), so the stream it forwards moves nothing; goals are accepted again."""
         self.stream = ReferenceStream(self.machine.axis_names, self.machine.control_period, position, step)
         self.step = max(self.step, step)
+        if self.chain_back:
+            self.out.log(f'{self.chain_back} back: holding where the machine stands (step {step}); '
+                         'goals accepted again')
+            self.chain_lost = self.chain_back = ''
+            if self.state in (State.RUNNING, State.HOLDING):   # a stop still playing out is over: it went nowhere
+                self.program, self.held, self.stopping = None, None, False
+                self._set_state(State.IDLE)
         self._fill()
         self.out.status()
 
@@ -292,7 +308,9 @@ class Session:
             self._set_state(State.IDLE)
 
     def _fill(self) -> None:
-        if self.stream is None:
+        """Keep `lookahead` rows streamed ahead; nothing while the node between this one and
+        the servos is lost: what it would forward on its return is not where they stand."""
+        if self.stream is None or self.chain_lost:
             return
         while self.stream.next_step < self.step + self.lookahead:
             self.out.rows(*self.stream.take(self.chunk_steps))
@@ -563,26 +581,31 @@ class Session:
         means its process did not run (SIGSTOP, starved), and its clients may have been told
         it is lost (contract.STALL_LIMIT says when). The goal under way is aborted with that
         reason, nothing of it goes on: a motion the servos still have rows of is stopped as by
-        :meth:`stop`; one they ran out of (they hold the last row at rest) is held at the next
-        row."""
+        :meth:`stop`; one they ran out of (they hold the last row at rest) is held at that
+        row. Which of the two it is only the sim time after the stall tells, so the abort
+        waits for the next /clock `step` (a stall seen from a timer, before any /clock: the
+        newest step known is from before it, and a stop planned from there would take the
+        servos back along the motion)."""
         gap = 0.0 if self._watched_at is None else now - self._watched_at
         self._watched_at = now
-        if gap <= self.stall_limit or self.state not in (State.RUNNING, State.HOLDING, State.PLANNING):
-            return
-        reason = f'trajectory stalled: its process did not run for {gap:.1f} s (stopped or starved)'
-        self.out.warn(reason)
-        self._abort(reason, max(self.step, step if step is not None else 0))
+        if gap > self.stall_limit and self.state in (State.RUNNING, State.HOLDING, State.PLANNING):
+            self._stalled = f'trajectory stalled: its process did not run for {gap:.1f} s (stopped or starved)'
+            self.out.warn(self._stalled)
+        if self._stalled and step is not None:
+            reason, self._stalled = self._stalled, ''
+            if self.state in (State.RUNNING, State.HOLDING, State.PLANNING):
+                self._abort(reason, max(self.step, step))
 
     def _abort(self, reason: str, newest: int) -> None:
         """Abort the goal under way with `reason` (`newest`: the newest step the graph has
         reached); nothing of it goes on: a motion the servos still have rows of is stopped as
-        by :meth:`stop`, one they ran out of (they hold the last row at rest) is held at the
-        next row."""
+        by :meth:`stop`, one they ran out of (they hold the last row at rest) is held at that
+        row."""
         goal = self.goal
         if self.state == State.RUNNING and newest + self.chunk_steps < self.stream.next_step:
             self._halt(keep=False, reason=reason)      # 'too late' is fine: the motion ends at rest
         elif self.stream is not None:
-            self.stream.abort(self.stream.next_step)   # the servos ran out: hold where they stand
+            self.stream.abort(self.stream.next_step)   # the servos ran out: hold their last row (position())
         if self.state == State.PLANNING or not (self.stream is not None and self.stream.busy(self.stream.next_step)):
             self.program, self.held, self.stopping, self.planning_goal = None, None, False, None
             self._set_state(State.IDLE)
@@ -625,16 +648,22 @@ class Session:
         """The liveliness of `who`, the node that carries this node's reference on to the
         servos (the compensation node): lost (confirmed as for hw_sim), the reference no longer
         reaches the servos — they run out of rows and hold — so the goal under way is aborted
-        naming it, its motion stopped, and goals are refused until it is back."""
+        naming it, its motion stopped, nothing more streamed, and goals are refused until it is
+        back. Back, the stream is taken up again from the next machine state
+        (Outputs.want_state, then :meth:`start_streaming`): where the servos held, not where this
+        node's stream stood (its stop went on while nothing reached them)."""
         if alive:
             self.chain.alive()
-            if self.chain_lost:
-                self.chain_lost = ''
-                self.out.log(f'{who} back: goals accepted again')
+            if self.chain_lost and not self.chain_back:
+                self.chain_back = who
+                self.chain_lost = f'{who} back: waiting for the machine state to hold where the servos stand'
+                self.out.log(self.chain_lost)
+                self.out.want_state()
                 self.out.status()
             return
         if now is None or not self.chain.losing(now):
             return
+        self.chain_back = ''                 # lost again before its state came: wait for the next return
         self.chain_lost = (f'{who} lost: no sign of life within its {contract.LIVELINESS_LEASE:g} s liveliness '
                            'lease (killed, stopped or hung); the reference does not reach the servos')
         self.out.warn(self.chain_lost)

@@ -46,7 +46,7 @@ from pathlib import Path
 from machine_ctrl import contract
 from machine_ctrl.model.config import MachineConfig
 from machine_ctrl.ros.graph import NodeSpec, default_graph, single_process_argv
-from machine_ctrl.app.processes import ChildExited, Supervisor
+from machine_ctrl.app.processes import ChildExited, Supervisor, exit_code_text
 
 READY_TIMEOUT = 120.0          # s (wall) for every node to come up
 RECORDER_STOP_TIMEOUT = 60.0   # s the recorder may take to drain and close before SIGTERM
@@ -134,9 +134,7 @@ def respawn_delay(specs: list[NodeSpec]) -> float:
 def exit_text(child) -> str:
     """How a supervised process ended, and where its log is: 'code -9 (killed by SIGKILL)
     (its log: ...)'."""
-    code = child.returncode
-    how = f'code {code}' + (f' (killed by {signal.Signals(-code).name})' if code < 0 else '')
-    return how + (f' (its log: {child.log_path})' if child.log_path else '')
+    return exit_code_text(child.returncode) + (f' (its log: {child.log_path})' if child.log_path else '')
 
 
 def view_spec(machine: MachineConfig, port: int, namespace: str = '') -> NodeSpec:

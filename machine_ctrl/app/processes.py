@@ -50,6 +50,18 @@ ROS_DOMAIN_FIRST = 1
 ROS_DOMAIN_LAST = 101
 
 
+def exit_code_text(returncode: int) -> str:
+    """How a process ended, from its exit code: 'code 2', 'code -9 (killed by SIGKILL)'
+    (a signal with no name in this Python: 'killed by signal 40')."""
+    if returncode >= 0:
+        return f'code {returncode}'
+    try:
+        name = signal.Signals(-returncode).name
+    except ValueError:
+        name = f'signal {-returncode}'
+    return f'code {returncode} (killed by {name})'
+
+
 class ChildExited(RuntimeError):
     """A child that nobody asked to stop has exited; carries its code and last output so
     the failure report shows why (a traceback, a config error) without opening a log."""
@@ -59,10 +71,7 @@ class ChildExited(RuntimeError):
         self.returncode = returncode
         self.tail = list(tail)
         shown = '\n'.join('    ' + line for line in self.tail) or '    (no output)'
-        how = f'exited with code {returncode}'
-        if returncode < 0:
-            how += f' (killed by {signal.Signals(-returncode).name})'
-        super().__init__(f'child {name!r} {how}; last output:\n{shown}')
+        super().__init__(f'child {name!r} exited with {exit_code_text(returncode)}; last output:\n{shown}')
 
 
 @dataclass(eq=False)

@@ -73,7 +73,8 @@ reset the state returns to idle. hw_sim's loss (the liveliness lease of its latc
 runs out: killed, stopped, hung) is a fault too: the goal aborted naming hw_sim, the motion
 stopped (trajectory/session.py). With compensation (`output_topic` trajectory/reference) the
 loss of the compensation node (the lease of its latched compensation/ready) is treated alike:
-goals refused, `reference_lost` in the status. `/trajectory/goal_status` is offered with a liveliness
+goals refused, `reference_lost` in the status, nothing streamed; when it is back, the stream
+is taken up again from the next /joint_states (where the servos held), then goals are accepted. `/trajectory/goal_status` is offered with a liveliness
 lease, so a client learns within it that this node is gone (README "Faults"); its own
 process not run for longer than `stall_limit` (live, at most the lease) aborts the goal
 under way (contract.STALL_LIMIT).
@@ -135,6 +136,9 @@ class NodeOutputs:
     def warn(self, text: str) -> None:
         self.node.get_logger().warning(text, throttle_duration_sec=1.0)
 
+    def want_state(self) -> None:
+        self.node.read_state()
+
 
 class TrajectoryNode(Node):
     def __init__(self, name: str = 'trajectory', **kwargs):
@@ -163,8 +167,8 @@ class TrajectoryNode(Node):
         self.pub_goals = self.create_publisher(GoalStatusArray, contract.GOAL_STATUS.name, qos(contract.GOAL_STATUS.qos))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
-        self.sub_state = self.create_subscription(JointState, contract.JOINT_STATES.name, self.on_first_state,
-                                                  ros_io.STEP_QOS)
+        self.sub_state = None
+        self.read_state()
         self.create_subscription(Clock, contract.CLOCK.name, self.on_clock, ros_io.qos(contract.CLOCK_READER_QOS))
         self.create_subscription(Path, contract.PATH.name, self.on_path, GOAL_QOS)
         self.create_subscription(JointTrajectory, contract.JOINT_GOAL.name, self.on_joint_goal, GOAL_QOS)
@@ -236,15 +240,26 @@ class TrajectoryNode(Node):
         self.planner.shutdown(wait=True, cancel_futures=True)
 
     # -- time ------------------------------------------------------------------------------
-    def on_first_state(self, msg: JointState) -> None:
-        """Start streaming: hold the measured position from the step of the first state."""
+    def read_state(self) -> None:
+        """Read one machine state from /joint_states (the first; again when the session asks:
+        Outputs.want_state); between them the stream knows the state itself."""
+        if self.sub_state is None:
+            self.sub_state = self.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state,
+                                                      ros_io.STEP_QOS)
+
+    def on_state(self, msg: JointState) -> None:
+        """Stream from this state (Session.start_streaming: hold the measured position from
+        its step)."""
+        if self.sub_state is None:                   # one the executor had taken before the read ended
+            return
         try:
             step = self.clock.step(msg.header.stamp)
             position = ros_io.select(msg, 'position', self.machine.axis_names)
         except ros_io.InvalidMessage as exc:
             self.session.rejections.add('state', str(exc))
             return
-        self.destroy_subscription(self.sub_state)    # the stream knows the state from here on
+        self.destroy_subscription(self.sub_state)
+        self.sub_state = None
         self.session.start_streaming(position, step)
 
     def on_clock(self, msg: Clock) -> None:
