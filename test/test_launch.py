@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -22,6 +23,7 @@ import yaml
 
 from machine_ctrl.app.processes import default_stop_signals
 from machine_ctrl.recording.bag import Bag
+from machine_ctrl.ros.node_common import EXIT_LINE
 from ros_fixtures import FASTDDS_LOG
 
 BIN = Path(sys.executable).parent
@@ -199,14 +201,56 @@ def cli_env(ros_env):
     return {**ros_env, 'PATH': f'{BIN}{os.pathsep}{os.environ.get("PATH", "")}', 'PYTHONUNBUFFERED': '1'}
 
 
+def lost_but_clean(text: str, died: list[str]) -> list[str]:
+    """The lines of `died` where launch lost the exit status of a node that ended cleanly:
+    asyncio's child watcher found the pid reaped already ('Unknown child process pid N, will
+    report returncode 255': launch's own SIGINT, through Popen.send_signal, polls the child
+    and reaps it when the terminal's Ctrl-C has ended it first) and reported 255, while the
+    node's own last line says exit status 0 (README "For ROS users")."""
+    lost = set(re.findall(r'Unknown child process pid (\d+), will report returncode 255', text))
+    clean = []
+    for line in died:
+        m = re.search(r'\[(\S+)\]: process has died \[pid (\d+), exit code 255,', line)
+        if m is None or m.group(2) not in lost:
+            continue
+        own = [x for x in text.splitlines() if x.startswith(f'[{m.group(1)}] ')]
+        if own and own[-1] == f'[{m.group(1)}] {EXIT_LINE.format(status=0)}':
+            clean.append(line)
+    return clean
+
+
+def test_a_lost_exit_status_is_excused_only_by_the_nodes_own_clean_last_line():
+    """run158 (2026-12-07): launch reported servo_fine as died with 255, its own output said
+    it shut down on SIGINT. Excused: that pid's status lost, and the node's last line exit 0;
+    not a 255 of another pid, nor a node whose last line is not its clean end."""
+    died = ("[ERROR] [servo_node-3]: process has died [pid 18426, exit code 255, cmd 'servo_node --ros-args']."
+            "\n[ERROR] [servo_node-4]: process has died [pid 18427, exit code 255, cmd 'servo_node --ros-args'].")
+    lines = died.splitlines()
+
+    def log(last3, last4):
+        return '\n'.join(['[WARNING] [asyncio]: Unknown child process pid 18426, will report returncode 255',
+                          '[servo_node-3] [INFO] [1.0] [servo_fine]: SIGINT: shutting down', f'[servo_node-3] {last3}',
+                          f'[servo_node-4] {last4}', died])
+    clean = EXIT_LINE.format(status=0)
+    assert lost_but_clean(log(clean, clean), lines) == lines[:1]          # 18427's status was not lost
+    assert lost_but_clean(log(EXIT_LINE.format(status=1), clean), lines) == []
+    assert lost_but_clean(log('Traceback (most recent call last):', clean), lines) == []
+
+
 def assert_ended_cleanly(launch: Launch, status: int, nodes: int) -> None:
-    """Exit status 0 and every node process launched (at least `nodes`) finished cleanly."""
+    """Exit status 0 and every node process launched (at least `nodes`) finished cleanly (or
+    ended cleanly by its own last line where launch lost its status: :func:`lost_but_clean`)."""
     text = launch.text()
     assert status == 0, text[-3000:]
     assert 'Traceback' not in text and 'KeyboardInterrupt' not in text, text[-3000:]
     started = [line for line in text.splitlines() if 'process started with pid' in line]
     finished = [line for line in text.splitlines() if 'process has finished cleanly' in line]
     died = [line for line in text.splitlines() if 'process has died' in line]
+    excused = lost_but_clean(text, died)
+    if excused:
+        warnings.warn(f'launch lost the exit status of a node that ended cleanly: {excused}')
+    died = [line for line in died if line not in excused]
+    finished += excused
     assert len(started) >= nodes, text[-3000:]
     # a process that died: its own lines, whole (a hung teardown's native stacks, printed 4 s
     # into it, come well before the end of the launch's output)

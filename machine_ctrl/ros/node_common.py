@@ -208,16 +208,24 @@ def keep_participant(context) -> Node:
                 parameter_overrides=[Parameter('start_type_description_service', Parameter.Type.BOOL, False)])
 
 
+EXIT_LINE = 'process ends: exit status {status}'
+
+
 def end_process(status: int):
     """End the process now with `status`, its output flushed, without Python's or C++'s exit
     handlers: they would delete the DDS participant that :func:`keep_participant` keeps (the
     node's deleter, Fast DDS's DomainParticipantFactory destructor; the same wait). Its
     shared-memory segment (~0.5 MB) is removed first, as deleting the participant would
-    (machine_ctrl.shared_memory.remove_own_segments)."""
+    (machine_ctrl.shared_memory.remove_own_segments). Its last line on stderr is
+    :data:`EXIT_LINE`: the status in the node's own output, where `ros2 launch` may lose it
+    (README "For ROS users": a child reaped by launch's own signal, reported as code 255)."""
     import ctypes
     import logging
     shared_memory.remove_own_segments()
     logging.shutdown()
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+        print(EXIT_LINE.format(status=status), file=sys.stderr)
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
