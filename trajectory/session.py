@@ -605,7 +605,7 @@ class Session:
         if self.state == State.RUNNING and newest + self.chunk_steps < self.stream.next_step:
             self._halt(keep=False, reason=reason)      # 'too late' is fine: the motion ends at rest
         elif self.stream is not None:
-            self.stream.abort(self.stream.next_step)   # the servos ran out: hold their last row (position())
+            self.stream.abort(self.stream.next_step)   # the servos ran out: hold the last row handed out
         if self.state == State.PLANNING or not (self.stream is not None and self.stream.busy(self.stream.next_step)):
             self.program, self.held, self.stopping, self.planning_goal = None, None, False, None
             self._set_state(State.IDLE)

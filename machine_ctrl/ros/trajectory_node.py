@@ -74,7 +74,8 @@ runs out: killed, stopped, hung) is a fault too: the goal aborted naming hw_sim,
 stopped (trajectory/session.py). With compensation (`output_topic` trajectory/reference) the
 loss of the compensation node (the lease of its latched compensation/ready) is treated alike:
 goals refused, `reference_lost` in the status, nothing streamed; when it is back, the stream
-is taken up again from the next /joint_states (where the servos held), then goals are accepted. `/trajectory/goal_status` is offered with a liveliness
+is taken up again from the next /joint_states (where the servos held), then goals are
+accepted. `/trajectory/goal_status` is offered with a liveliness
 lease, so a client learns within it that this node is gone (README "Faults"); its own
 process not run for longer than `stall_limit` (live, at most the lease) aborts the goal
 under way (contract.STALL_LIMIT).
