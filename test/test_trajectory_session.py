@@ -488,6 +488,26 @@ def test_a_stall_seen_by_a_timer_waits_for_the_sim_time_and_holds_the_last_row_t
     assert abs(had[0] - HERE[0]) > 1e-3                        # a row under way, not the start
 
 
+def test_a_stall_waiting_for_the_sim_time_aborts_no_later_goal(micromill, out):
+    """The goal under way at a stall seen from a timer ends otherwise (hw_sim faults; it holds
+    its step, so no /clock comes), the machine is reset and a new goal accepted: the next /clock
+    step does not abort the new goal for the old stall."""
+    session = session_of(micromill, out, start_step=0)
+    session.watch(now=10.0, step=0)
+    assert session.accept_joint_goal(['x_c'], [[-40e-3]], [20.0])
+    session.tick(CHUNK)
+    session.watch(now=10.0 + 2 * contract.STALL_LIMIT)            # the stall, seen by the timer
+    session.machine_status(True, 'missing command for x_c', str(CHUNK + 1))
+    assert session.state == State.FAULT and out.goal_changes[-1][1:] == ('aborted', 'machine faulted: missing '
+                                                                          'command for x_c')
+    session.machine_status(False)                                # reset
+    assert session.state == State.IDLE
+    assert session.accept_joint_goal(['x_c'], [[-41e-3]], [0.0])
+    session.watch(now=10.05 + 2 * contract.STALL_LIMIT, step=CHUNK + 2)
+    session.tick(CHUNK + 2)
+    assert session.state == State.RUNNING and out.goal_changes[-1][1] in ('accepted', 'executing')
+
+
 def test_the_stall_limit_is_the_sessions_own(micromill, out):
     """The trajectory node's `stall_limit` parameter: a gap of 4 s aborts nothing under a
     5 s limit; after a change to 2 s (live), a gap of 2.5 s aborts the goal."""

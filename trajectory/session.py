@@ -257,7 +257,8 @@ class Session:
         self.chain_lost = ''                 # why the reference does not reach the servos
         self.chain_back = ''                 # the node back whose machine state is awaited (chain_alive)
         self._watched_at: float | None = None  # wall time of the last watch (own stall)
-        self._stalled = ''                   # a stall of its own seen, its abort waiting for a /clock step (watch)
+        # a stall of its own seen (the goal under way then, the reason), its abort waiting for a /clock step (watch)
+        self._stalled: tuple[Goal | None, str] | None = None
         self._await_fault_step = False       # a fault without hw_sim's fault step yet
 
     @property
@@ -585,15 +586,17 @@ class Session:
         row. Which of the two it is only the sim time after the stall tells, so the abort
         waits for the next /clock `step` (a stall seen from a timer, before any /clock: the
         newest step known is from before it, and a stop planned from there would take the
-        servos back along the motion)."""
+        servos back along the motion). The abort is for the goal under way at the stall: one
+        that ended meanwhile (a fault, a stop) is not aborted again, nor a later one."""
         gap = 0.0 if self._watched_at is None else now - self._watched_at
         self._watched_at = now
         if gap > self.stall_limit and self.state in (State.RUNNING, State.HOLDING, State.PLANNING):
-            self._stalled = f'trajectory stalled: its process did not run for {gap:.1f} s (stopped or starved)'
-            self.out.warn(self._stalled)
-        if self._stalled and step is not None:
-            reason, self._stalled = self._stalled, ''
-            if self.state in (State.RUNNING, State.HOLDING, State.PLANNING):
+            self._stalled = (self.goal, f'trajectory stalled: its process did not run for {gap:.1f} s '
+                                        '(stopped or starved)')
+            self.out.warn(self._stalled[1])
+        if self._stalled is not None and step is not None:
+            (goal, reason), self._stalled = self._stalled, None
+            if goal is self.goal and self.state in (State.RUNNING, State.HOLDING, State.PLANNING):
                 self._abort(reason, max(self.step, step))
 
     def _abort(self, reason: str, newest: int) -> None:

@@ -223,14 +223,13 @@ def end_process(status: int):
     import logging
     shared_memory.remove_own_segments()
     logging.shutdown()
-    with contextlib.suppress(Exception):
-        sys.stdout.flush()
-        print(EXIT_LINE.format(status=status), file=sys.stderr)
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
     with contextlib.suppress(Exception):
         ctypes.CDLL(None).fflush(None)          # C stdio (rcutils' console output)
+    with contextlib.suppress(Exception):        # after every other output
+        print(EXIT_LINE.format(status=status), file=sys.stderr, flush=True)
     os._exit(status)
 
 
