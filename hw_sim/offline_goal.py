@@ -60,6 +60,9 @@ class _Collected:
 
     warn = log
 
+    def want_state(self) -> None:
+        """Never asked offline: no node stands between the session and the servos."""
+
 
 @dataclass
 class GoalRun:
