@@ -13,8 +13,10 @@ no ROS test pays nothing. A ROS test asks for ``ros_env`` (directly or through
 import contextlib
 import io
 import os
+import signal
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -61,6 +63,34 @@ def ros_env():
                     os.environ.pop(name, None)
                 else:
                     os.environ[name] = value
+            left = ros2_daemons(lease.domain_id)
+            for pid in left:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+    if left:
+        raise RuntimeError(f'a ros2 daemon of this session (domain {lease.domain_id}) was left running, pid '
+                           f'{left} (killed now): a test that runs a ros2 verb which starts one (topic echo, '
+                           f'topic list, param get, ...) stops it at its end (`ros2 daemon stop`) or passes '
+                           f'--no-daemon')
+
+
+def ros2_daemons(domain_id: int) -> list[int]:
+    """The pids of ros2 daemons serving ROS domain `domain_id` (the ros2 command line starts
+    one, detached, at the first verb that asks the graph through it; it outlives the test
+    and stays a participant of the domain until stopped). Its command line is
+    `python -c ... --name ros2-daemon --ros-domain-id N ...`."""
+    pids = []
+    for proc in Path('/proc').iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            argv = (proc / 'cmdline').read_bytes().split(b'\0')
+        except OSError:                      # ended meanwhile, or not ours to read
+            continue
+        if b'ros2-daemon' in argv and any(argv[i] == b'--ros-domain-id' and argv[i + 1] == str(domain_id).encode()
+                                          for i in range(len(argv) - 1)):
+            pids.append(int(proc.name))
+    return pids
 
 
 @contextlib.contextmanager

@@ -24,7 +24,7 @@ import yaml
 from machine_ctrl.app.processes import default_stop_signals
 from machine_ctrl.recording.bag import Bag
 from machine_ctrl.ros.node_common import EXIT_LINE
-from ros_fixtures import FASTDDS_LOG
+from ros_fixtures import FASTDDS_LOG, ros2_daemons
 
 BIN = Path(sys.executable).parent
 ROS2 = BIN / 'ros2'
@@ -198,7 +198,16 @@ def side_by_side(*calls):
 
 @pytest.fixture
 def cli_env(ros_env):
-    return {**ros_env, 'PATH': f'{BIN}{os.pathsep}{os.environ.get("PATH", "")}', 'PYTHONUNBUFFERED': '1'}
+    """The session's environment for the ros2 command line. `ros2 topic echo`, `topic list`,
+    `param get` start a ros2 daemon (as for a user at a terminal); it is stopped at the end
+    of the test, and found gone (ros_fixtures.ros2_daemons)."""
+    env = {**ros_env, 'PATH': f'{BIN}{os.pathsep}{os.environ.get("PATH", "")}', 'PYTHONUNBUFFERED': '1'}
+    yield env
+    ros2(env, 'daemon', 'stop')            # returns once the daemon no longer answers; its process ends after
+    deadline = time.monotonic() + EXIT_TIMEOUT
+    while (left := ros2_daemons(int(env['ROS_DOMAIN_ID']))) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not left, f'ros2 daemon stop left the daemon running: pid {left}'
 
 
 def lost_but_clean(text: str, died: list[str]) -> list[str]:
