@@ -92,6 +92,17 @@ LOSS_CHECK_GAP = 0.5       # s
 # assumed: above the 2.5 s recorder freeze that test_recorder_graph.py must survive holding
 # (a freeze longer than this releases hw_sim's hold: the machine goes on, the bag may lose)
 RECORDER_LIVELINESS_LEASE = 5.0     # s
+# A servo's reference stream that broke while moving (an underrun: the node before it was lost
+# or stalled) is held, and taken up again only from a row at rest this close to the position
+# held, on every axis (m or rad; machine_ctrl.model.reference.ReferenceBuffer): rows that were
+# on their way before the break (queued by a node that continues, re-sent from a writer's
+# history to one started again) would move the machine without a goal. assumed: 20 µm / 20
+# µrad. The trajectory node takes the stream up again from the very row the servos hold where
+# it knows it (trajectory.session.Session.machine_state); from the measured position where it
+# does not, which differs by the holding axis's settling and the corrections and offsets added
+# once more on the way (up to 10 µm / µrad measured on the micromill's fine stage, issue
+# [6/8]): above that, far below a motion's stopping distance, where a stale row at rest stands
+REJOIN_TOLERANCE = 20e-6
 
 
 # A node process prints every thread's Python stack on stderr when it gets this signal

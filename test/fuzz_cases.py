@@ -766,6 +766,17 @@ class Declared:
     high: float | None = None
     choices: tuple[str, ...] = ()   # a string parameter's choices ('one of ...')
 
+    @classmethod
+    def of(cls, descriptor, value) -> Declared:
+        """From an rcl_interfaces ParameterDescriptor and the parameter's value."""
+        low = high = None
+        if descriptor.floating_point_range:
+            low, high = descriptor.floating_point_range[0].from_value, descriptor.floating_point_range[0].to_value
+        choices = ()
+        if descriptor.type == STRING and descriptor.additional_constraints.startswith('one of '):
+            choices = tuple(descriptor.additional_constraints.split(';')[0][len('one of '):].split(', '))
+        return cls(descriptor.name, descriptor.type, descriptor.read_only, value, low, high, choices)
+
 
 # rcl_interfaces/msg/ParameterType
 NOT_SET, BOOL, INTEGER, DOUBLE, STRING, BYTE_ARRAY, BOOL_ARRAY, INTEGER_ARRAY, DOUBLE_ARRAY, STRING_ARRAY = range(10)
@@ -876,7 +887,8 @@ def parameter_case(draw, node: str, declared: dict[str, Declared], sim_time: boo
 
 
 # --- services -------------------------------------------------------------------------------
-TRIGGERS = (contract.HOLD.name, contract.RESUME.name, contract.STOP.name, contract.HOME.name, contract.RESET.name)
+TRIGGERS = (contract.HOLD.name, contract.RESUME.name, contract.STOP.name, contract.HOME.name, contract.FREEFORM.name,
+            contract.RESET.name)
 SWITCHES = (contract.DUAL_STAGE_ENABLE.name, contract.COMPENSATION_ENABLE.name)
 service_call = st.one_of(
     st.tuples(st.just('trigger'), st.sampled_from(TRIGGERS)),

@@ -8,6 +8,10 @@ import numpy as np
 # which the 7.4 rad return of fts_lathe's c at 5 µs shows at about 0.7 (its third difference
 # reads 2.1 % over the jerk limit while its analytic acceleration steps stay within 1 + 2e-11).
 SAMPLE_ULPS = 2.0
+# A machine standing still moves by its noise-driven jitter only: below these, in m and rad
+# (test_robustness: the micromill table's tilt jitter reaches ~20 µrad peak to peak under the
+# assumed table force noise of its machine YAML; a bad goal would move far more)
+LINEAR_STILL, ROTARY_STILL = 1e-6, 100e-6
 
 
 def rounding_error(order: int, magnitude, period: float, ulps: float = SAMPLE_ULPS):

@@ -47,6 +47,7 @@ from hypothesis import HealthCheck, Phase, given, seed, settings
 from hypothesis import strategies as st
 
 import fuzz_cases as fc
+from limit_checks import LINEAR_STILL, ROTARY_STILL
 from machine_ctrl import contract
 from machine_ctrl.app.client import MachineClient, Timeout
 from machine_ctrl.app.processes import Supervisor
@@ -63,7 +64,6 @@ TOPIC_EXAMPLES = max(1, math.ceil(MESSAGES / BATCH))
 PARAMETER_EXAMPLES = max(40, MESSAGES // 5)
 SERVICE_EXAMPLES = max(10, MESSAGES // 25)
 NODES = ('hw_sim', 'servo_coarse', 'servo_fine', 'dual_stage', 'trajectory', 'compensation', 'contour_error')
-LINEAR_STILL, ROTARY_STILL = 1e-6, 100e-6      # m, rad: the noise-driven jitter at rest (test_robustness)
 
 
 def fuzz_settings(examples: int):
@@ -429,20 +429,10 @@ class Parameters:
         return future.result()
 
     def discover(self, node) -> dict[str, fc.Declared]:
-        from rcl_interfaces.msg import ParameterType
         names = list(self.call(node, 'list', self.kinds['list'].Request()).result.names)
         descriptors = self.call(node, 'describe', self.kinds['describe'].Request(names=names)).descriptors
         values = self.get(node, names)
-        out = {}
-        for d in descriptors:
-            low = high = None
-            if d.floating_point_range:
-                low, high = d.floating_point_range[0].from_value, d.floating_point_range[0].to_value
-            choices = ()
-            if d.type == ParameterType.PARAMETER_STRING and d.additional_constraints.startswith('one of '):
-                choices = tuple(d.additional_constraints.split(';')[0][len('one of '):].split(', '))
-            out[d.name] = fc.Declared(d.name, d.type, d.read_only, values[d.name], low, high, choices)
-        return out
+        return {d.name: fc.Declared.of(d, values[d.name]) for d in descriptors}
 
     def get(self, node, names) -> dict:
         from rclpy.parameter import parameter_value_to_python

@@ -440,21 +440,29 @@ def test_a_path_is_held_on_the_path_and_its_approach_by_a_stop(micromill, out):
     assert out.goal_changes[-1][1] == 'succeeded' and approach > 3000
 
 
+def clock(session, now: float, step: int) -> None:
+    """A /clock `step` at wall time `now`, as the node takes it: the stall check, then the tick."""
+    session.watch(now)
+    session.tick(step)
+
+
 def test_a_stall_of_the_node_aborts_its_goal_and_nothing_of_it_goes_on(micromill, out):
     """README "Faults": the node's process did not run for more than its stall limit (by
     default contract.STALL_LIMIT, half the liveliness lease: clients may have taken it for
-    lost): the goal is aborted and its motion stopped."""
+    lost): the goal is aborted and its motion stopped, once a machine state sent after the
+    stall gives the sim time."""
     session = session_of(micromill, out, start_step=0)
-    session.watch(now=10.0, step=0)
+    clock(session, 10.0, 0)
     assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
-    session.tick(2000)
-    session.watch(now=10.05, step=2000)
+    clock(session, 10.05, 2000)
     assert session.state == State.RUNNING
     assert session.stall_limit == contract.STALL_LIMIT
-    session.watch(now=10.05 + 0.9 * contract.STALL_LIMIT, step=2000)     # below the limit: no stall
-    assert session.state == State.RUNNING
+    clock(session, 10.05 + 0.9 * contract.STALL_LIMIT, 2000)     # below the limit: no stall
+    assert session.state == State.RUNNING and out.states_wanted == 0
     stood = 1.2 * contract.STALL_LIMIT
-    session.watch(now=10.05 + 0.9 * contract.STALL_LIMIT + stood, step=2000)
+    clock(session, 10.05 + 0.9 * contract.STALL_LIMIT + stood, 2000)
+    assert out.states_wanted == 1 and out.goal_changes[-1][1] == 'executing'    # the sim time asked for
+    session.machine_state(HERE, 2010)
     assert out.goal_changes[-1][1] == 'aborted'
     assert out.goal_changes[-1][2] == f'trajectory stalled: its process did not run for {stood:.1f} s (stopped or starved)'
     run_until_idle(session)
@@ -462,25 +470,33 @@ def test_a_stall_of_the_node_aborts_its_goal_and_nothing_of_it_goes_on(micromill
     assert abs(rows[-1][0] - (HERE[0] - 40e-3)) > 10e-3     # stopped far short of the goal
     assert (rows[-50:] == rows[-1]).all()         # and at rest
     session.watch(now=20.0)                       # idle: a gap is no stall of a goal
-    assert session.state == State.IDLE
+    assert session.state == State.IDLE and out.states_wanted == 1
 
 
-def test_a_stall_seen_by_a_timer_waits_for_the_sim_time_and_holds_the_last_row_the_servos_had(micromill, out):
-    """A stall seen from a timer (no /clock yet: the newest step known is from before it)
-    aborts at the next /clock step; the sim went on meanwhile and the servos ran out of rows,
-    so the stream holds the last row they had: no stop planned from the past steps, which
-    would take them back along the motion."""
+@pytest.mark.parametrize('seen_by', ['timer', 'clock'])
+def test_a_stall_waits_for_a_fresh_machine_state_and_holds_the_last_row_the_servos_had(micromill, out, seen_by):
+    """A stall seen from a timer (the newest step known is from before it) or from a /clock
+    step of the stall's gap (the reader's queue still holds them): nothing is streamed until
+    a machine state sent after the stall; the sim went on meanwhile and the servos ran out of
+    rows, so the stream holds the last row they had. No stop planned from the past steps,
+    which would take them back along the motion; no rows from them, which would move the
+    servos on from where they stand."""
     session = session_of(micromill, out, start_step=0)
-    session.watch(now=10.0, step=0)
+    clock(session, 10.0, 0)
     assert session.accept_joint_goal(['x_c'], [[-40e-3]], [20.0])     # 20 s long
     for step in range(CHUNK, 20 * CHUNK + 1, CHUNK):
         session.tick(step)
     last = max(out.by_step)
     had = out.by_step[last]
-    session.watch(now=10.0 + 2 * contract.STALL_LIMIT)            # the timer first, after the stall
-    assert session.state == State.RUNNING and out.goal_changes[-1][1] == 'executing'
-    assert max(out.by_step) == last                              # nothing streamed, nothing cut
-    session.watch(now=10.01 + 2 * contract.STALL_LIMIT, step=last + 5 * CHUNK)   # the sim ran on
+    if seen_by == 'timer':
+        session.watch(now=10.0 + 2 * contract.STALL_LIMIT)
+    else:
+        clock(session, 10.0 + 2 * contract.STALL_LIMIT, 21 * CHUNK)  # a step of the gap, queued
+    assert session.state == State.RUNNING and out.goal_changes[-1][1] == 'executing' and out.states_wanted == 1
+    for step in range(21 * CHUNK, 24 * CHUNK + 1, CHUNK):           # more steps of the gap
+        clock(session, 10.01 + 2 * contract.STALL_LIMIT, step)
+    assert max(out.by_step) == last and out.goal_changes[-1][1] == 'executing'   # nothing streamed, nothing cut
+    session.machine_state(HERE, last + 5 * CHUNK)                   # the sim ran past the rows
     assert out.goal_changes[-1][1] == 'aborted' and out.goal_changes[-1][2].startswith('trajectory stalled')
     session.tick(last + 5 * CHUNK)
     assert session.state == State.IDLE
@@ -489,22 +505,25 @@ def test_a_stall_seen_by_a_timer_waits_for_the_sim_time_and_holds_the_last_row_t
 
 
 def test_a_stall_waiting_for_the_sim_time_aborts_no_later_goal(micromill, out):
-    """The goal under way at a stall seen from a timer ends otherwise (hw_sim faults; it holds
-    its step, so no /clock comes), the machine is reset and a new goal accepted: the next /clock
-    step does not abort the new goal for the old stall."""
+    """The goal under way at a stall ends otherwise before the machine state comes (hw_sim
+    faults), the machine is reset and a new goal accepted: that goal is streamed, and the
+    state, when it comes, does not abort it for the old stall."""
     session = session_of(micromill, out, start_step=0)
-    session.watch(now=10.0, step=0)
+    clock(session, 10.0, 0)
     assert session.accept_joint_goal(['x_c'], [[-40e-3]], [20.0])
     session.tick(CHUNK)
-    session.watch(now=10.0 + 2 * contract.STALL_LIMIT)            # the stall, seen by the timer
+    session.watch(now=10.0 + 2 * contract.STALL_LIMIT)            # the stall
     session.machine_status(True, 'missing command for x_c', str(CHUNK + 1))
     assert session.state == State.FAULT and out.goal_changes[-1][1:] == ('aborted', 'machine faulted: missing '
                                                                           'command for x_c')
     session.machine_status(False)                                # reset
     assert session.state == State.IDLE
     assert session.accept_joint_goal(['x_c'], [[-41e-3]], [0.0])
-    session.watch(now=10.05 + 2 * contract.STALL_LIMIT, step=CHUNK + 2)
-    session.tick(CHUNK + 2)
+    streamed_to = max(out.by_step)
+    clock(session, 10.05 + 2 * contract.STALL_LIMIT, CHUNK + 2)
+    session.tick(3 * CHUNK)
+    assert max(out.by_step) > streamed_to                        # streamed: the stall waits for no state now
+    session.machine_state(HERE, 3 * CHUNK)
     assert session.state == State.RUNNING and out.goal_changes[-1][1] in ('accepted', 'executing')
 
 
@@ -514,13 +533,13 @@ def test_the_stall_limit_is_the_sessions_own(micromill, out):
     session = Session(micromill, out, CHUNK, LOOKAHEAD, stall_limit=5.0)
     out.session = session
     session.start_streaming(HERE, 0)
-    session.watch(now=10.0, step=0)
+    clock(session, 10.0, 0)
     assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
-    session.tick(2000)
-    session.watch(now=14.0, step=2000)
-    assert session.state == State.RUNNING and out.goal_changes[-1][1] == 'executing'
+    clock(session, 14.0, 2000)
+    assert session.state == State.RUNNING and out.goal_changes[-1][1] == 'executing' and out.states_wanted == 0
     session.stall_limit = 2.0
-    session.watch(now=16.5, step=2000)
+    clock(session, 16.5, 2000)
+    session.machine_state(HERE, 2000)
     assert out.goal_changes[-1][1:] == ('aborted', 'trajectory stalled: its process did not run for 2.5 s '
                                         '(stopped or starved)')
 
@@ -621,12 +640,83 @@ def test_the_compensation_node_lost_aborts_the_goal_and_refuses_goals_until_it_i
     # the servos held a row of the motion before its stop: the stream goes on from there
     stood, at = list(HERE), session.step - 3
     stood[0] = HERE[0] - 7e-3
-    session.start_streaming(stood, at)
+    session.machine_state(stood, at)
     assert session.status_values()['reference_lost'] == '' and session.state == State.IDLE
-    assert out.logs[-1] == f'compensation back: holding where the machine stands (step {at}); goals accepted again'
+    assert out.logs[-1] == (f'compensation back: holding where the servos stand (the measured position, from step '
+                            f'{at}); goals accepted again')
     assert min(out.by_step) <= at and max(out.by_step) >= session.step + LOOKAHEAD
     assert all(out.by_step[k] == tuple(stood) for k in range(at, max(out.by_step) + 1))
     assert session.accept_joint_goal(['x_c'], [[stood[0] + 1e-3]], [0.0])
+
+
+def test_back_after_the_servos_broke_the_stream_holds_the_row_they_hold(micromill, out):
+    """The servos ran out of rows while compensation was lost and report the break (their
+    /diagnostics `reference_broken_step` E): the stream is taken up again from the row this
+    node handed out for step E - 1, which they hold, not from the measured position (which has
+    compensation's correction and the dual-stage offsets in it: they would be added again).
+    Breaks reported at another step by another node, or from before the stream's last start,
+    leave the measured position."""
+    session = session_of(micromill, out, start_step=0)
+    assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
+    for step in range(CHUNK, 6 * CHUNK + 1, CHUNK):
+        session.tick(step)
+    lost = functools.partial(session.chain_alive, 'compensation', False)
+    checked(lost, 3.0, 3.0 + contract.LOSS_CONFIRM)
+    assert out.goal_changes[-1][1] == 'aborted'
+    broke = 4 * CHUNK + 7
+    had = out.by_step[broke - 1]
+    assert abs(had[0] - HERE[0]) > 1e-6                            # a row under way
+    for who in ('servo_coarse', 'servo_fine', 'dual_stage'):
+        session.reference_broken(who, str(broke))
+    session.reference_broken('servo_fine', 'x')                     # no step: ignored
+    session.chain_alive('compensation', True)
+    measured = list(had)
+    measured[3] += 5e-6                                             # x_f: the correction in it once more
+    session.machine_state(measured, 6 * CHUNK + 3)
+    assert out.logs[-1] == (f'compensation back: holding where the servos stand (the row of step {broke - 1}, '
+                            f'before their reference broke, from step {6 * CHUNK + 3}); goals accepted again')
+    assert all(out.by_step[k] == tuple(had) for k in range(6 * CHUNK + 3, 6 * CHUNK + 3 + LOOKAHEAD))
+    # lost again; back with breaks at two steps (one node got a chunk the others did not)
+    checked(lost, 5.0, 5.0 + contract.LOSS_CONFIRM)
+    session.reference_broken('servo_coarse', str(7 * CHUNK))
+    session.reference_broken('servo_fine', str(7 * CHUNK + 1))
+    session.chain_alive('compensation', True)
+    session.machine_state(measured, 8 * CHUNK)
+    assert out.logs[-1].startswith('compensation back: holding where the servos stand (the measured position')
+    assert out.by_step[8 * CHUNK] == tuple(measured)
+    # lost again; the breaks known are from before the last start: the measured position
+    checked(lost, 7.0, 7.0 + contract.LOSS_CONFIRM)
+    session.chain_alive('compensation', True)
+    session.machine_state(HERE, 9 * CHUNK)
+    assert out.logs[-1].startswith('compensation back: holding where the servos stand (the measured position')
+
+
+def test_a_break_reported_when_idle_is_mended_by_holding_the_row_the_servo_holds(micromill, out):
+    """The stream fell behind during a goal (no link lost): a servo ran out while moving and
+    holds, refusing the rest of the motion. Reported during the goal, nothing changes; once
+    idle, the stream holds the row handed out for the step before the break, the one the servo
+    holds, so it takes the stream up again. The same report again, or one from before the
+    stream's last start, changes nothing."""
+    session = session_of(micromill, out, start_step=0)
+    assert session.accept_joint_goal(['x_c'], [[-40e-3]], [0.0])
+    for step in range(CHUNK, 4 * CHUNK, CHUNK):
+        session.tick(step)
+    broke = 3 * CHUNK + 11
+    session.reference_broken('servo_coarse', str(broke))           # during the goal: left to the servo
+    assert session.state == State.RUNNING and out.warnings == []
+    had = out.by_step[broke - 1]
+    assert abs(had[0] - HERE[0]) > 1e-6                            # a row under way
+    end = run_until_idle(session)
+    chunks = len(out.chunks)
+    session.reference_broken('servo_coarse', str(broke))           # its next 1 Hz report, idle
+    assert out.warnings[-1] == (f'servo_coarse: its reference broke at step {broke} while moving; holding where '
+                                'it stands')
+    assert out.chunks[chunks] == session.step == end
+    assert all(out.by_step[k] == tuple(had) for k in range(end, end + LOOKAHEAD))
+    chunks = len(out.chunks)
+    session.reference_broken('servo_fine', str(broke))             # the same break: mended already
+    session.reference_broken('servo_coarse', '5')
+    assert len(out.chunks) == chunks and out.warnings[-1].startswith('servo_coarse: its reference broke')
 
 
 def test_a_lost_chain_lost_again_before_its_state_came_waits_for_the_next_return(micromill, out):
@@ -640,10 +730,10 @@ def test_a_lost_chain_lost_again_before_its_state_came_waits_for_the_next_return
         session.chain_alive('compensation', True)
     assert out.states_wanted == 2
     checked(lost, 5.0, 5.0 + contract.LOSS_CONFIRM)
-    session.start_streaming(HERE, session.step)                  # the state of the return before
+    session.machine_state(HERE, session.step)                    # the state of the return before
     assert session.status_values()['reference_lost'].startswith('compensation lost')
     assert not session.accept_joint_goal(['x_c'], [[0.0]], [0.0])
     session.chain_alive('compensation', True)
     assert out.states_wanted == 3
-    session.start_streaming(HERE, session.step)
+    session.machine_state(HERE, session.step)
     assert session.accept_joint_goal(['x_c'], [[0.0]], [0.0])

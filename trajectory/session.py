@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import os
 import signal
+from collections import deque
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Protocol
@@ -113,8 +114,9 @@ class Outputs(Protocol):
     def warn(self, text: str) -> None: ...
 
     def want_state(self) -> None:
-        """Hand the next machine state to Session.start_streaming (asked for only when the node
-        between this one and the servos is back: Session.chain_alive)."""
+        """Hand the next machine state (one sent after this call) to Session.machine_state
+        (asked for when the node between this one and the servos is back: Session.chain_alive;
+        and after a stall of this node's own: Session.watch)."""
 
 
 @dataclass
@@ -257,9 +259,14 @@ class Session:
         self.chain_lost = ''                 # why the reference does not reach the servos
         self.chain_back = ''                 # the node back whose machine state is awaited (chain_alive)
         self._watched_at: float | None = None  # wall time of the last watch (own stall)
-        # a stall of its own seen (the goal under way then, the reason), its abort waiting for a /clock step (watch)
+        # a stall of its own seen (the goal under way then, the reason), its abort waiting for a fresh
+        # machine state (watch, machine_state)
         self._stalled: tuple[Goal | None, str] | None = None
         self._await_fault_step = False       # a fault without hw_sim's fault step yet
+        self._handed: deque[tuple[int, list]] = deque()   # chunks handed out (first step, positions), oldest first
+        self._anchor_step = -1               # the step the stream was last taken up from (start_streaming)
+        # node -> the step its reference broke at, and the row handed out for the step before (reference_broken)
+        self._breaks: dict[str, tuple[int, list | None]] = {}
 
     @property
     def goal(self) -> Goal | None:
@@ -271,15 +278,17 @@ class Session:
         return self.planning_goal.label if self.planning_goal else ''
 
     # -- time and streaming ----------------------------------------------------------------
-    def start_streaming(self, position, step: int) -> None:
-        """A machine state — the first, or the one asked for when the node between this one and
-        the servos is back (:meth:`chain_alive`): hold `position` from `step` on and stream from
-        there. After such a return this is where the servos stand (they held their last row
-        while it was lost), so the stream it forwards moves nothing; goals are accepted again."""
+    def start_streaming(self, position, step: int, where: str = 'the measured position') -> None:
+        """Hold `position` from `step` on and stream from there: the first machine state; after
+        the node between this one and the servos is back (:meth:`machine_state`), where the
+        servos stand (they held their last row while it was lost: `where` says which position
+        that is taken to be), so the stream it forwards moves nothing, and goals are accepted
+        again; or the row a servo whose stream broke holds (:meth:`reference_broken`)."""
         self.stream = ReferenceStream(self.machine.axis_names, self.machine.control_period, position, step)
         self.step = max(self.step, step)
+        self._anchor_step = step
         if self.chain_back:
-            self.out.log(f'{self.chain_back} back: holding where the machine stands (step {step}); '
+            self.out.log(f'{self.chain_back} back: holding where the servos stand ({where}, from step {step}); '
                          'goals accepted again')
             self.chain_lost = self.chain_back = ''
             if self.state in (State.RUNNING, State.HOLDING):   # a stop still playing out is over: it went nowhere
@@ -287,6 +296,54 @@ class Session:
                 self._set_state(State.IDLE)
         self._fill()
         self.out.status()
+
+    def machine_state(self, position, step: int) -> None:
+        """A machine state asked for (Outputs.want_state; the first is asked for at the start):
+        a stall's abort waiting for the sim time is decided at its `step` (:meth:`watch`);
+        the first state starts the stream at `position`; the one after the node between this
+        one and the servos came back starts it where the servos hold: the row handed out for
+        the step before their break, when they reported one break step (:meth:`reference_broken`),
+        else `position` (the measured one: the corrections and offsets added on the way to the
+        servos are in it, and would be added once more)."""
+        self.step = max(self.step, step)
+        if self._stall_waiting():
+            self._abort(self._stalled[1], self.step)
+        self._stalled = None
+        if self.chain_back:
+            broke = {k for k, _ in self._breaks.values() if k > self._anchor_step}
+            held = next(row for k, row in self._breaks.values() if k in broke) if len(broke) == 1 else None
+            if held is not None:
+                self.start_streaming(held, step, f'the row of step {min(broke) - 1}, before their reference broke')
+            else:
+                self.start_streaming(position, step)
+        elif self.stream is None:
+            self.start_streaming(position, step)
+        else:
+            self._fill()
+            self.out.status()
+
+    def reference_broken(self, who: str, step_text: str) -> None:
+        """`who` (a node that follows the reference: a servo, the dual-stage node) reports its
+        stream broken at step `step_text` while moving (model/reference.py ReferenceBuffer: it
+        ran out of rows, holds the last one it had and refuses every row until one at rest
+        where it holds). Kept for the stream's next start after the node between this one and
+        the servos was lost (:meth:`machine_state`). Idle with the chain whole, a break after
+        the stream's last start (the stream fell behind: it never stopped) is mended at once:
+        the stream holds the row handed out for the step before it, the one `who` holds. (A
+        break during a goal, outside a lost link, is not: the servo holds and refuses the rest
+        of the motion, and says so on its /diagnostics; README "Faults".) Text that is no
+        step is ignored."""
+        if not (step_text.isascii() and step_text.isdigit()):
+            return
+        broke = int(step_text)
+        if self._breaks.get(who, (None,))[0] != broke:      # its first report: the row, while still kept
+            self._breaks[who] = (broke, self.handed_position(broke - 1))
+        held = self._breaks[who][1]
+        if self.state != State.IDLE or self.chain_lost or self.chain_back or broke <= self._anchor_step:
+            return
+        if held is not None:
+            self.out.warn(f'{who}: its reference broke at step {broke} while moving; holding where it stands')
+            self.start_streaming(held, self.step, f'the row of step {broke - 1}')
 
     def tick(self, step: int) -> None:
         """The sim time is at `step`: keep `lookahead` rows streamed ahead; the goal is
@@ -308,13 +365,31 @@ class Session:
             self.program, self.stopping = None, False
             self._set_state(State.IDLE)
 
+    def _send(self, first: int, positions, velocities, accelerations) -> None:
+        """Hand a chunk out, and keep the positions handed out over the last two lookaheads
+        (:meth:`handed_position`)."""
+        self._handed.append((first, positions))
+        while len(self._handed) > 1 and self._handed[0][0] + len(self._handed[0][1]) < self.step - 2 * self.lookahead:
+            self._handed.popleft()
+        self.out.rows(first, positions, velocities, accelerations)
+
+    def handed_position(self, step: int) -> list | None:
+        """The position this node handed out for `step` last (None: none kept)."""
+        for first, positions in reversed(self._handed):
+            if first <= step < first + len(positions):
+                return list(positions[step - first])
+        return None
+
     def _fill(self) -> None:
         """Keep `lookahead` rows streamed ahead; nothing while the node between this one and
-        the servos is lost: what it would forward on its return is not where they stand."""
-        if self.stream is None or self.chain_lost:
+        the servos is lost (what it would forward on its return is not where they stand), nor
+        while a stall's abort waits for the sim time (rows taken up again from a step of
+        before the stall could reach servos that ran out and hold: they would go on moving,
+        from where the sim time is now)."""
+        if self.stream is None or self.chain_lost or self._stall_waiting():
             return
         while self.stream.next_step < self.step + self.lookahead:
-            self.out.rows(*self.stream.take(self.chunk_steps))
+            self._send(*self.stream.take(self.chunk_steps))
 
     # -- refusals --------------------------------------------------------------------------
     def refuse(self, what: str, reason: str, stamp: tuple[int, int] | None = None, label: str = '') -> None:
@@ -525,7 +600,7 @@ class Session:
         motion = stream.motion
         begin = max(at, motion.start)
         while stream.next_step <= begin:           # the state there must be streamed
-            self.out.rows(*stream.take(self.chunk_steps))
+            self._send(*stream.take(self.chunk_steps))
         tau = stream.tau_at(begin)
         if not stream.busy(begin) or tau >= motion.last:
             end = motion.end if motion.end is not None else begin
@@ -548,7 +623,7 @@ class Session:
                                  'there too')
         stream.cut(begin, tail)
         while stream.busy(stream.next_step):      # the stop streamed to its end: resume starts after it
-            self.out.rows(*stream.take(self.chunk_steps))
+            self._send(*stream.take(self.chunk_steps))
         self.held = (part, tau) if keep else None
         if not keep:
             self.stopping = True
@@ -576,28 +651,32 @@ class Session:
         return f'feed {value:g} from step {begin}'
 
     # -- faults ----------------------------------------------------------------------------
-    def watch(self, now: float, step: int | None = None) -> None:
+    def watch(self, now: float) -> None:
         """This node's own stall: more than `stall_limit` s (wall, `now`) since the last call —
-        the node calls this from its timers (every 0.05 s) and before each /clock `step` —
+        the node calls this from its timers (every 0.05 s) and before each /clock step —
         means its process did not run (SIGSTOP, starved), and its clients may have been told
         it is lost (contract.STALL_LIMIT says when). The goal under way is aborted with that
         reason, nothing of it goes on: a motion the servos still have rows of is stopped as by
         :meth:`stop`; one they ran out of (they hold the last row at rest) is held at that
         row. Which of the two it is only the sim time after the stall tells, so the abort
-        waits for the next /clock `step` (a stall seen from a timer, before any /clock: the
-        newest step known is from before it, and a stop planned from there would take the
-        servos back along the motion). The abort is for the goal under way at the stall: one
-        that ended meanwhile (a fault, a stop) is not aborted again, nor a later one."""
+        waits for a machine state sent after it (Outputs.want_state, :meth:`machine_state`),
+        and nothing is streamed meanwhile. Not the next /clock step: one taken from a timer
+        is from before the stall, and the clock reader's queue holds steps of the stall's
+        gap; a stop planned from such a step would take the servos back along the motion.
+        The abort is for the goal under way at the stall: one that ended meanwhile (a fault,
+        a stop) is not aborted again, nor a later one."""
         gap = 0.0 if self._watched_at is None else now - self._watched_at
         self._watched_at = now
         if gap > self.stall_limit and self.state in (State.RUNNING, State.HOLDING, State.PLANNING):
             self._stalled = (self.goal, f'trajectory stalled: its process did not run for {gap:.1f} s '
                                         '(stopped or starved)')
             self.out.warn(self._stalled[1])
-        if self._stalled is not None and step is not None:
-            (goal, reason), self._stalled = self._stalled, None
-            if goal is self.goal and self.state in (State.RUNNING, State.HOLDING, State.PLANNING):
-                self._abort(reason, max(self.step, step))
+            self.out.want_state()
+
+    def _stall_waiting(self) -> bool:
+        """A stall's abort waits for the sim time (:meth:`watch`): its goal is still under way."""
+        return self._stalled is not None and self._stalled[0] is self.goal and \
+            self.state in (State.RUNNING, State.HOLDING, State.PLANNING)
 
     def _abort(self, reason: str, newest: int) -> None:
         """Abort the goal under way with `reason` (`newest`: the newest step the graph has

@@ -65,17 +65,28 @@ class ReferenceBuffer:
     """Streamed reference rows for some axes, keyed by control step (design.md "Time": the
     servo buffer a CNC interpolator fills ahead). A chunk replaces whatever the buffer held
     from its first step on (a re-plan); a chunk that starts after the buffered end discards
-    everything buffered, the steps before it empty. An empty buffer holds the last reference position at rest —
-    or, before any reference arrived, the given fallback (the measured position) — and
-    counts an underrun; it never jumps."""
+    everything buffered, the steps before it empty. An empty buffer holds the last reference
+    position at rest — or, before any reference arrived, the given fallback (the measured
+    position) — and counts an underrun; it never jumps.
 
-    def __init__(self, axis_names):
+    An underrun while the held row moved (velocity or acceleration not zero) breaks the
+    stream: the rows that come after it may be stale (queued on their way before the break)
+    and would move on from where the machine no longer is. The buffer then holds, refusing
+    every row (counted, with the reason) until one at rest within `rejoin_tolerance` of the
+    held position on every axis (the stream taken up again where the machine stands)."""
+
+    def __init__(self, axis_names, rejoin_tolerance: float):
         self.axis_names = tuple(axis_names)
+        self.rejoin_tolerance = rejoin_tolerance
         self._rows: deque[tuple[list[float], list[float], list[float]]] = deque()
         self._first = 0                      # step of _rows[0]
         self._held: list[float] | None = None
+        self._moving = False                 # the row held last moved
         self.underruns = 0
         self.started = False                 # a chunk has arrived at least once
+        self.broken_step: int | None = None  # the underrun that broke the stream, while it is broken
+        self.refused_rows = 0
+        self.last_refusal = ''
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -99,17 +110,38 @@ class ReferenceBuffer:
         self._rows.extend(zip(positions, velocities, accelerations))
 
     def take(self, step: int, fallback_position) -> tuple[list[float], list[float], list[float], bool]:
-        """Row of `step` (older rows are dropped) and whether it was an underrun."""
+        """Row of `step` (older rows are dropped) and whether the held position was returned
+        instead (an underrun, or a row refused while the stream is broken)."""
         while self._rows and self._first < step:
             self._rows.popleft()
             self._first += 1
         if self._rows and self._first == step:
             position, velocity, acceleration = self._rows.popleft()
             self._first += 1
-            self._held = position
-            return position, velocity, acceleration, False
-        self.underruns += 1
+            refusal = None if self.broken_step is None else self._rejoin_refusal(position, velocity, acceleration)
+            if refusal is None:
+                self.broken_step = None
+                self._held, self._moving = position, any(velocity) or any(acceleration)
+                return position, velocity, acceleration, False
+            self.refused_rows += 1
+            self.last_refusal = f'step {step}: {refusal}'
+        else:
+            self.underruns += 1
+            if self._moving and self.broken_step is None:
+                self.broken_step = step
         if self._held is None:
             self._held = list(fallback_position)
+        self._moving = False
         zeros = [0.0] * len(self.axis_names)
         return list(self._held), zeros, zeros, True
+
+    def _rejoin_refusal(self, position, velocity, acceleration) -> str | None:
+        """Why a row does not take the broken stream up again (None: it does)."""
+        broke = f'the reference broke at step {self.broken_step} while moving: holding'
+        if any(velocity) or any(acceleration):
+            return f'{broke}, this row moves (a row at rest is awaited)'
+        for name, value, held in zip(self.axis_names, position, self._held):
+            if not abs(value - held) <= self.rejoin_tolerance:
+                return (f'{broke}, this row is {value - held:+.3g} from the held position on {name} '
+                        f'(at most {self.rejoin_tolerance:g} taken up)')
+        return None

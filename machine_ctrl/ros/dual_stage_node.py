@@ -105,16 +105,16 @@ class DualStageNode(StepNode):
             if self.coupling.uses_tracker else []
 
     def publish_diagnostics(self) -> None:
-        problems = self.buffer.underruns or self.rejections.count or self.coupling.saturation_count or \
-            self.tracker.missing
+        problems = self.reference_problems()
+        warn = problems or self.rejections.count or self.coupling.saturation_count or self.tracker.missing
         step = self.responder.answered_step
         values = {'dual_stage': self.coupling.enabled, 'answered_step': step, 'waiting_for': self.waiting_for(),
                   'fine_stroke_saturations': self.coupling.saturation_count, 'missing_tracker': self.tracker.missing,
-                  'reference_underruns': self.buffer.underruns, 'rejected_messages': self.rejections.count,
+                  **self.reference_values(), 'rejected_messages': self.rejections.count,
                   'last_rejection': self.rejections.last}
         self.pub_diag.publish(ros_io.diagnostics(
-            self.clock.stamp(step), 'dual_stage', DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
-            f'coupling {"on" if self.coupling.enabled else "off"}', values))
+            self.clock.stamp(step), 'dual_stage', DiagnosticStatus.WARN if warn else DiagnosticStatus.OK,
+            '; '.join([f'coupling {"on" if self.coupling.enabled else "off"}', *problems]), values))
 
 
 main = main_for(DualStageNode)

@@ -11,15 +11,19 @@ rate 2 lost 3 of 20001 states with depth 1000). The depth is a bound, not alloca
 front, and the queue holds at most one pass, which this node holds in memory anyway. At the
 end it waits until every subscriber has acknowledged everything (up to ACK_WAIT s, or a
 pass's duration if longer), prints the counts and exits; 1 when some subscriber did not
-(it may have lost messages).
+(it may have lost messages). The playing sleeps between messages in the main thread; the
+node's services (its parameters: `ros2 param`) are answered meanwhile by an executor in a
+thread of its own.
 """
 from __future__ import annotations
 
 import sys
+import threading
 import time
 
 import rclpy
 from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -116,6 +120,19 @@ class ReplayNode(Node):
         return rclpy.ok()
 
     def run(self) -> int:
+        """Wait for the subscribers, play, wait for their acknowledgements; the exit status.
+        The services are answered meanwhile (module docstring)."""
+        executor = SingleThreadedExecutor(context=self.context)
+        executor.add_node(self)
+        services = threading.Thread(target=executor.spin, name='replay services', daemon=True)
+        services.start()
+        try:
+            return self.play()
+        finally:
+            executor.shutdown()
+            services.join()
+
+    def play(self) -> int:
         if self.wait_for > 0 and not self.wait_for_subscribers():
             self.get_logger().fatal(f'fewer than {self.wait_for} subscribers on some topic after '
                                     f'{self.wait_timeout:g} s')

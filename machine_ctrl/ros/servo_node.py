@@ -239,11 +239,12 @@ class ServoNode(StepNode):
         return missing
 
     def publish_diagnostics(self) -> None:
-        problems = self.buffer.underruns or self.offsets.missing or self.accelerations.missing or self.rejections.count
+        problems = self.reference_problems() or self.offsets.missing or self.accelerations.missing or \
+            self.rejections.count
         step = self.responder.answered_step
         requested = self.servo.feedforward_requested
         values = {'axes': ' '.join(self.axes), 'answered_step': step, 'waiting_for': self.waiting_for(),
-                  'reference_underruns': self.buffer.underruns, 'buffered_steps': len(self.buffer),
+                  **self.reference_values(),
                   'missing_offsets': self.offsets.missing, 'missing_accelerations': self.accelerations.missing,
                   'rejected_messages': self.rejections.count,
                   'last_rejection': self.rejections.last, 'feedforward': self.servo.feedforward,
@@ -265,8 +266,8 @@ class ServoNode(StepNode):
 
     def problem_text(self) -> str:
         """The status message: what went wrong so far, or 'ok'."""
-        problems = [f'{count} {what}' for count, what in (
-            (self.buffer.underruns, 'reference underruns'), (self.offsets.missing, 'steps without offsets'),
+        problems = self.reference_problems() + [f'{count} {what}' for count, what in (
+            (self.offsets.missing, 'steps without offsets'),
             (self.accelerations.missing, 'steps without accelerometer readings'),
             (self.rejections.count, 'rejected messages')) if count]
         return '; '.join(problems) or 'ok'

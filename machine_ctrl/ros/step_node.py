@@ -49,8 +49,27 @@ class StepNode(Node):
         """The per-step inputs besides the state and the reference that are missing."""
         return []
 
+    def reference_values(self) -> dict:
+        """The reference buffer's state for /diagnostics: underruns, and a stream broken while
+        moving (ReferenceBuffer: the step it broke at, '' when it is not; the rows refused)."""
+        buffer = self.buffer
+        return {'reference_underruns': buffer.underruns, 'buffered_steps': len(buffer),
+                'reference_broken_step': '' if buffer.broken_step is None else buffer.broken_step,
+                'refused_reference_rows': buffer.refused_rows, 'last_refused_reference_row': buffer.last_refusal}
+
+    def reference_problems(self) -> list[str]:
+        """The reference buffer's problems so far, as text for the status message."""
+        buffer = self.buffer
+        problems = [f'{buffer.underruns} reference underruns'] if buffer.underruns else []
+        if buffer.broken_step is not None:
+            problems.append(f'reference broken at step {buffer.broken_step} while moving: holding until a row at rest '
+                            'where it holds')
+        if buffer.refused_rows:
+            problems.append(f'{buffer.refused_rows} reference rows refused')
+        return problems
+
     def make_buffer(self, axes) -> ReferenceBuffer:
-        self.buffer = ReferenceBuffer(axes)
+        self.buffer = ReferenceBuffer(axes, contract.REJOIN_TOLERANCE)
         return self.buffer
 
     def on_reference(self, first_step: int, positions, velocities, accelerations) -> None:

@@ -168,7 +168,7 @@ class TrajectoryNode(Node):
         self.pub_goals = self.create_publisher(GoalStatusArray, contract.GOAL_STATUS.name, qos(contract.GOAL_STATUS.qos))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
-        self.sub_state = None
+        self.sub_state, self.state_reads = None, 0
         self.read_state()
         self.create_subscription(Clock, contract.CLOCK.name, self.on_clock, ros_io.qos(contract.CLOCK_READER_QOS))
         self.create_subscription(Path, contract.PATH.name, self.on_path, GOAL_QOS)
@@ -243,15 +243,20 @@ class TrajectoryNode(Node):
     # -- time ------------------------------------------------------------------------------
     def read_state(self) -> None:
         """Read one machine state from /joint_states (the first; again when the session asks:
-        Outputs.want_state); between them the stream knows the state itself."""
-        if self.sub_state is None:
-            self.sub_state = self.create_subscription(JointState, contract.JOINT_STATES.name, self.on_state,
-                                                      ros_io.STEP_QOS)
+        Outputs.want_state); between them the stream knows the state itself. A new reader
+        each time (volatile): its first state is one sent after this call, never one queued
+        before it (a read still waiting is replaced: after a stall of this node its queue
+        holds the states of the stall's gap)."""
+        if self.sub_state is not None:
+            self.destroy_subscription(self.sub_state)
+        self.state_reads += 1
+        self.sub_state = self.create_subscription(JointState, contract.JOINT_STATES.name,
+                                                  lambda msg, read=self.state_reads: self.on_state(msg, read),
+                                                  ros_io.STEP_QOS)
 
-    def on_state(self, msg: JointState) -> None:
-        """Stream from this state (Session.start_streaming: hold the measured position from
-        its step)."""
-        if self.sub_state is None:                   # one the executor had taken before the read ended
+    def on_state(self, msg: JointState, read: int) -> None:
+        """The state asked for, to the session (Session.machine_state)."""
+        if self.sub_state is None or read != self.state_reads:   # one the executor had taken from an ended read
             return
         try:
             step = self.clock.step(msg.header.stamp)
@@ -261,7 +266,7 @@ class TrajectoryNode(Node):
             return
         self.destroy_subscription(self.sub_state)
         self.sub_state = None
-        self.session.start_streaming(position, step)
+        self.session.machine_state(position, step)
 
     def on_clock(self, msg: Clock) -> None:
         try:
@@ -270,7 +275,7 @@ class TrajectoryNode(Node):
             return
         now = time.monotonic()
         self.session.machine_heard(now)   # hw_sim's clock: a sign of life (Session.machine_heard)
-        self.session.watch(now, step)     # a stall of this node first (README "Faults")
+        self.session.watch(now)           # a stall of this node first (README "Faults")
         self.session.tick(step)
 
     # -- goals -----------------------------------------------------------------------------
@@ -391,9 +396,11 @@ class TrajectoryNode(Node):
         for status in msg.status:
             if status.name == 'compensation':
                 self.session.chain_heard(time.monotonic())
+            values = {kv.key: kv.value for kv in status.values}
+            if values.get('reference_broken_step'):       # a servo's, the dual-stage node's (step_node)
+                self.session.reference_broken(status.name, values['reference_broken_step'])
             if status.name != 'hw_sim':
                 continue
-            values = {kv.key: kv.value for kv in status.values}
             self.session.machine_heard(time.monotonic())
             self.session.machine_status(status.level == DiagnosticStatus.ERROR,
                                         values.get('fault', status.message), values.get('step', ''),
