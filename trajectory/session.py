@@ -76,6 +76,13 @@ from trajectory.stream import ReferenceStream
 ZERO_STAMP = (0, 0)
 
 
+# assumed: 8 lookaheads (24,000 steps by default, 2.4 s of the micromill's sim time, ~6 s of wall
+# time at its real-time factor) of the positions handed out are kept: a node's report that its
+# reference broke comes within its 1 Hz /diagnostics period, and the row before the break must
+# still be there (Session.reference_broken); 1.7 MB for nine axes
+KEPT_LOOKAHEADS = 8
+
+
 class State(StrEnum):
     IDLE = 'idle'
     PLANNING = 'planning'
@@ -263,10 +270,13 @@ class Session:
         # machine state (watch, machine_state)
         self._stalled: tuple[Goal | None, str] | None = None
         self._await_fault_step = False       # a fault without hw_sim's fault step yet
-        self._handed: deque[tuple[int, list]] = deque()   # chunks handed out (first step, positions), oldest first
+        self._handed: deque[tuple[int, np.ndarray]] = deque()   # chunks handed out (first step, positions), oldest first
         self._anchor_step = -1               # the step the stream was last taken up from (start_streaming)
         # node -> the step its reference broke at, and the row handed out for the step before (reference_broken)
         self._breaks: dict[str, tuple[int, list | None]] = {}
+        # a break reported during a goal, outside a lost link: (goal, node, step, wall time) (check_breaks)
+        self._break_due: tuple[Goal | None, str, int, float] | None = None
+        self.rejoining = ''                  # why the stream waits for a machine state after a break (_rejoin)
 
     @property
     def goal(self) -> Goal | None:
@@ -287,10 +297,10 @@ class Session:
         self.stream = ReferenceStream(self.machine.axis_names, self.machine.control_period, position, step)
         self.step = max(self.step, step)
         self._anchor_step = step
-        if self.chain_back:
-            self.out.log(f'{self.chain_back} back: holding where the servos stand ({where}, from step {step}); '
-                         'goals accepted again')
-            self.chain_lost = self.chain_back = ''
+        if self.chain_back or self.rejoining:
+            self.out.log(f'{self.chain_back + " back" if self.chain_back else "reference taken up again"}: holding '
+                         f'where the servos stand ({where}, from step {step}); goals accepted again')
+            self.chain_lost = self.chain_back = self.rejoining = ''
             if self.state in (State.RUNNING, State.HOLDING):   # a stop still playing out is over: it went nowhere
                 self.program, self.held, self.stopping = None, None, False
                 self._set_state(State.IDLE)
@@ -306,9 +316,9 @@ class Session:
         else `position` (the measured one: the corrections and offsets added on the way to the
         servos are in it, and would be added once more)."""
         self.step = max(self.step, step)
-        if self._stall_waiting():
-            self._abort(self._stalled[1], self.step)
-        self._stalled = None
+        stalled, self._stalled = self._stall_waiting() and self._stalled, None
+        if stalled:
+            self._abort(stalled[1], self.step)
         if self.chain_back:
             broke = {k for k, _ in self._breaks.values() if k > self._anchor_step}
             held = next(row for k, row in self._breaks.values() if k in broke) if len(broke) == 1 else None
@@ -316,34 +326,63 @@ class Session:
                 self.start_streaming(held, step, f'the row of step {min(broke) - 1}, before their reference broke')
             else:
                 self.start_streaming(position, step)
-        elif self.stream is None:
+        elif self.stream is None or self.rejoining:
             self.start_streaming(position, step)
         else:
             self._fill()
             self.out.status()
 
-    def reference_broken(self, who: str, step_text: str) -> None:
-        """`who` (a node that follows the reference: a servo, the dual-stage node) reports its
-        stream broken at step `step_text` while moving (model/reference.py ReferenceBuffer: it
-        ran out of rows, holds the last one it had and refuses every row until one at rest
-        where it holds). Kept for the stream's next start after the node between this one and
-        the servos was lost (:meth:`machine_state`). Idle with the chain whole, a break after
-        the stream's last start (the stream fell behind: it never stopped) is mended at once:
-        the stream holds the row handed out for the step before it, the one `who` holds. (A
-        break during a goal, outside a lost link, is not: the servo holds and refuses the rest
-        of the motion, and says so on its /diagnostics; README "Faults".) Text that is no
-        step is ignored."""
+    def reference_broken(self, who: str, step_text: str, now: float) -> None:
+        """`who` (a node that follows the reference: a servo, the dual-stage node) reports at
+        wall time `now` its stream broken at step `step_text` while moving (model/reference.py
+        ReferenceBuffer: it ran out of rows, holds the last one it had and refuses every row
+        until one at rest where it holds). Its first report keeps the row handed out for the
+        step before, for the stream's next start after the node between this one and the
+        servos was lost (:meth:`machine_state`). Otherwise (the stream fell behind, the link
+        whole) a break after the stream's last start is mended by taking the stream up again
+        from the measured position (:meth:`_rejoin`): at once when idle; during a goal once
+        no lost link explains it (:meth:`check_breaks`). Text that is no step is ignored."""
         if not (step_text.isascii() and step_text.isdigit()):
             return
         broke = int(step_text)
         if self._breaks.get(who, (None,))[0] != broke:      # its first report: the row, while still kept
             self._breaks[who] = (broke, self.handed_position(broke - 1))
-        held = self._breaks[who][1]
-        if self.state != State.IDLE or self.chain_lost or self.chain_back or broke <= self._anchor_step:
+        if self.chain_lost or self.chain_back or self.rejoining or broke <= self._anchor_step:
             return
-        if held is not None:
-            self.out.warn(f'{who}: its reference broke at step {broke} while moving; holding where it stands')
-            self.start_streaming(held, self.step, f'the row of step {broke - 1}')
+        if self.state == State.IDLE:
+            self._rejoin(who, broke)
+        elif self._break_due is None and self.state in (State.RUNNING, State.HOLDING):
+            self._break_due = (self.goal, who, broke, now)
+
+    def check_breaks(self, now: float) -> None:
+        """A break reported during a goal (:meth:`reference_broken`) that no lost link has
+        explained within a liveliness lease and its confirmation (a lost compensation node,
+        whose reason the goal then gets, is the usual cause): the goal is aborted naming the
+        node and the stream taken up again where the machine stands. The node calls this from
+        its timer."""
+        if self._break_due is None or now - self._break_due[3] < contract.LIVELINESS_LEASE + contract.LOSS_CONFIRM:
+            return
+        (goal, who, broke, _), self._break_due = self._break_due, None
+        if goal is not self.goal or self.state not in (State.RUNNING, State.HOLDING) or self.chain_lost \
+                or self.chain_back or broke <= self._anchor_step:
+            return
+        self.program, self.held, self.stopping = None, None, False
+        self._set_state(State.IDLE)
+        if goal is not None:
+            self.goals.set(goal, GoalState.ABORTED, f'{who}: its reference broke at step {broke} while moving '
+                                                    '(the rows came too late); it holds there')
+        self._rejoin(who, broke)
+
+    def _rejoin(self, who: str, broke: int) -> None:
+        """Take the stream up again where the machine stands after `who`'s reference broke at
+        step `broke`: nothing streamed and goals refused until a machine state comes
+        (Outputs.want_state, :meth:`machine_state`). The measured position, not the row `who`
+        holds: other nodes may not have broken (one reader late) and stand elsewhere."""
+        self.rejoining = (f'{who}: its reference broke at step {broke} while moving; waiting for the machine state '
+                          'to take it up again where the machine stands')
+        self.out.warn(self.rejoining)
+        self.out.want_state()
+        self.out.status()
 
     def tick(self, step: int) -> None:
         """The sim time is at `step`: keep `lookahead` rows streamed ahead; the goal is
@@ -366,10 +405,15 @@ class Session:
             self._set_state(State.IDLE)
 
     def _send(self, first: int, positions, velocities, accelerations) -> None:
-        """Hand a chunk out, and keep the positions handed out over the last two lookaheads
-        (:meth:`handed_position`)."""
-        self._handed.append((first, positions))
-        while len(self._handed) > 1 and self._handed[0][0] + len(self._handed[0][1]) < self.step - 2 * self.lookahead:
+        """Hand a chunk out, and keep the positions handed out over the last KEPT_LOOKAHEADS
+        lookaheads (:meth:`handed_position`). Nothing while the node between this one and the servos is
+        lost: what it would forward on its return (a stop ending at rest near where the servos
+        hold, say) is not where they stand."""
+        if self.chain_lost:
+            return
+        self._handed.append((first, np.array(positions)))
+        while len(self._handed) > 1 and \
+                self._handed[0][0] + len(self._handed[0][1]) < self.step - KEPT_LOOKAHEADS * self.lookahead:
             self._handed.popleft()
         self.out.rows(first, positions, velocities, accelerations)
 
@@ -377,7 +421,7 @@ class Session:
         """The position this node handed out for `step` last (None: none kept)."""
         for first, positions in reversed(self._handed):
             if first <= step < first + len(positions):
-                return list(positions[step - first])
+                return positions[step - first].tolist()
         return None
 
     def _fill(self) -> None:
@@ -386,7 +430,7 @@ class Session:
         while a stall's abort waits for the sim time (rows taken up again from a step of
         before the stall could reach servos that ran out and hold: they would go on moving,
         from where the sim time is now)."""
-        if self.stream is None or self.chain_lost or self._stall_waiting():
+        if self.stream is None or self.chain_lost or self.rejoining or self._stall_waiting():
             return
         while self.stream.next_step < self.step + self.lookahead:
             self._send(*self.stream.take(self.chunk_steps))
@@ -410,8 +454,8 @@ class Session:
             reason = f'machine is faulted ({self.fault}); reset hw_sim first'
         elif self.state != State.IDLE:
             reason = f'busy ({self.state}); one motion at a time'
-        elif self.chain_lost:
-            reason = self.chain_lost
+        elif self.chain_lost or self.rejoining:
+            reason = self.chain_lost or self.rejoining
         else:
             return True
         self.refuse(what, reason, stamp, label)
@@ -504,7 +548,7 @@ class Session:
             self.refuse('feed override', f'{value!r} is not a fraction within [0, 1]')
             return False
         self.override_setting = float(value)
-        if self.state == State.RUNNING:
+        if self.state == State.RUNNING and not self._stall_waiting():     # the goal is aborted at the state
             try:
                 self._change_feed(self.override_setting, State.RUNNING)
             except ValueError as exc:          # e.g. a ramp to 0 too late: the setting is for the next motion
@@ -514,6 +558,8 @@ class Session:
 
     def hold(self) -> Answer:
         """Feed hold: bring the motion to rest and keep it (holding; module docstring)."""
+        if self._stall_waiting():
+            return self._stall_answer()
         if self.state != State.RUNNING:
             return Answer(False, f'not applicable while {self.state}')
         return self._halt(keep=True)
@@ -521,6 +567,8 @@ class Session:
     def resume(self) -> Answer:
         """Go on with a held motion (running): a cut move re-planned from where it stands,
         a path ramped back to the override setting."""
+        if self._stall_waiting():
+            return self._stall_answer()
         if self.state != State.HOLDING or self.stopping:
             return Answer(False, f'not applicable while {self.state}' + (' (stopping)' if self.stopping else ''))
         if self.held is None:
@@ -548,6 +596,8 @@ class Session:
     def stop(self, reason: str = 'stopped') -> Answer:
         """Bring the motion to rest and drop the rest of it (holding until at rest, then
         idle; the goal canceled with `reason`)."""
+        if self._stall_waiting():
+            return self._stall_answer()
         if self.state == State.HOLDING and not self.stopping:
             if self.held is not None:        # at rest already (or braking): drop the program
                 self.held, self.stopping = None, True
@@ -678,6 +728,12 @@ class Session:
         return self._stalled is not None and self._stalled[0] is self.goal and \
             self.state in (State.RUNNING, State.HOLDING, State.PLANNING)
 
+    def _stall_answer(self) -> Answer:
+        """A hold, resume or stop while a stall's abort waits for the sim time: refused (a stop
+        planned now would start from a step of before the stall; :meth:`watch`)."""
+        return Answer(False, f'{self._stalled[1]}: its goal is aborted once a machine state shows how far the '
+                             'servos got')
+
     def _abort(self, reason: str, newest: int) -> None:
         """Abort the goal under way with `reason` (`newest`: the newest step the graph has
         reached); nothing of it goes on: a motion the servos still have rows of is stopped as
@@ -731,9 +787,10 @@ class Session:
         servos (the compensation node): lost (confirmed as for hw_sim), the reference no longer
         reaches the servos — they run out of rows and hold — so the goal under way is aborted
         naming it, its motion stopped, nothing more streamed, and goals are refused until it is
-        back. Back, the stream is taken up again from the next machine state
-        (Outputs.want_state, then :meth:`start_streaming`): where the servos held, not where this
-        node's stream stood (its stop went on while nothing reached them)."""
+        back (its stop is not handed out: what the node would forward on its return is not where
+        the servos stand). Back, the stream is taken up again once a machine state comes
+        (Outputs.want_state, then :meth:`machine_state`): where the servos held, not where this
+        node's stream stood."""
         if alive:
             self.chain.alive()
             if self.chain_lost and not self.chain_back:
@@ -828,4 +885,4 @@ class Session:
                 'last_rejection': self.rejections.last,
                 'goal_id': goal.uuid if goal is not None else '',
                 'goal_status': goal.state.text if goal is not None else '',
-                'reference_lost': self.chain_lost}
+                'reference_lost': self.chain_lost or self.rejoining}

@@ -67,7 +67,8 @@ class ReferenceBuffer:
     from its first step on (a re-plan); a chunk that starts after the buffered end discards
     everything buffered, the steps before it empty. An empty buffer holds the last reference
     position at rest — or, before any reference arrived, the given fallback (the measured
-    position) — and counts an underrun; it never jumps.
+    position) — and counts an underrun; it never jumps (but by up to `rejoin_tolerance` when a
+    broken stream is taken up again, below).
 
     An underrun while the held row moved (velocity or acceleration not zero) breaks the
     stream: the rows that come after it may be stale (queued on their way before the break)

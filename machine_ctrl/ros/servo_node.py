@@ -218,7 +218,9 @@ class ServoNode(StepNode):
         ref_pos, ref_vel, ref_acc, _ = self.buffer.take(step, position)
         if offsets is not None:
             ref_pos = apply_offsets(ref_pos, self.offset_slots, offsets)
-        if self.contour is not None:
+        # while the stream is broken (ReferenceBuffer) the rows the contour control reads may be
+        # the refused ones: it is not stepped, and corrects nothing
+        if self.contour is not None and self.buffer.broken_step is None:
             if not self.contour.has_rows_for(step):
                 self.contour_short += 1          # estimated from fewer rows than its block
             corrections = self.contour.step(step, q).corrections

@@ -321,6 +321,7 @@ class TrajectoryNode(Node):
         """Hand a finished plan to the session (approach from the held position, then the path)."""
         now = time.monotonic()
         self.session.watch(now)
+        self.session.check_breaks(now)
         if self.machine_lost_at is not None:
             self.session.machine_alive(False, now)        # confirmed once hw_sim stays silent
         if self.chain_lost_at is not None:
@@ -398,7 +399,7 @@ class TrajectoryNode(Node):
                 self.session.chain_heard(time.monotonic())
             values = {kv.key: kv.value for kv in status.values}
             if values.get('reference_broken_step'):       # a servo's, the dual-stage node's (step_node)
-                self.session.reference_broken(status.name, values['reference_broken_step'])
+                self.session.reference_broken(status.name, values['reference_broken_step'], time.monotonic())
             if status.name != 'hw_sim':
                 continue
             self.session.machine_heard(time.monotonic())
