@@ -886,6 +886,33 @@ def parameter_case(draw, node: str, declared: dict[str, Declared], sim_time: boo
     return ParameterCase(node, kind, name_, declared[name_].type, draw(values), 'accepted')
 
 
+def plain(value):
+    """A parameter value as Python compares it (arrays as lists)."""
+    return list(value) if isinstance(value, (tuple, list)) or hasattr(value, 'tolist') else value
+
+
+def same(a, b) -> bool:
+    """Equal, NaN equal to NaN (a refused set must leave a NaN as it was)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    return a == b
+
+
+def check_parameter_answer(node: str, case: ParameterCase, result, expect: str, declared, before, after) -> str:
+    """One parameter's answer (rcl_interfaces SetParametersResult) against the oracle's
+    `expect`: a refusal has a reason and left the value as it was (`before`, `after`: read
+    back around the set), an accepted value reads back. Returns the outcome."""
+    outcome = 'accepted' if result.successful else 'refused'
+    assert outcome == expect, (node, case, result.reason)
+    if not result.successful:
+        assert result.reason.strip(), (node, case)
+        if case.name in declared:
+            assert same(after[case.name], before[case.name]), (node, case, before[case.name], after[case.name])
+    elif case.name in declared:
+        assert same(after[case.name], plain(case.value)), (node, case, after[case.name])
+    return outcome
+
+
 # --- services -------------------------------------------------------------------------------
 TRIGGERS = (contract.HOLD.name, contract.RESUME.name, contract.STOP.name, contract.HOME.name, contract.FREEFORM.name,
             contract.RESET.name)

@@ -51,7 +51,7 @@ from machine_ctrl import parameters as tables
 from machine_ctrl.app.processes import Supervisor
 from machine_ctrl.ros.graph import NodeSpec
 from ros_fixtures import private_context
-from test_fuzz_graph import MESSAGES, REPORT, _plain, _same, fuzz_settings
+from test_fuzz_graph import MESSAGES, REPORT, fuzz_settings
 
 EXAMPLES = max(40, MESSAGES // 5)           # parameter requests per node
 REPLAY_NAMESPACE = '/fuzz_replay'           # the replayed bag's topics and clock: read by nobody else
@@ -164,7 +164,7 @@ class Probe:
         from rclpy.parameter import parameter_value_to_python
         answer = self.call(node, 'get', self.kinds['get'].Request(names=list(names)))
         assert len(answer.values) == len(names), (node, names, answer)
-        return {n: _plain(parameter_value_to_python(v)) for n, v in zip(names, answer.values)}
+        return {n: fc.plain(parameter_value_to_python(v)) for n, v in zip(names, answer.values)}
 
     def names(self, node: str) -> list[str]:
         return list(self.call(node, 'list', self.kinds['list'].Request()).result.names)
@@ -259,15 +259,7 @@ def check_set(probe, books, node, declared, cases, atomically) -> None:
     expect_all = 'accepted' if all(c.expect == 'accepted' for c in cases) else 'refused'
     for case, result in zip(cases, results):
         expect = expect_all if atomically else case.expect
-        outcome = 'accepted' if result.successful else 'refused'
-        books[(node, case.kind, outcome)] += 1
-        assert outcome == expect, (node, case, atomically, result.reason)
-        if not result.successful:
-            assert result.reason.strip(), (node, case)
-            if case.name in declared:
-                assert _same(after[case.name], before[case.name]), (node, case, before[case.name], after[case.name])
-        elif case.name in declared:
-            assert _same(after[case.name], _plain(case.value)), (node, case, after[case.name])
+        books[(node, case.kind, fc.check_parameter_answer(node, case, result, expect, declared, before, after))] += 1
     restore = [fc.ParameterCase(node, 'restore', c.name, declared[c.name].type, before[c.name], 'accepted').message()
                for c, r in zip(cases, results) if r.successful and c.kind == 'valid']
     if restore:

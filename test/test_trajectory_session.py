@@ -498,6 +498,8 @@ def test_a_stall_waits_for_a_fresh_machine_state_and_holds_the_last_row_the_serv
     assert max(out.by_step) == last and out.goal_changes[-1][1] == 'executing'   # nothing streamed, nothing cut
     session.machine_state(HERE, last + 5 * CHUNK)                   # the sim ran past the rows
     assert out.goal_changes[-1][1] == 'aborted' and out.goal_changes[-1][2].startswith('trajectory stalled')
+    session.reference_broken('servo_coarse', str(last + 1), 30.0)   # their break at the rows' end: mended by the hold
+    assert out.states_wanted == 1 and not session.rejoining
     session.tick(last + 5 * CHUNK)
     assert session.state == State.IDLE
     assert all(out.by_step[k] == had for k in range(last, max(out.by_step) + 1))   # held there

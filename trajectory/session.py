@@ -744,6 +744,7 @@ class Session:
             self._halt(keep=False, reason=reason)      # 'too late' is fine: the motion ends at rest
         elif self.stream is not None:
             self.stream.abort(self.stream.next_step)   # the servos ran out: hold the last row handed out
+            self._anchor_step = self.stream.next_step     # their break there is mended by it (reference_broken)
         if self.state == State.PLANNING or not (self.stream is not None and self.stream.busy(self.stream.next_step)):
             self.program, self.held, self.stopping, self.planning_goal = None, None, False, None
             self._set_state(State.IDLE)
