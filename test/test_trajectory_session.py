@@ -736,6 +736,22 @@ def test_a_break_without_a_lost_link_aborts_the_goal_and_takes_the_stream_up_whe
     assert out.states_wanted == 2 and session.rejoining
 
 
+def test_a_goal_whose_servo_broke_does_not_succeed_when_its_motion_plays_out_first(micromill, out):
+    """A break reported during a short goal that plays out before the break is due
+    (check_breaks): the servo stopped short of the end, so the goal is aborted naming it, not
+    succeeded, and the stream taken up again where the machine stands."""
+    session = session_of(micromill, out, start_step=0)
+    assert session.accept_joint_goal(['x_c'], [[HERE[0] + 1e-3]], [0.0])
+    session.tick(CHUNK)
+    session.reference_broken('servo_coarse', str(CHUNK + 1), 10.0)
+    run_until_idle(session)
+    assert out.goal_changes[-1][1:] == ('aborted', f'servo_coarse: its reference broke at step {CHUNK + 1} while '
+                                        'moving (the rows came too late); it holds there')
+    assert session.rejoining and out.states_wanted == 1
+    session.check_breaks(100.0)                                    # nothing due any more
+    assert out.states_wanted == 1
+
+
 def test_a_hold_stop_or_feed_change_waits_for_a_stalls_machine_state(micromill, out):
     """Between a stall and the machine state its abort waits for, a hold, resume or stop is
     refused with the reason and a feed override changes only the setting: each would plan

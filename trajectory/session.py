@@ -358,8 +358,9 @@ class Session:
         """A break reported during a goal (:meth:`reference_broken`) that no lost link has
         explained within a liveliness lease and its confirmation (a lost compensation node,
         whose reason the goal then gets, is the usual cause): the goal is aborted naming the
-        node and the stream taken up again where the machine stands. The node calls this from
-        its timer."""
+        node and the stream taken up again where the machine stands (also when the motion
+        plays out first, :meth:`tick`: the servo stopped short of its end). The node calls
+        this from its timer."""
         if self._break_due is None or now - self._break_due[3] < contract.LIVELINESS_LEASE + contract.LOSS_CONFIRM:
             return
         (goal, who, broke, _), self._break_due = self._break_due, None
@@ -369,9 +370,13 @@ class Session:
         self.program, self.held, self.stopping = None, None, False
         self._set_state(State.IDLE)
         if goal is not None:
-            self.goals.set(goal, GoalState.ABORTED, f'{who}: its reference broke at step {broke} while moving '
-                                                    '(the rows came too late); it holds there')
+            self.goals.set(goal, GoalState.ABORTED, self._broken_reason(who, broke))
         self._rejoin(who, broke)
+
+    @staticmethod
+    def _broken_reason(who: str, broke: int) -> str:
+        return f'{who}: its reference broke at step {broke} while moving (the rows came too late); it holds there'
+
 
     def _rejoin(self, who: str, broke: int) -> None:
         """Take the stream up again where the machine stands after `who`'s reference broke at
@@ -396,13 +401,19 @@ class Session:
         if goal is not None and goal.state == GoalState.ACCEPTED and motion is not None and self.step >= motion.start:
             self.goals.set(goal, GoalState.EXECUTING)
         if self.held is None and not self.stream.busy(self.step):
+            due, self._break_due = self._break_due, None
+            broken = due is not None and due[0] is goal          # a servo stopped short of its end (check_breaks)
             if goal is not None:
                 if self.stopping:
                     self.goals.set(goal, GoalState.CANCELED, goal.reason or 'stopped')
+                elif broken:
+                    self.goals.set(goal, GoalState.ABORTED, self._broken_reason(due[1], due[2]))
                 else:
                     self.goals.set(goal, GoalState.SUCCEEDED)
             self.program, self.stopping = None, False
             self._set_state(State.IDLE)
+            if broken and not (self.chain_lost or self.chain_back or self.rejoining):
+                self._rejoin(due[1], due[2])
 
     def _send(self, first: int, positions, velocities, accelerations) -> None:
         """Hand a chunk out, and keep the positions handed out over the last KEPT_LOOKAHEADS

@@ -10,10 +10,11 @@ accelerometer readings of step k (/accelerometers, sensor_msgs/Imu by the axis's
 input stream that has never delivered is waited for (reported on /diagnostics as
 waiting_for); once it has, the node waits for a missing step up to `input_timeout` s (wall)
 — so a lock-step run does not depend on message timing — and then: no reference row = hold
-the last reference position at rest (underrun, counted and reported); no offsets or no
-reading = no answer (the law has no setpoint or no feedback; counted as missing_offsets,
-missing_accelerations), so hw_sim faults naming the axes after its command_timeout (README
-"Faults": the dual-stage node lost).
+the last reference position at rest (underrun, counted and reported; one while the reference
+moved breaks the stream: rows are refused until one at rest where the node holds,
+model/reference.py ReferenceBuffer); no offsets or no reading = no answer (the law has no
+setpoint or no feedback; counted as missing_offsets, missing_accelerations), so hw_sim
+faults naming the axes after its command_timeout (README "Faults": the dual-stage node lost).
 A repeated state stamp (hw_sim re-sends while waiting) is answered with the command already
 computed, so no controller state is ever advanced twice.
 
