@@ -278,7 +278,10 @@ def pose_message(stamp: Time, frame: str, pose) -> PoseStamped:
     msg.header.stamp, msg.header.frame_id = stamp, frame
     p = msg.pose.position
     p.x, p.y, p.z = (float(v) for v in pose[:3, 3])
-    q = pin.Quaternion(pose[:3, :3])
+    # column-major, as Eigen stores it: eigenpy 3.13 copies a matrix of another layout (a C-order
+    # view) into a heap Matrix3d it never frees, 80 bytes a call (hw_sim's ground-truth pose
+    # every 10 steps: the soak's 8 bytes per step, bench/pose_message_memory.py)
+    q = pin.Quaternion(np.asfortranarray(pose[:3, :3]))
     o = msg.pose.orientation
     o.x, o.y, o.z, o.w = float(q.x), float(q.y), float(q.z), float(q.w)
     return msg
