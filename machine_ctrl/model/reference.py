@@ -82,7 +82,7 @@ class ReferenceBuffer:
         self._rows: deque[tuple[list[float], list[float], list[float]]] = deque()
         self._first = 0                      # step of _rows[0]
         self._held: list[float] | None = None
-        self._moving = False                 # the row held last moved
+        self._rates: tuple = ((), ())         # velocity, acceleration of the row held (read at an underrun)
         self.underruns = 0
         self.started = False                 # a chunk has arrived at least once
         self.broken_step: int | None = None  # the underrun that broke the stream, while it is broken
@@ -122,17 +122,17 @@ class ReferenceBuffer:
             refusal = None if self.broken_step is None else self._rejoin_refusal(position, velocity, acceleration)
             if refusal is None:
                 self.broken_step = None
-                self._held, self._moving = position, any(velocity) or any(acceleration)
+                self._held, self._rates = position, (velocity, acceleration)
                 return position, velocity, acceleration, False
             self.refused_rows += 1
             self.last_refusal = f'step {step}: {refusal}'
         else:
             self.underruns += 1
-            if self._moving and self.broken_step is None:
+            if self.broken_step is None and (any(self._rates[0]) or any(self._rates[1])):
                 self.broken_step = step
         if self._held is None:
             self._held = list(fallback_position)
-        self._moving = False
+        self._rates = ((), ())                # held at rest now
         zeros = [0.0] * len(self.axis_names)
         return list(self._held), zeros, zeros, True
 
