@@ -262,7 +262,14 @@ BELIEF = ParameterSpec('belief', STRING_ARRAY, [''], description="files of the c
                        "keeps simulating the config's plant (README \"Truth and belief\")")
 INPUT_TIMEOUT = ParameterSpec('input_timeout', DOUBLE, 0.5, 's', 'wall time to wait for a missing reference row or '
                               'offsets once the stream has started, then go on without', low=0.0, low_open=True)
-CHUNK_STEPS = ParameterSpec('chunk_steps', INTEGER, 500, 'steps', 'rows per reference message', low=1)
+# assumed: 100 rows (21.6 KB for 9 axes). Every message a process sends over shared memory
+# takes a buffer of its Fast DDS segment (512 KB by default, the size rmw_fastrtps gives it
+# under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), and a reader killed while it held one keeps
+# it taken for good. With 500 rows (108 KB) the trajectory node, the compensation node it
+# fed killed and started again, then sent no chunk to any reader (test_faults_compensation:
+# 6 runs in 33 stuck, a new reader of /trajectory/reference heard nothing, a new trajectory
+# process was heard at once); with 100 rows, 0 in 20 (README "Faults", 2026-12-08).
+CHUNK_STEPS = ParameterSpec('chunk_steps', INTEGER, 100, 'steps', 'rows per reference message', low=1)
 LOOKAHEAD_STEPS = ParameterSpec('lookahead_steps', INTEGER, 3000, 'steps', 'rows kept streamed ahead of the sim time',
                                 low=1)
 
@@ -274,6 +281,20 @@ def _at_least(name: str, other: str, factor: int):
             return f'must be >= {times}{other} ({factor * values[other]}), got {values[name]}'
         return None
     return Check(name, (name, other), test, f'>= {"%d x " % factor if factor != 1 else ""}{other}')
+
+
+def _history_covers_lookahead(values) -> str | None:
+    """A reader that joins late gets the last contract.REFERENCE_QOS.depth chunks (transient
+    local): they must hold the rows from the sim step to the end of the stream."""
+    depth = contract.REFERENCE_QOS.depth
+    if values['lookahead_steps'] + values['chunk_steps'] > depth * values['chunk_steps']:
+        return (f'must be <= {depth - 1} x chunk_steps ({(depth - 1) * values["chunk_steps"]}: a late reader gets '
+                f'the last {depth} chunks), got {values["lookahead_steps"]}')
+    return None
+
+
+HISTORY_COVERS_LOOKAHEAD = Check('lookahead_steps', ('lookahead_steps', 'chunk_steps'), _history_covers_lookahead,
+                                 f'<= {contract.REFERENCE_QOS.depth - 1} x chunk_steps')
 
 
 def _facts_problem(facts) -> str | None:
@@ -373,7 +394,7 @@ REFERENCE = NodeParameters('reference_node', (
                   choices=('circle', 'square', 'hold')),
     CHUNK_STEPS,
     LOOKAHEAD_STEPS,
-), checks=(_at_least('lookahead_steps', 'chunk_steps', 1),), sim_time=True)
+), checks=(_at_least('lookahead_steps', 'chunk_steps', 1), HISTORY_COVERS_LOOKAHEAD), sim_time=True)
 
 TRAJECTORY = NodeParameters('trajectory_node', (
     MACHINE,
@@ -405,7 +426,7 @@ TRAJECTORY = NodeParameters('trajectory_node', (
                   f'{contract.FREEFORM.name}', live=True),
     ParameterSpec('freeform.lead', DOUBLE, 0.02, 's', 'time over which the fast axis lands on the surface before the '
                   f'cut and lifts off after it; live: read by {contract.FREEFORM.name}', low=0.0, high=1.0, live=True),
-), checks=(_at_least('lookahead_steps', 'chunk_steps', 2),), sim_time=True)
+), checks=(_at_least('lookahead_steps', 'chunk_steps', 2), HISTORY_COVERS_LOOKAHEAD), sim_time=True)
 
 COMPENSATION = NodeParameters('compensation_node', (
     MACHINE,

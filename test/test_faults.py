@@ -38,10 +38,12 @@ class Client(MachineClient):
     """The command API plus what the test observes: every node's newest /diagnostics values
     and the true axis positions (hw_sim's ground truth, decimated)."""
 
-    def __init__(self, node, machine):
+    def __init__(self, node, machine, graph=None):
         from diagnostic_msgs.msg import DiagnosticArray
         from sensor_msgs.msg import JointState
         self.diagnostics, self.truth = {}, None
+        self.heard = {}                 # node name -> wall time (monotonic) of its newest /diagnostics
+        self.graph = graph              # the Supervisor, for the stacks of a timeout's report
         node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS.name, self.on_diagnostics, 100)
         node.create_subscription(JointState, contract.TRUE_JOINT_STATES.name, self.on_truth, 10)
         super().__init__(node, machine)
@@ -49,19 +51,30 @@ class Client(MachineClient):
     def on_diagnostics(self, msg):
         for status in msg.status:
             self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
+            self.heard[status.name] = time.monotonic()
 
     def on_truth(self, msg):
         self.truth = np.array(msg.position)
 
     def wait(self, predicate, what: str, timeout: float = 120.0, check=None) -> None:
-        """MachineClient.wait; a timeout also tells what hw_sim and the step nodes said last on
-        /diagnostics (the held step, the step answered, what each waits for, the fault)."""
+        """MachineClient.wait; a timeout also tells what hw_sim, the step nodes and the
+        compensation node said last on /diagnostics (the held step, the step answered, what each
+        waits for, the fault, the chunks forwarded) and how long ago; and, with the graph, every
+        thread's stack of each of them (a node that went quiet: hung, or deaf)."""
         try:
             super().wait(predicate, what, timeout, check)
         except Timeout as exc:
-            said = {name: {key: self.diag(name, key) for key in ('step', 'answered_step', 'waiting_for', 'fault')
-                           if self.diag(name, key)} for name in ('hw_sim', *STEP_NODES)}
-            raise Timeout(f'{exc}; diagnostics {said}') from None
+            now, names = time.monotonic(), ('hw_sim', *STEP_NODES, 'compensation')
+            said = {name: {'heard_s_ago': round(now - self.heard[name], 1),
+                           **{key: self.diag(name, key) for key in ('step', 'answered_step', 'waiting_for', 'fault',
+                                                                     'buffered_steps', 'refused_reference_rows',
+                                                                     'chunks', 'input_writers', 'rejected_chunks',
+                                                                     'last_rejection') if self.diag(name, key)}}
+                    for name in names if name in self.heard}
+            stacks = '' if self.graph is None else ''.join(
+                f'\n--- stacks of {name}:\n' + '\n'.join(self.graph.stacks(name))
+                for name in names if name in self.graph.children and self.graph[name].running())
+            raise Timeout(f'{exc}; diagnostics {said}{stacks}') from None
 
     def diag(self, node, key, default=''):
         return self.diagnostics.get(node, {}).get(key, default)
@@ -100,7 +113,7 @@ def graph_client(machine, graph, node_specs, ros_env, name):
     import rclpy
     with private_context(ros_env) as context:
         node = rclpy.create_node(name, context=context)
-        c = Client(node, machine)
+        c = Client(node, machine, graph)
         try:
             c.wait_ready(GUARD, graph.check)
             c.wait(lambda: c.status().get('state') == 'idle' and c.truth is not None

@@ -238,7 +238,12 @@ START_REFUSALS = [
      'parameter lookahead_steps: must be >= chunk_steps (600), got 500'),
     ('trajectory_node', {'feed': 1}, 'parameter feed: must be a floating-point number (e.g. 1.0, not 1), got integer 1'),
     ('trajectory_node', {'feed': -0.01}, 'parameter feed: must be > 0 m/s, got -0.01'),
-    ('trajectory_node', {'lookahead_steps': 900}, 'parameter lookahead_steps: must be >= 2 x chunk_steps (1000), got 900'),
+    ('trajectory_node', {'chunk_steps': 500, 'lookahead_steps': 900},
+     'parameter lookahead_steps: must be >= 2 x chunk_steps (1000), got 900'),
+    ('trajectory_node', {'lookahead_steps': 5000}, 'parameter lookahead_steps: must be <= 49 x chunk_steps (4900: a '
+     'late reader gets the last 50 chunks), got 5000'),
+    ('reference_node', {'chunk_steps': 10}, 'parameter lookahead_steps: must be <= 49 x chunk_steps (490: a late '
+     'reader gets the last 50 chunks), got 3000'),
     ('compensation_node', {}, 'parameter model: missing: geometric error model YAML (machine-ctrl fit-errors --out)'),
     ('contour_error_node', {'estimator': 'fancy'},
      "parameter estimator: must be basic, shifted or compensated, got 'fancy'"),
@@ -276,7 +281,7 @@ def test_sets_are_checked_live_ones_take_effect(rclpy_context):
         assert node.feed == 0.01 and node.get_parameter('feed').value == 0.01
         assert set_one('feed', 0.02).successful                 # live: the next path is planned at 0.02 m/s
         assert node.feed == 0.02
-        refused = set_one('chunk_steps', 100)                   # read once at start
+        refused = set_one('chunk_steps', 200)                   # read once at start
         assert not refused.successful and refused.reason == 'Trying to set a read-only parameter: chunk_steps.'
     finally:
         node.destroy_node()

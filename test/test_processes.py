@@ -117,6 +117,21 @@ def test_a_node_that_does_not_stop_leaves_its_stacks_in_its_log_before_sigkill(s
     assert 'most recent call first' in log and 'in hung_in_a_call' in log, log
 
 
+def test_stacks_returns_a_running_nodes_stacks_and_leaves_it_running(sup):
+    """Supervisor.stacks, for a failure's report: the lines the node printed at
+    contract.STACKS_SIGNAL, the node going on; none from a process that does not catch it."""
+    sup.start('hung', py(HANGS_IN_A_CALL))
+    sup.start('sleeper', py(SLEEPER))
+    sup.wait_for_line('hung', 'ready', timeout=60)
+    sup.wait_for_line('sleeper', 'ready', timeout=10)
+    for _ in range(2):                   # the second report has only the second dump's lines
+        lines = sup.stacks('hung')
+        assert sum('most recent call first' in line for line in lines) >= 1, lines
+        assert any('in hung_in_a_call' in line for line in lines) and 'ready' not in lines, lines
+    assert sup['hung'].running()
+    assert sup.stacks('sleeper') == [] and sup['sleeper'].running()
+
+
 def test_stop_all_leaves_no_grandchild(sup):
     sup.start('spawner', py(SPAWNER))
     grandchild = int(sup.wait_for_line('spawner', 'grandchild', timeout=10).split()[1])

@@ -87,6 +87,7 @@ class Child:
     _cond: threading.Condition = field(default_factory=threading.Condition)
     _eof: bool = False
     _reader: threading.Thread | None = None
+    _count: int = 0                 # lines read so far (the tail keeps the last TAIL_LINES)
 
     @property
     def pid(self) -> int:
@@ -132,6 +133,7 @@ class Child:
                     echo.flush()
                 with self._cond:
                     self._lines.append(line)
+                    self._count += 1
                     self._cond.notify_all()
         finally:
             stream.close()
@@ -253,6 +255,23 @@ class Supervisor:
         except subprocess.TimeoutExpired:
             raise TimeoutError(f'child {name!r} closed its output without printing {text!r}') from None
         raise ChildExited(name, child.returncode, _final_tail(child))
+
+    def stacks(self, name: str, timeout: float = STACKS_WAIT) -> list[str]:
+        """Every thread's stack of child `name`, the child going on: contract.STACKS_SIGNAL to
+        the processes of its group that catch it, then the lines it printed until `timeout`
+        passes with no new line ([] when none catches it or it printed nothing). For a
+        failure's report: what a node that stopped answering is doing."""
+        child = self.children[name]
+        with child._cond:
+            first = child._count
+        if not _signal_catchers(child.pid, contract.STACKS_SIGNAL):
+            return []
+        with child._cond:
+            seen = first
+            while child._cond.wait_for(lambda: child._count > seen or child._eof, timeout) and not child._eof:
+                seen = child._count
+            new = child._count - first
+            return list(child._lines)[-new:] if new else []
 
     def wait(self, name: str, timeout: float | None = None) -> int:
         """Wait for child ``name`` to end by itself and return its exit code (for children

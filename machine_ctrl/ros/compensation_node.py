@@ -9,8 +9,9 @@ Parameters: `machine`, `model` (required: error model YAML, e.g. from machine-ct
 fit-errors --out), `enabled` (live: on/off from the next chunk, ramped, see stream.py),
 `input_topic`, `output_topic`. The service /compensation/enable (std_srvs/SetBool) sets
 `enabled`, so parameter, service and the status agree. A malformed chunk is refused (reason on /diagnostics and the log), nothing is
-forwarded for it and the node keeps running. /diagnostics (1 Hz wall): enabled, chunks,
-refused chunks, rows stopped by the iteration cap, largest predicted residual. While it runs
+forwarded for it and the node keeps running. /diagnostics (1 Hz wall): enabled, chunks, the
+writers its input reader is matched with (none: the trajectory node is gone or not yet
+discovered), refused chunks, rows stopped by the iteration cap, largest predicted residual. While it runs
 it publishes compensation/ready (std_msgs/Bool, latched, with a liveliness lease), which the
 trajectory node watches.
 """
@@ -55,8 +56,8 @@ class CompensationNode(Node):
         self.pub_ready.publish(Bool(data=True))
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS.name,
                                               ros_io.qos(contract.DIAGNOSTICS.qos))
-        subscribe_reference(self, input_topic, self.clock, self.machine.axis_names, self.on_chunk,
-                            lambda reason: self.rejections.add('reference chunk', reason))
+        self.sub = subscribe_reference(self, input_topic, self.clock, self.machine.axis_names, self.on_chunk,
+                                       lambda reason: self.rejections.add('reference chunk', reason))
         self.create_service(SetBool, contract.COMPENSATION_ENABLE.name, self.on_enable)
         wall_timer(self, 1.0, self.publish_diagnostics)
         self.get_logger().info(f'ready: {input_topic} -> {output_topic}, model {model}, '
@@ -80,7 +81,8 @@ class CompensationNode(Node):
     def publish_diagnostics(self) -> None:
         s = self.stream
         problems = self.rejections.count or s.capped_rows
-        values = {'enabled': s.enabled, 'chunks': s.chunks, 'rejected_chunks': self.rejections.count,
+        values = {'enabled': s.enabled, 'chunks': s.chunks, 'input_writers': self.sub.get_publisher_count(),
+                  'rejected_chunks': self.rejections.count,
                   'last_rejection': self.rejections.last, 'capped_rows': s.capped_rows,
                   'max_predicted_residual_m': s.max_residual}
         self.pub_diag.publish(ros_io.diagnostics(
