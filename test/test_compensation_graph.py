@@ -8,9 +8,12 @@ import numpy as np
 from compensation.compensate import Compensator
 from compensation.error_map import load_error_map
 from compensation.stream import CompensationStream
-from machine_ctrl import contract
+from machine_ctrl import contract, parameters
 from machine_ctrl.ros.graph import NodeSpec
 from trajectory.contours import contour_reference
+
+CHUNK = parameters.REFERENCE.spec('chunk_steps').default            # the reference node's rows per chunk
+LOOKAHEAD = parameters.REFERENCE.spec('lookahead_steps').default    # and how far it streams ahead
 
 
 def _spin_until(executor, condition, timeout, supervisor, action=None):
@@ -63,19 +66,19 @@ def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
         msg.points = [JointTrajectoryPoint(positions=[float('nan')] * 9)]
         bad.publish(msg)                                          # refused, the node keeps running
         ros_supervisor.start('reference', reference.argv() + ['-r', '/reference:=/trajectory/reference'])
-        _spin_until(executor, lambda: len(chunks) >= 6, 60, ros_supervisor)
-        # the reference node streams 6 chunks (its lookahead) until /clock moves: the node's
-        # status once it has taken them all and refused the bad one
-        _spin_until(executor, lambda: status.get('chunks') == '6' and status.get('rejected_chunks') == '1',
-                    60, ros_supervisor)
+        _spin_until(executor, lambda: len(chunks) >= LOOKAHEAD // CHUNK, 60, ros_supervisor)
+        # the reference node streams its lookahead until /clock moves: the node's status once it
+        # has taken all of those chunks and refused the bad one
+        _spin_until(executor, lambda: status.get('chunks') == str(LOOKAHEAD // CHUNK)
+                    and status.get('rejected_chunks') == '1', 60, ros_supervisor)
         assert status['last_rejection'] == 'reference chunk: point 0 positions holds NaN or inf', status
-        assert firsts == [0, 500, 1000, 1500, 2000, 2500]            # nothing was forwarded for it
+        assert firsts == list(range(0, LOOKAHEAD, CHUNK))            # nothing was forwarded for it
 
         ref = contour_reference(micromill, 'circle')
         stream = CompensationStream(Compensator.from_map(micromill, load_error_map(model, micromill.axis_names)),
                                     micromill.control_period)
-        for first in range(0, 3000, 500):
-            rows = [ref.row(k) for k in range(first, first + 500)]
+        for first in range(0, LOOKAHEAD, CHUNK):
+            rows = [ref.row(k) for k in range(first, first + CHUNK)]
             want = stream.transform(first, *(np.array(x) for x in zip(*rows)))
             for got, expected in zip(chunks[first], want[:3]):
                 assert (got == expected).all(), first                 # bit-identical to the core
@@ -87,10 +90,11 @@ def test_compensation_node_in_the_graph(micromill, ros_node, ros_supervisor):
         future = enable.call_async(SetBool.Request(data=False))
         _spin_until(executor, future.done, 10, ros_supervisor)
         assert future.result().success
-        tick = Clock(clock=ros_io.StepClock(micromill.control_period).stamp(3000))
-        _spin_until(executor, lambda: 5500 in chunks, 60, ros_supervisor, lambda: clock.publish(tick))
-        for first in (4500, 5000, 5500):                           # after the 1000-step ramp: the input
-            rows = [ref.row(k) for k in range(first, first + 500)]
+        tick = Clock(clock=ros_io.StepClock(micromill.control_period).stamp(LOOKAHEAD))
+        last = 2 * LOOKAHEAD - CHUNK                               # the lookahead from the tick on
+        _spin_until(executor, lambda: last in chunks, 60, ros_supervisor, lambda: clock.publish(tick))
+        for first in range(LOOKAHEAD + 1500, last + 1, CHUNK):     # after the 1000-step ramp: the input
+            rows = [ref.row(k) for k in range(first, first + CHUNK)]
             assert (chunks[first][0] == np.array([r[0] for r in rows])).all()
         assert ros_supervisor['compensation'].running()
     finally:

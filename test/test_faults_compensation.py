@@ -5,6 +5,7 @@ fault), the trajectory node aborts the goal naming it and refuses goals until it
 continued (SIGCONT) or started again, a new goal succeeds. Real nodes over real DDS, each in
 its own process (the graph of test_faults.py with compensation in the chain)."""
 import signal
+import time
 
 import numpy as np
 import pytest
@@ -74,6 +75,14 @@ def test_a_stopped_or_killed_compensation_aborts_the_goal_naming_it_the_servos_h
         stayed where the servos held, with no goal (0.5 s of sim time after the return): every
         axis within its noise-driven jitter at rest; and a new goal succeeds."""
         client.wait(lambda: client.status().get('reference_lost') == '', 'the compensation node back', GUARD,
+                    graph.check)
+        # it forwards again: its chunk count grows after a first report from after the return, from the
+        # one writer its input reader is matched with (a deaf one: README "Faults", shared memory)
+        returned = time.monotonic()
+        client.wait(lambda: client.heard.get('compensation', 0) > returned, 'a compensation report', GUARD, graph.check)
+        chunks = int(client.diag('compensation', 'chunks'))
+        client.wait(lambda: int(client.diag('compensation', 'chunks')) > chunks
+                    and client.diag('compensation', 'input_writers') == '1', 'compensation forwarding', GUARD,
                     graph.check)
         step = int(client.diag('hw_sim', 'step') or 0) + round(0.5 / micromill.control_period)
         client.wait(lambda: int(client.diag('hw_sim', 'step') or 0) > step, '0.5 s of sim time', GUARD, graph.check)
