@@ -67,9 +67,11 @@ def test_a_stopped_or_killed_compensation_aborts_the_goal_naming_it_the_servos_h
         refused, _ = slow_goal(client, distance=-0.5e-3, seconds=0.0)
         _, state, reason = client.wait_goal(refused, TERMINAL, graph.check)
         assert (state, reason) == ('aborted', f'joint goal: {lost}')      # refused while it is lost
-        return client.truth.copy()                  # where the servos hold
+        # where the servos hold, and the step each follower's stream broke at (for a failure's
+        # report: the return holds the row before the break only when they agree)
+        return client.truth.copy(), {node: client.diag(node, 'reference_broken_step') for node in FOLLOWERS}
 
-    def back(held):
+    def back(held, breaks):
         """Goals accepted again; the servos took the stream up again (rows that were on their
         way before the break were refused: model/reference.py ReferenceBuffer); the machine has
         stayed where the servos held, with no goal (0.5 s of sim time after the return): every
@@ -87,7 +89,7 @@ def test_a_stopped_or_killed_compensation_aborts_the_goal_naming_it_the_servos_h
         step = int(client.diag('hw_sim', 'step') or 0) + round(0.5 / micromill.control_period)
         client.wait(lambda: int(client.diag('hw_sim', 'step') or 0) > step, '0.5 s of sim time', GUARD, graph.check)
         moved = np.abs(client.truth - held)
-        assert moved[~rotary].max() < LINEAR_STILL and moved[rotary].max() < ROTARY_STILL, moved   # none moved
+        assert moved[~rotary].max() < LINEAR_STILL and moved[rotary].max() < ROTARY_STILL, (moved, breaks)  # none moved
         for node in FOLLOWERS:              # a report of a step after the return: following again
             client.wait(lambda n=node: int(client.diag(n, 'answered_step', '0') or 0) > step
                         and client.diag(n, 'reference_broken_step', '?') == '', f'{node} following again',
@@ -98,16 +100,16 @@ def test_a_stopped_or_killed_compensation_aborts_the_goal_naming_it_the_servos_h
         client.wait(lambda: abs(client.truth[x] - target) < 1e-6, 'x_c at the new goal', GUARD, graph.check)
 
     # stopped: its liveliness lease runs out (the abort waits for that: no time is assumed)
-    held = lost_under_way(lambda: graph['compensation'].signal_group(signal.SIGSTOP))
+    held, breaks = lost_under_way(lambda: graph['compensation'].signal_group(signal.SIGSTOP))
     graph['compensation'].signal_group(signal.SIGCONT)
-    back(held)                                          # its liveliness asserted again: goals accepted
+    back(held, breaks)                                  # its liveliness asserted again: goals accepted
 
     def kill():
         graph['compensation'].stopping = True
         graph['compensation'].signal_group(signal.SIGKILL)
         assert graph.wait('compensation', GUARD) == -signal.SIGKILL
-    held = lost_under_way(kill)
+    held, breaks = lost_under_way(kill)
     graph.start('compensation', specs(micromill)['compensation'].argv())
     graph.wait_for_line('compensation', 'ready', GUARD)
-    back(held)
+    back(held, breaks)
     graph.check()
