@@ -377,7 +377,6 @@ class Session:
     def _broken_reason(who: str, broke: int) -> str:
         return f'{who}: its reference broke at step {broke} while moving (the rows came too late); it holds there'
 
-
     def _rejoin(self, who: str, broke: int) -> None:
         """Take the stream up again where the machine stands after `who`'s reference broke at
         step `broke`: nothing streamed and goals refused until a machine state comes
